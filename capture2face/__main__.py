@@ -1,0 +1,3 @@
+from capture2face.cli import main
+
+raise SystemExit(main())

