@@ -1,0 +1,291 @@
+"""Smooth random performances of a ``FaceRig``: bones, morph weights, head pose, light.
+
+Pure functions over arrays. A performance is built from keyframes a random 0.5-1.5 s
+apart, each a random mixture of the rig's reference poses plus small per-bone offsets,
+a few morph weights, a head orientation and a light direction. Keys are interpolated
+with a monotone cubic (PCHIP): C1-smooth, exact at the keys and never overshooting, so
+angles stay inside their limits, weights inside [0, 1], and a key repeated over a few
+frames (a *hold*) is reproduced exactly on every one of them. Three holds are always
+present when ``expression=True``: neutral at the very start (so a tracker's automatic
+neutral-frame search finds it), then the "stretch" and the "compress" reference poses.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import PchipInterpolator
+
+from capture2face.errors import CaptureError
+from capture2face.render.camera import FRAMING_FILL, face_centre_and_height
+from capture2face.rig.face_rig import FaceRig
+
+# MediaPipe's geometry pipeline assumes this vertical field of view (degrees) for its
+# facial transformation matrix; rendering with it makes the tracker's head pose comparable.
+DEFAULT_FOV_Y = 63.0
+
+YAW_LIMIT, PITCH_LIMIT, ROLL_LIMIT = 20.0, 20.0, 10.0  # degrees
+TRANSLATION_LIMIT = 0.06  # of the face height, per axis
+HOLD_SECONDS = 0.15  # how long neutral and each reference pose are held
+
+# key_pose labels (per frame): no key / neutral / reference pose p is KEY_POSE0 + p.
+KEY_FREE, KEY_NEUTRAL, KEY_POSE0 = -1, 0, 1
+
+
+@dataclass
+class Performance:
+    """A synthetic performance. F frames, B bones, M morphs.
+
+    Attributes:
+        times: (F,) float64 seconds, frame f at f / fps.
+        fps: frame rate.
+        fov_y: vertical field of view (degrees) ``head_pose`` was framed for.
+        bone_positions: (F, B, 3) float32 bone positions, head coordinates (cm).
+        blend_weights: (F, M) float32 morph weights in [0, 1], ``rig.morph_names`` order.
+        head_angles: (F, 3) float32 yaw, pitch, roll in degrees (about head y, x, z).
+        head_offset: (F, 3) float32 translation (cm, camera axes) added to the framing.
+        head_pose: (F, 4, 4) float32 head -> camera transform (cm, OpenGL camera).
+        light_direction: (F, 3) float32 unit vector towards the light, camera coordinates.
+        key_pose: (F,) int8 ``KEY_NEUTRAL`` on frames held exactly at neutral,
+            ``KEY_POSE0 + p`` on frames held exactly at reference pose p, else ``KEY_FREE``.
+        exiting: (F,) bool, frames where the head is moved out of frame (``face_exit``).
+    """
+
+    times: np.ndarray
+    fps: float
+    fov_y: float
+    bone_positions: np.ndarray
+    blend_weights: np.ndarray
+    head_angles: np.ndarray
+    head_offset: np.ndarray
+    head_pose: np.ndarray
+    light_direction: np.ndarray
+    key_pose: np.ndarray
+    exiting: np.ndarray
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.times.shape[0])
+
+
+# ---- head pose ------------------------------------------------------------------------
+
+def rotation_ypr(angles_deg: np.ndarray) -> np.ndarray:
+    """(..., 3) yaw, pitch, roll in degrees -> (..., 3, 3) rotations, the vectorized form
+    of ``render.camera.rotation_matrix``: ``Rz(roll) @ Ry(yaw) @ Rx(pitch)``."""
+    y, p, r = np.moveaxis(np.radians(np.asarray(angles_deg, np.float64)), -1, 0)
+    cy, sy, cp, sp, cr, sr = np.cos(y), np.sin(y), np.cos(p), np.sin(p), np.cos(r), np.sin(r)
+    one, zero = np.ones_like(y), np.zeros_like(y)
+
+    def mat(*rows):
+        return np.stack([np.stack(row, -1) for row in rows], -2)
+
+    rx = mat((one, zero, zero), (zero, cp, sp), (zero, -sp, cp))
+    ry = mat((cy, zero, sy), (zero, one, zero), (-sy, zero, cy))
+    rz = mat((cr, -sr, zero), (sr, cr, zero), (zero, zero, one))
+    return rz @ ry @ rx
+
+
+def framing_distance(rig: FaceRig, fov_y: float = DEFAULT_FOV_Y) -> float:
+    """Camera distance (cm, to the face's centre) of ``render.camera.framing_pose``."""
+    _, height = face_centre_and_height(rig)
+    return float(height / (2.0 * FRAMING_FILL * np.tan(np.radians(fov_y) / 2.0)))
+
+
+def head_poses(rig: FaceRig, angles_deg: np.ndarray, offset: np.ndarray, fov_y: float = DEFAULT_FOV_Y) -> np.ndarray:
+    """``render.camera.framing_pose`` for each frame's angles, translated by ``offset``.
+
+    Args:
+        angles_deg: (F, 3) yaw, pitch, roll.
+        offset: (F, 3) cm, camera axes.
+    Returns:
+        (F, 4, 4) float32 head -> camera transforms.
+    """
+    centre, _ = face_centre_and_height(rig)
+    rot = rotation_ypr(angles_deg)  # (F, 3, 3)
+    target = np.array([0.0, 0.0, -framing_distance(rig, fov_y)]) + np.asarray(offset, np.float64)
+    pose = np.zeros((len(rot), 4, 4))
+    pose[:, :3, :3] = rot
+    pose[:, :3, 3] = target - rot @ centre
+    pose[:, 3, 3] = 1.0
+    return pose.astype(np.float32)
+
+
+# ---- keyframes ------------------------------------------------------------------------
+
+def _key_frames(frames: int, fps: float, rng: np.random.Generator, hold: int, n_holds: int) -> np.ndarray:
+    """Frame indices of the free keys: 0 first, frames - 1 last, 0.5-1.5 s apart on
+    average, with room reserved for ``n_holds`` holds of ``hold`` frames."""
+    span = frames - 1 - n_holds * (hold - 1)
+    n_seg = max(n_holds + 1, int(round(span / fps)))
+    steps = rng.uniform(0.5, 1.5, n_seg)
+    return np.round(np.concatenate([[0.0], np.cumsum(steps)]) / steps.sum() * span).astype(int)
+
+
+def _mixture(rng: np.random.Generator) -> tuple[float, float]:
+    """Amounts (a, b) of the stretch and compress poses; one dominates, never both large."""
+    major, minor = rng.uniform(0.15, 0.95), rng.uniform(0.0, 0.25)
+    if rng.random() < 0.2:  # some keys near neutral
+        major *= 0.3
+    minor *= 1.0 - major
+    return (major, minor) if rng.random() < 0.5 else (minor, major)
+
+
+def random_performance(
+    rig: FaceRig,
+    frames: int,
+    seed: int = 0,
+    fps: float = 30.0,
+    head_motion: bool = True,
+    expression: bool = True,
+    face_exit: bool = False,
+    fov_y: float = DEFAULT_FOV_Y,
+    aspect: float = 1.0,
+) -> Performance:
+    """A smooth random performance of ``frames`` frames, deterministic for ``seed``.
+
+    ``expression=False`` keeps one mild, non-neutral expression throughout (head motion
+    only); ``head_motion=False`` keeps the head frontal and centred. ``face_exit=True``
+    slides the head out of the frame sideways for about one second mid-clip.
+    ``aspect`` (width / height) sizes the sideways exit.
+    """
+    if frames < 2:
+        raise CaptureError(f"a synthetic performance needs at least 2 frames (got {frames})")
+    rng = np.random.default_rng(seed)
+    hold = max(2, int(round(HOLD_SECONDS * fps)))
+    n_poses = len(rig.pose_names)
+    if expression and frames < (n_poses + 1) * (hold + 4):
+        raise CaptureError(
+            f"{frames} frames are too few to pass through neutral and {n_poses} reference poses"
+        )
+
+    B, M = rig.n_bones, rig.n_morphs
+    rest = rig.bone_rest.astype(np.float64)
+    travel = rig.pose_bones.astype(np.float64) - rest  # (P, B, 3)
+    scale = float(np.linalg.norm(travel, axis=-1).max()) or 0.1 * rig.interocular()
+    si, ci = rig.pose_index("stretch"), rig.pose_index("compress")
+
+    keys = _key_frames(frames, fps, rng, hold, n_poses + 1 if expression else 0)
+    K = len(keys)
+    # Random state at every key: pose mixture, per-bone offsets, sparse morphs, head, light.
+    ab = np.array([_mixture(rng) for _ in range(K)])  # (K, 2)
+    offsets = rng.normal(0.0, 0.06 * scale, (K, B, 3))
+    offsets[:, 0] = 0.0  # the root never moves in head coordinates
+    morphs = np.zeros((K, M))
+    for k in range(K):
+        chosen = rng.choice(M, size=min(M, rng.integers(0, 4)), replace=False)
+        morphs[k, chosen] = rng.uniform(0.1, 0.7, len(chosen))
+    angles = rng.uniform(-1.0, 1.0, (K, 3)) * [YAW_LIMIT, PITCH_LIMIT, ROLL_LIMIT]
+    _, height = face_centre_and_height(rig)
+    offset = rng.uniform(-1.0, 1.0, (K, 3)) * TRANSLATION_LIMIT * height
+    light = _random_lights(rng, K)
+
+    bones = rest + ab[:, :1, None] * travel[si] + ab[:, 1:, None] * travel[ci] + offsets
+    weights = np.clip(morphs + ab[:, :1] * rig.pose_morph_weights[si] + ab[:, 1:] * rig.pose_morph_weights[ci], 0, 1)
+    label = np.full(K, KEY_FREE)
+    if not head_motion:
+        angles[:] = 0.0
+        offset[:] = 0.0
+    angles[0] *= 0.3  # start near frontal so the tracker locks on at once
+
+    if not expression:  # one mild expression, held throughout
+        bones[:] = rest + 0.35 * travel[si] + 0.15 * travel[ci] + 0.5 * offsets[K // 2]
+        weights[:] = np.clip(0.35 * rig.pose_morph_weights[si] + 0.15 * rig.pose_morph_weights[ci]
+                             + 0.5 * morphs[K // 2], 0, 1)
+    else:
+        # Neutral on key 0, the reference poses on the free keys nearest evenly spread
+        # fractions of the clip (clear of the face-exit window in the middle).
+        fractions = np.linspace(0.2, 0.85, n_poses) if n_poses > 1 else np.array([0.3])
+        slots = [0]
+        for fr in fractions:  # interior keys only; there are at least n_poses + 1
+            order = np.argsort(np.abs(keys[1:-1] - fr * keys[-1])) + 1
+            slots.append(int(next(i for i in order if i not in slots)))
+        for p, k in enumerate(slots):
+            if p == 0:
+                bones[k], weights[k], label[k] = rest, 0.0, KEY_NEUTRAL
+            else:
+                bones[k] = rig.pose_bones[p - 1]
+                weights[k] = rig.pose_morph_weights[p - 1]
+                label[k] = KEY_POSE0 + p - 1
+        # Hold each of these keys: duplicate it ``hold - 1`` frames later and shift the rest.
+        dup = np.where(label != KEY_FREE, hold - 1, 0)
+        keys = keys + np.concatenate([[0], np.cumsum(dup)[:-1]])
+        rep = np.where(label != KEY_FREE, 2, 1)
+        end_keys = keys + dup
+        keys = np.stack([keys, end_keys], 1)[np.arange(2)[None] < rep[:, None]]
+        bones, weights, ab = (np.repeat(x, rep, 0) for x in (bones, weights, ab))
+        angles, offset, light, label = (np.repeat(x, rep, 0) for x in (angles, offset, light, label))
+        keys[-1] = frames - 1  # absorb rounding
+
+    f = np.arange(frames, dtype=np.float64)
+
+    def interp(values: np.ndarray) -> np.ndarray:
+        flat = values.reshape(len(values), -1)
+        return PchipInterpolator(keys, flat, axis=0)(f).reshape((frames,) + values.shape[1:])
+
+    bone_f = interp(bones)
+    weight_f = np.clip(interp(weights), 0.0, 1.0)
+    angle_f = interp(angles)
+    offset_f = interp(offset)
+    light_f = interp(light)
+    light_f /= np.linalg.norm(light_f, axis=1, keepdims=True)
+
+    # Exact values on held frames (interpolation is exact there up to rounding).
+    key_pose = np.full(frames, KEY_FREE, np.int8)
+    for i in range(0, len(keys) - 1):
+        if label[i] != KEY_FREE and label[i + 1] == label[i]:
+            span = slice(keys[i], keys[i + 1] + 1)
+            key_pose[span] = label[i]
+            bone_f[span], weight_f[span] = bones[i], weights[i]
+
+    exiting = np.zeros(frames, bool)
+    if face_exit:
+        offset_f, exiting = _face_exit(rig, offset_f, fps, fov_y, aspect)
+    return Performance(
+        times=f / fps,
+        fps=float(fps),
+        fov_y=float(fov_y),
+        bone_positions=bone_f.astype(np.float32),
+        blend_weights=weight_f.astype(np.float32),
+        head_angles=angle_f.astype(np.float32),
+        head_offset=offset_f.astype(np.float32),
+        head_pose=head_poses(rig, angle_f, offset_f, fov_y),
+        light_direction=light_f.astype(np.float32),
+        key_pose=key_pose,
+        exiting=exiting,
+    )
+
+
+def _random_lights(rng: np.random.Generator, n: int) -> np.ndarray:
+    """(n, 3) unit directions towards a key light in front of the face: from above and
+    to either side, never grazing (a tracker needs the face lit)."""
+    azimuth = np.radians(rng.uniform(-40.0, 40.0, n))
+    elevation = np.radians(rng.uniform(5.0, 40.0, n))
+    return np.stack([np.sin(azimuth) * np.cos(elevation), np.sin(elevation),
+                     np.cos(azimuth) * np.cos(elevation)], 1)
+
+
+def _face_exit(rig: FaceRig, offset: np.ndarray, fps: float, fov_y: float, aspect: float):
+    """Slide the head sideways out of the frame for ~1 s in the middle of the clip.
+
+    Returns the new (F, 3) offsets and the (F,) frames where the head is (partly) out.
+    """
+    frames = len(offset)
+    out_len, ramp = int(round(fps)), max(2, int(round(0.2 * fps)))
+    if frames < out_len + 2 * ramp + 2 * int(round(0.5 * fps)):
+        raise CaptureError(f"{frames} frames are too few for the face to leave the frame and come back")
+    start = frames // 2 - out_len // 2
+    # Far enough that the whole face is outside the horizontal field of view.
+    _, height = face_centre_and_height(rig)
+    half_width = framing_distance(rig, fov_y) * np.tan(np.radians(fov_y) / 2) * aspect
+    shift = half_width + height  # the face is narrower than it is tall
+    f = np.arange(frames)
+    # Smoothstep ramps in and out.
+    up = np.clip((f - (start - ramp)) / ramp, 0, 1)
+    down = np.clip(((start + out_len + ramp) - f) / ramp, 0, 1)
+    s = np.minimum(up, down)
+    s = s * s * (3 - 2 * s)
+    out = offset.copy()
+    out[:, 0] += shift * s
+    return out, s > 0
