@@ -1,0 +1,265 @@
+"""The one video decoder every stage uses: PyAV (FFmpeg), frames streamed as RGB arrays.
+
+Anything FFmpeg reads works (mp4, mov, mkv, avi, webm; H.264, HEVC, VP9, MJPEG, ...).
+
+* **Timestamps** are the true presentation times, ``(pts - stream start) * time_base``, so
+  variable-frame-rate clips (phones) keep their timing; the first frame of a normal clip
+  is at 0.0. A frame without a pts gets the previous time plus one nominal frame period;
+  times are forced to increase strictly (broken muxers sometimes repeat a pts).
+* **Rotation**: phone clips store a display matrix (side data; the old ``rotate`` tag on
+  older FFmpeg builds). Frames are rotated with ``np.rot90`` the way FFmpeg's own
+  autorotation shows them, so width/height in :class:`VideoInfo` are the displayed size.
+* **Damaged files**: a file FFmpeg cannot open, one with no video stream, or one where no
+  frame decodes raises :class:`CaptureError`. When decoding fails part way (a truncated
+  download), the frames before the damage are kept and a warning is logged on the
+  ``capture2face`` logger naming how many frames were decoded: losing a clip's tail is
+  better than losing the clip, and the warning says it happened.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from dataclasses import dataclass
+from fractions import Fraction
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from capture2face.errors import CaptureError
+
+log = logging.getLogger("capture2face")
+
+DEFAULT_FPS = 30.0
+
+
+@dataclass(frozen=True)
+class VideoInfo:
+    """What a clip is, as displayed.
+
+    Attributes:
+        path: the file.
+        width, height: displayed frame size in pixels (after rotation).
+        fps: nominal frame rate (average rate; 30 when the container does not say).
+        n_frames: frame count from the container, else duration * fps (an estimate:
+            variable-frame-rate and damaged files may decode more or fewer).
+        duration: seconds.
+        rotation: counter-clockwise degrees applied to decoded frames (0, 90, 180, 270).
+        codec: decoder name, e.g. "h264".
+    """
+
+    path: str
+    width: int
+    height: int
+    fps: float
+    n_frames: int
+    duration: float
+    rotation: int
+    codec: str
+
+
+def _check_path(path: str | os.PathLike) -> Path:
+    p = Path(path)
+    if not p.exists():
+        raise CaptureError(f"{p}: no such file")
+    if p.is_dir():
+        raise CaptureError(f"{p}: is a directory, not a video file")
+    if p.stat().st_size == 0:
+        raise CaptureError(f"{p}: the file is empty (0 bytes)")
+    return p
+
+
+def _open(p: Path):
+    """Open the container and pick its video stream, with one-line errors."""
+    import av
+
+    try:
+        container = av.open(str(p))
+    except av.FFmpegError as exc:
+        raise CaptureError(f"{p}: not a video FFmpeg can read ({_reason(exc)})") from None
+    if not container.streams.video:
+        kinds = sorted({s.type for s in container.streams})
+        container.close()
+        if not kinds:
+            raise CaptureError(f"{p}: no streams found; the file is truncated or not a video")
+        raise CaptureError(f"{p}: has no video stream (found {', '.join(kinds)} streams only)")
+    stream = container.streams.video[0]
+    stream.thread_type = "AUTO"  # frame + slice threads inside FFmpeg
+    return container, stream
+
+
+def _reason(exc: Exception) -> str:
+    text = getattr(exc, "strerror", None) or str(exc)
+    return text.strip().rstrip(".") or exc.__class__.__name__
+
+
+def _rotation_of(frame, stream) -> int:
+    """Counter-clockwise display rotation in degrees, a multiple of 90."""
+    deg = getattr(frame, "rotation", None)  # display-matrix side data (PyAV >= 14)
+    if not deg:
+        tag = stream.metadata.get("rotate")  # older FFmpeg: clockwise degrees
+        deg = -float(tag) if tag else 0
+    return int(round(float(deg) / 90.0)) * 90 % 360
+
+
+def _fps_of(stream) -> float:
+    for rate in (stream.average_rate, stream.guessed_rate, stream.base_rate):
+        if rate and float(rate) > 0 and float(rate) < 1000:
+            return float(rate)
+    return DEFAULT_FPS
+
+
+def _to_rgb(frame, rotation: int) -> np.ndarray:
+    rgb = frame.to_ndarray(format="rgb24")
+    if rotation:
+        rgb = np.ascontiguousarray(np.rot90(rgb, k=rotation // 90))
+    return rgb
+
+
+def open_video(path: str | os.PathLike) -> VideoInfo:
+    """Probe a clip (decodes its first frame to learn the rotation and prove it decodes).
+
+    Raises:
+        CaptureError: missing path, a directory, an empty file, not a video, no video
+            stream (audio only), or no decodable frame.
+    """
+    p = _check_path(path)
+    container, stream = _open(p)
+    try:
+        first = None
+        try:
+            for first in container.decode(stream):
+                break
+        except Exception as exc:  # av.FFmpegError and friends: damaged data
+            raise CaptureError(f"{p}: no video frame could be decoded ({_reason(exc)}); "
+                               "the file is truncated or corrupt") from None
+        if first is None:
+            raise CaptureError(f"{p}: the video stream has no frames")
+        fps = _fps_of(stream)
+        if stream.duration is not None and stream.time_base is not None:
+            duration = float(stream.duration * stream.time_base)
+        elif container.duration is not None:
+            duration = container.duration / 1e6
+        else:
+            duration = 0.0
+        n_frames = int(stream.frames) if stream.frames else max(1, int(round(duration * fps)))
+        rotation = _rotation_of(first, stream)
+        w, h = first.width, first.height
+        if rotation in (90, 270):
+            w, h = h, w
+        return VideoInfo(
+            path=str(p), width=int(w), height=int(h), fps=fps, n_frames=n_frames,
+            duration=duration, rotation=rotation, codec=stream.codec_context.name,
+        )
+    finally:
+        container.close()
+
+
+def iter_frames(path: str | os.PathLike, max_frames: int | None = None,
+                rotate: bool = True) -> Iterator[tuple[float, np.ndarray]]:
+    """Stream ``(t_seconds, rgb)`` pairs; ``rgb`` is (H, W, 3) uint8, displayed orientation.
+
+    Args:
+        max_frames: stop after this many frames (None: all).
+        rotate: apply the rotation metadata (True) or yield frames as coded.
+
+    Raises:
+        CaptureError: as :func:`open_video`; also when no frame decodes at all. A failure
+            after some frames ends the stream with a logged warning (see module doc).
+    """
+    p = _check_path(path)
+    container, stream = _open(p)
+    try:
+        fps = _fps_of(stream)
+        tb = stream.time_base or Fraction(1, 90000)
+        start = stream.start_time
+        rotation = None
+        prev_t = None
+        count = 0
+        decoder = container.decode(stream)
+        while max_frames is None or count < max_frames:
+            try:
+                frame = next(decoder)
+            except StopIteration:
+                break
+            except Exception as exc:  # damaged data past this point
+                if count == 0:
+                    raise CaptureError(f"{p}: no video frame could be decoded ({_reason(exc)}); "
+                                       "the file is truncated or corrupt") from None
+                log.warning("%s: decoding stopped after %d frames (%s); the rest of the file "
+                            "is damaged or truncated and is ignored", p, count, _reason(exc))
+                break
+            if rotation is None:
+                rotation = _rotation_of(frame, stream) if rotate else 0
+            if frame.pts is not None:
+                t = float((frame.pts - (start or 0)) * tb)
+            else:
+                t = prev_t + 1.0 / fps if prev_t is not None else 0.0
+            if prev_t is not None and t <= prev_t:
+                t = prev_t + 1e-6  # repeated or backwards pts: keep time strictly increasing
+            prev_t = t
+            count += 1
+            yield t, _to_rgb(frame, rotation)
+        if count == 0:
+            raise CaptureError(f"{p}: the video stream has no frames")
+        expected = int(stream.frames or 0)
+        if max_frames is None and expected and count < expected * 0.98 - 1:
+            log.warning("%s: decoded %d of the %d frames the container lists; the file is "
+                        "probably truncated", p, count, expected)
+    finally:
+        container.close()
+
+
+def prefetch(iterable, depth: int = 8):
+    """Run ``iterable`` (e.g. :func:`iter_frames`) in a background thread, ``depth`` items ahead.
+
+    FFmpeg decodes and converts with the GIL released, so decoding overlaps the consumer's
+    work (tracking, rendering). Exceptions are re-raised in the consumer; closing the
+    returned generator stops the thread.
+    """
+    import queue
+    import threading
+
+    q: queue.Queue = queue.Queue(maxsize=max(1, depth))
+    stop = threading.Event()
+    done = object()
+
+    def worker():
+        try:
+            for item in iterable:
+                while not stop.is_set():
+                    try:
+                        q.put((item, None), timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if stop.is_set():
+                    break
+        except BaseException as exc:  # handed to the consumer
+            q.put((done, exc))
+            return
+        finally:
+            close = getattr(iterable, "close", None)
+            if stop.is_set() and close is not None:
+                close()
+        q.put((done, None))
+
+    thread = threading.Thread(target=worker, name="capture2face-decode", daemon=True)
+    thread.start()
+    try:
+        while True:
+            item, exc = q.get()
+            if item is done:
+                if exc is not None:
+                    raise exc
+                return
+            yield item
+    finally:
+        stop.set()
+        while thread.is_alive():  # drain so a blocked put can see the stop flag
+            try:
+                q.get(timeout=0.1)
+            except queue.Empty:
+                pass
+        thread.join()
