@@ -1,0 +1,96 @@
+"""Camera maths shared by the rasterizer and the synthetic ground truth.
+
+OpenGL convention (docs/ARCHITECTURE.md): camera at the origin looking down -z, +y up;
+a head pose is a (4, 4) head -> camera transform in cm. Pixels: x right, y down, origin at
+the top-left corner of the top-left pixel, pixel centres at +0.5. ``project`` is exactly
+what the rasterizer does with a vertex, so landmarks projected here land on the pixels
+the renderer draws them at.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from capture2face.rig.face_rig import FaceRig
+
+# Fraction of the frame height the face's skin fills in ``framing_pose``.
+FRAMING_FILL = 0.6
+
+
+def _size(size) -> tuple[int, int]:
+    """``int`` or ``(width, height)`` -> ``(width, height)``."""
+    if isinstance(size, (int, np.integer)):
+        return int(size), int(size)
+    width, height = size
+    return int(width), int(height)
+
+
+def perspective(fov_y_degrees: float, aspect: float, near: float, far: float) -> np.ndarray:
+    """(4, 4) float64 OpenGL projection matrix (column vectors: clip = P @ camera)."""
+    f = 1.0 / np.tan(np.radians(fov_y_degrees) / 2.0)
+    return np.array(
+        [
+            [f / aspect, 0.0, 0.0, 0.0],
+            [0.0, f, 0.0, 0.0],
+            [0.0, 0.0, (far + near) / (near - far), 2.0 * far * near / (near - far)],
+            [0.0, 0.0, -1.0, 0.0],
+        ]
+    )
+
+
+def project(points_head: np.ndarray, head_pose: np.ndarray, fov_y_degrees: float, size) -> np.ndarray:
+    """Pixel positions of head-coordinate points.
+
+    Args:
+        points_head: (N, 3) or (F, N, 3) points in head coordinates (cm).
+        head_pose: (4, 4) or (F, 4, 4) head -> camera transforms.
+        fov_y_degrees: vertical field of view.
+        size: image ``(width, height)`` or one int for a square image.
+    Returns:
+        (N, 2) or (F, N, 2) float64 pixel coordinates (x right, y down, pixel centres at
+        +0.5). Points behind the camera come out as NaN.
+    """
+    width, height = _size(size)
+    pts = np.asarray(points_head, np.float64)
+    pose = np.asarray(head_pose, np.float64)
+    cam = pts @ np.swapaxes(pose[..., :3, :3], -1, -2) + pose[..., None, :3, 3]
+    f = 1.0 / np.tan(np.radians(fov_y_degrees) / 2.0)
+    depth = -cam[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ndc_x = np.where(depth > 0, f * (height / width) * cam[..., 0] / depth, np.nan)
+        ndc_y = np.where(depth > 0, f * cam[..., 1] / depth, np.nan)
+    return np.stack([(ndc_x + 1.0) * 0.5 * width, (1.0 - ndc_y) * 0.5 * height], axis=-1)
+
+
+def rotation_matrix(yaw: float, pitch: float, roll: float) -> np.ndarray:
+    """(3, 3) head rotation from angles in degrees: ``Rz(roll) @ Ry(yaw) @ Rx(pitch)``.
+
+    Positive yaw turns the face (+z) towards +x (the subject's left, the camera's right
+    when facing it), positive pitch tilts it up towards +y, positive roll turns +x
+    towards +y.
+    """
+    y, p, r = np.radians([yaw, pitch, roll])
+    rx = np.array([[1, 0, 0], [0, np.cos(p), np.sin(p)], [0, -np.sin(p), np.cos(p)]])
+    ry = np.array([[np.cos(y), 0, np.sin(y)], [0, 1, 0], [-np.sin(y), 0, np.cos(y)]])
+    rz = np.array([[np.cos(r), -np.sin(r), 0], [np.sin(r), np.cos(r), 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def face_centre_and_height(rig: FaceRig) -> tuple[np.ndarray, float]:
+    """Centre (3,) of the skin's bounding box and its height (cm)."""
+    skin = rig.vertices[rig.material == 0]
+    lo, hi = skin.min(0).astype(np.float64), skin.max(0).astype(np.float64)
+    return (lo + hi) / 2.0, float(hi[1] - lo[1])
+
+
+def framing_pose(rig: FaceRig, yaw: float = 0.0, pitch: float = 0.0, roll: float = 0.0,
+                 fov_y_degrees: float = 30.0) -> np.ndarray:
+    """(4, 4) head -> camera pose that centres the face and makes its skin fill about 60%
+    of the frame height (angles in degrees, see :func:`rotation_matrix`)."""
+    centre, height = face_centre_and_height(rig)
+    distance = height / (2.0 * FRAMING_FILL * np.tan(np.radians(fov_y_degrees) / 2.0))
+    rot = rotation_matrix(yaw, pitch, roll)
+    pose = np.eye(4)
+    pose[:3, :3] = rot
+    pose[:3, 3] = np.array([0.0, 0.0, -distance]) - rot @ centre
+    return pose

@@ -1,0 +1,386 @@
+"""``Renderer``: a FaceRig drawn by OpenGL with automatic wrinkles.
+
+Per frame only uniforms travel to the GL (bone offsets, active morph weights, per-bone
+pose influences or zone weights, head pose, lights); the mesh, morph deltas and textures
+are uploaded once. The one exception is the ``dynamic`` driver's per-vertex weights,
+which depend on the deformed mesh.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import moderngl
+import numpy as np
+
+from capture2face.errors import CaptureError
+from capture2face.render import camera
+from capture2face.render.context import gl_context
+from capture2face.render.dynamic import dynamic_wrinkle_weights
+from capture2face.render.shaders import program
+from capture2face.rig.face_rig import FaceRig
+
+WRINKLE_DRIVERS = ("auto", "zones", "dynamic", "off")
+NORMAL_BLENDS = ("pd", "oat")
+VIEWS = ("shaded", "influence")
+MAX_MAPS = 4  # wrinkle maps travel as a vec4 per vertex
+MORPH_TEX_WIDTH = 4096
+
+DEFAULT_LIGHT_DIRECTION = (0.45, 0.5, 0.75)  # camera space, towards the key light (upper right, front)
+DEFAULT_LIGHT_COLOR = (1.15, 1.1, 1.05)
+DEFAULT_FILL_COLOR = (0.16, 0.18, 0.22)
+DEFAULT_AMBIENT = (0.10, 0.10, 0.12)
+# Influence view colours by wrinkle-map name (others fall back by slot).
+MAP_COLORS = {"stretch": (0.10, 0.55, 1.00), "compress": (1.00, 0.30, 0.05)}
+SLOT_COLORS = [(0.10, 0.55, 1.00), (1.00, 0.30, 0.05), (0.20, 0.90, 0.20), (0.90, 0.20, 0.90)]
+
+# Texture units.
+_UNIT_ALBEDO, _UNIT_NORMAL, _UNIT_WRINKLE, _UNIT_MASK0, _UNIT_MASK1, _UNIT_MPOS, _UNIT_MNRM = range(7)
+_GL_SRGB8_ALPHA8 = 0x8C43
+
+
+@dataclass
+class RenderOptions:
+    """How to render.
+
+    Attributes:
+        size: output size, one int for a square image or ``(width, height)``.
+        wrinkles: wrinkle driver: ``auto`` (Dutreve bone masks), ``zones`` (Oat/Jimenez
+            mask zones), ``dynamic`` (Oat area change), ``off``.
+        normal_blend: ``pd`` (Jimenez partial derivatives) or ``oat`` (Oat's detail blend).
+        view: ``shaded``, or ``influence`` (each wrinkle map's per-pixel weight as colour).
+        samples: MSAA samples (1 = none).
+        fov_y_degrees: vertical field of view.
+        background: sRGB background colour in [0, 1].
+    """
+
+    size: int | tuple[int, int] = 512
+    wrinkles: str = "auto"
+    normal_blend: str = "pd"
+    view: str = "shaded"
+    samples: int = 4
+    fov_y_degrees: float = 30.0
+    background: tuple = (0.12, 0.12, 0.14)
+
+    @property
+    def width_height(self) -> tuple[int, int]:
+        return camera._size(self.size)
+
+
+@dataclass
+class FrameState:
+    """One frame to draw.
+
+    Attributes:
+        bone_positions: (B, 3) bone positions, head coordinates (cm).
+        blend_weights: (M,) morph weights.
+        head_pose: (4, 4) head -> camera transform (cm).
+        influences: (P, B) per-bone reference-pose influences for the ``auto`` driver;
+            None computes them from ``bone_positions`` (grouped, Dutreve §5.1).
+        zone_weights: (8,) zone weights in [-1, 1] for the ``zones`` driver; None computes
+            them from ``blend_weights`` through the rig's zone table.
+        light_direction: (3,) camera-space direction towards the key light; None = default.
+        light_color: (3,) linear key-light colour; None = default.
+        ambient: (3,) linear ambient colour; None = default.
+    """
+
+    bone_positions: np.ndarray
+    blend_weights: np.ndarray
+    head_pose: np.ndarray
+    influences: np.ndarray | None = None
+    zone_weights: np.ndarray | None = None
+    light_direction: np.ndarray | None = None
+    light_color: np.ndarray | None = None
+    ambient: np.ndarray | None = None
+
+    @classmethod
+    def at_pose(cls, rig: FaceRig, head_pose: np.ndarray, pose: str | None = None) -> "FrameState":
+        """The rest pose (``pose=None``) or reference pose ``pose`` with its morph weights."""
+        if pose is None:
+            return cls(rig.bone_rest.copy(), np.zeros(rig.n_morphs, np.float32), np.asarray(head_pose))
+        k = rig.pose_index(pose)
+        return cls(rig.pose_bones[k].copy(), rig.pose_morph_weights[k].copy(), np.asarray(head_pose))
+
+
+def _check(value: str, allowed: tuple[str, ...], what: str) -> str:
+    if value not in allowed:
+        raise CaptureError(f"unknown {what} '{value}'; choose one of {', '.join(allowed)}")
+    return value
+
+
+def _set(prog: moderngl.Program, name: str, value) -> None:
+    """Set a uniform if the compiled program kept it (unused ones are optimized away)."""
+    uniform = prog.get(name, None)
+    if uniform is None:
+        return
+    if isinstance(value, np.ndarray):
+        uniform.write(np.ascontiguousarray(value).tobytes())
+    else:
+        uniform.value = value
+
+
+def _mat(m: np.ndarray) -> np.ndarray:
+    """Row-major NumPy matrix -> column-major float32 for GL."""
+    return np.asarray(m, np.float32).T
+
+
+class Renderer:
+    """Draws one rig with fixed options; use :meth:`create_from_options` as a context manager."""
+
+    def __init__(self, rig: FaceRig, options: RenderOptions | None = None):
+        options = options or RenderOptions()
+        _check(options.wrinkles, WRINKLE_DRIVERS, "wrinkle driver")
+        _check(options.normal_blend, NORMAL_BLENDS, "normal blend")
+        _check(options.view, VIEWS, "view")
+        self.rig = rig
+        self.options = options
+        self.ctx = gl_context()
+        self._resources: list = []
+        try:
+            self._setup()
+        except BaseException:
+            self.close()
+            raise
+
+    @classmethod
+    def create_from_options(cls, rig: FaceRig, options: RenderOptions | None = None) -> "Renderer":
+        return cls(rig, options)
+
+    # ---- setup --------------------------------------------------------------------
+    def _keep(self, obj):
+        self._resources.append(obj)
+        return obj
+
+    def _setup(self) -> None:
+        rig, opts, ctx = self.rig, self.options, self.ctx
+        n_maps = len(rig.wrinkle_map_names)
+        driver = opts.wrinkles
+        if driver != "off" and n_maps > MAX_MAPS:
+            raise CaptureError(f"rig '{rig.name}' has {n_maps} wrinkle maps; the renderer takes at most {MAX_MAPS}")
+        self._slots = {}
+        if driver in ("zones", "dynamic"):
+            for name in ("stretch", "compress"):
+                if name not in rig.wrinkle_map_names:
+                    raise CaptureError(f"the '{driver}' wrinkle driver needs a '{name}' wrinkle map; rig '{rig.name}' has none")
+                slot = np.zeros(4, np.float32)
+                slot[rig.wrinkle_map_names.index(name)] = 1.0
+                self._slots[name] = slot
+        # Pose -> wrinkle map, so the vertex stage sums influences straight into map weights.
+        self._pose_to_map = np.zeros((len(rig.pose_names), 4), np.float32)
+        if driver == "auto" and len(rig.pose_names):
+            self._pose_to_map[np.arange(len(rig.pose_names)), rig.pose_maps] = 1.0
+
+        V, M, B = rig.n_vertices, rig.n_morphs, rig.n_bones
+        deform_defines = (
+            ("N_VERTICES", V), ("N_BONES", B), ("MAX_MORPHS", max(M, 1)), ("MORPH_TEX_WIDTH", MORPH_TEX_WIDTH),
+        )
+        face_defines = deform_defines + (
+            (f"DRIVER_{driver.upper()}", 1), ("N_MAPS", n_maps),
+            (f"BLEND_{opts.normal_blend.upper()}", 1), (f"VIEW_{opts.view.upper()}", 1),
+        )
+        self._face = program("face.vert", "face.frag", face_defines)
+        self._feedback = program("feedback.vert", None, deform_defines, ("tf_position",))
+
+        # Mesh: one buffer per attribute, uploaded once.
+        f4 = lambda a: self._keep(ctx.buffer(np.ascontiguousarray(a, np.float32).tobytes()))  # noqa: E731
+        bufs = [
+            (f4(rig.vertices), "3f", "in_position"),
+            (f4(rig.normals), "3f", "in_normal"),
+            (self._keep(ctx.buffer(np.ascontiguousarray(rig.skin_joints, np.int32).tobytes())), "4i", "in_joints"),
+            (f4(rig.skin_weights), "4f", "in_weights"),
+        ]
+        shading = [
+            (f4(rig.tangents), "4f", "in_tangent"),
+            (f4(rig.uvs), "2f", "in_uv"),
+            (f4(rig.material), "1f", "in_material"),
+        ]
+        if driver == "dynamic":
+            self._dynamic_buffer = self._keep(ctx.buffer(reserve=V * 4))
+            shading.append((self._dynamic_buffer, "1f", "in_dynamic"))
+        index = self._keep(ctx.buffer(np.ascontiguousarray(rig.triangles, np.int32).tobytes()))
+        self._vao = self._keep(ctx.vertex_array(self._face, bufs + shading, index_buffer=index,
+                                                index_element_size=4, skip_errors=True))
+        self._feedback_vao = self._keep(ctx.vertex_array(self._feedback, bufs, skip_errors=True))
+        self._feedback_out = self._keep(ctx.buffer(reserve=V * 12))
+
+        # Morph deltas (Yang): texel m * V + v of two RGB32F textures.
+        total = max(M, 1) * V
+        rows = math.ceil(total / MORPH_TEX_WIDTH)
+        for attr, unit in (("morph_positions", _UNIT_MPOS), ("morph_normals", _UNIT_MNRM)):
+            data = np.zeros((rows * MORPH_TEX_WIDTH, 3), np.float32)
+            if M:
+                data[:total] = getattr(rig, attr).reshape(-1, 3)
+            tex = self._keep(ctx.texture((MORPH_TEX_WIDTH, rows), 3, data.tobytes(), dtype="f4"))
+            tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            tex.repeat_x = tex.repeat_y = False
+            setattr(self, f"_{attr}_tex", (tex, unit))
+
+        # Colour and normal maps (row 0 = top = v 0, the glTF convention, uploaded as is).
+        albedo = np.concatenate([rig.albedo, np.full(rig.albedo.shape[:2] + (1,), 255, np.uint8)], axis=2)
+        self._textures = [
+            (self._image_texture(albedo, internal_format=_GL_SRGB8_ALPHA8), _UNIT_ALBEDO),
+            (self._image_texture(rig.normal_map), _UNIT_NORMAL),
+        ]
+        if driver != "off" and n_maps:
+            k, h, w, _ = rig.wrinkle_maps.shape
+            tex = self._keep(ctx.texture_array((w, h, k), 3, np.ascontiguousarray(rig.wrinkle_maps).tobytes()))
+            self._mipmapped(tex)
+            self._textures.append((tex, _UNIT_WRINKLE))
+        if driver == "zones":
+            self._textures.append((self._image_texture(rig.zone_masks[..., :4]), _UNIT_MASK0))
+            self._textures.append((self._image_texture(rig.zone_masks[..., 4:8]), _UNIT_MASK1))
+        self._textures += [self._morph_positions_tex, self._morph_normals_tex]
+
+        # Render targets: multisampled colour + depth, resolved into a plain colour buffer.
+        width, height = opts.width_height
+        samples = max(1, min(int(opts.samples), ctx.max_samples))
+        self._resolve = self._keep(ctx.framebuffer(color_attachments=[self._keep(ctx.renderbuffer((width, height), 4))]))
+        if samples > 1:
+            self._target = self._keep(ctx.framebuffer(
+                color_attachments=[self._keep(ctx.renderbuffer((width, height), 4, samples=samples))],
+                depth_attachment=self._keep(ctx.depth_renderbuffer((width, height), samples=samples)),
+            ))
+        else:
+            self._target = self._keep(ctx.framebuffer(
+                color_attachments=[self._keep(ctx.renderbuffer((width, height), 4))],
+                depth_attachment=self._keep(ctx.depth_renderbuffer((width, height))),
+            ))
+        self._size = (width, height)
+        self._face_size = rig.face_size()
+
+    def _mipmapped(self, tex) -> None:
+        tex.build_mipmaps()
+        tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+        tex.anisotropy = 4.0
+
+    def _image_texture(self, image: np.ndarray, internal_format: int | None = None):
+        h, w, c = image.shape
+        kwargs = {"internal_format": internal_format} if internal_format else {}
+        tex = self._keep(self.ctx.texture((w, h), c, np.ascontiguousarray(image, np.uint8).tobytes(), **kwargs))
+        self._mipmapped(tex)
+        return tex
+
+    # ---- per-frame uniforms ---------------------------------------------------------
+    def _deform_uniforms(self, prog: moderngl.Program, state: FrameState) -> None:
+        rig = self.rig
+        bones = np.asarray(state.bone_positions, np.float64)
+        weights = np.asarray(state.blend_weights, np.float64).ravel()
+        if bones.shape != (rig.n_bones, 3):
+            raise ValueError(f"bone_positions must be ({rig.n_bones}, 3), got {bones.shape}")
+        if weights.shape != (rig.n_morphs,):
+            raise ValueError(f"blend_weights must be ({rig.n_morphs},), got {weights.shape}")
+        active = np.flatnonzero(weights)
+        index = np.zeros(max(rig.n_morphs, 1), np.int32)
+        value = np.zeros(max(rig.n_morphs, 1), np.float32)
+        index[: len(active)] = active
+        value[: len(active)] = weights[active]
+        _set(prog, "u_morph_count", int(len(active)))
+        _set(prog, "u_morph_index", index)
+        _set(prog, "u_morph_weight", value)
+        _set(prog, "u_bone_offset", (bones - rig.bone_rest).astype(np.float32))
+        _set(prog, "u_morph_positions", _UNIT_MPOS)
+        _set(prog, "u_morph_normals", _UNIT_MNRM)
+
+    def _frame_uniforms(self, state: FrameState) -> None:
+        rig, opts, prog = self.rig, self.options, self._face
+        self._deform_uniforms(prog, state)
+        pose = np.asarray(state.head_pose, np.float64)
+        if pose.shape != (4, 4):
+            raise ValueError(f"head_pose must be (4, 4), got {pose.shape}")
+        depth = -(pose[:3, :3] @ camera.face_centre_and_height(rig)[0] + pose[:3, 3])[2]
+        near = max(0.5, depth - 2.0 * self._face_size)
+        far = max(depth, near) + 2.0 * self._face_size
+        width, height = self._size
+        _set(prog, "u_model_view", _mat(pose))
+        _set(prog, "u_normal_matrix", _mat(np.linalg.inv(pose[:3, :3]).T))
+        _set(prog, "u_projection", _mat(camera.perspective(opts.fov_y_degrees, width / height, near, far)))
+
+        light = np.asarray(state.light_direction if state.light_direction is not None else DEFAULT_LIGHT_DIRECTION, np.float64)
+        _set(prog, "u_light_direction", tuple(light / np.linalg.norm(light)))
+        _set(prog, "u_light_color", tuple(map(float, state.light_color if state.light_color is not None else DEFAULT_LIGHT_COLOR)))
+        _set(prog, "u_ambient", tuple(map(float, state.ambient if state.ambient is not None else DEFAULT_AMBIENT)))
+        _set(prog, "u_fill_color", DEFAULT_FILL_COLOR)
+        colors = np.array(SLOT_COLORS, np.float32)
+        for k, name in enumerate(rig.wrinkle_map_names[:MAX_MAPS]):
+            colors[k] = MAP_COLORS.get(name, SLOT_COLORS[k])
+        _set(prog, "u_map_color", colors)
+        for tex, unit in self._textures:
+            tex.use(unit)
+        for name, unit in (("u_albedo", _UNIT_ALBEDO), ("u_normal_map", _UNIT_NORMAL), ("u_wrinkle_maps", _UNIT_WRINKLE),
+                           ("u_zone_mask0", _UNIT_MASK0), ("u_zone_mask1", _UNIT_MASK1)):
+            _set(prog, name, unit)
+
+        driver = opts.wrinkles
+        if driver == "auto":
+            infl = state.influences
+            if infl is None:
+                from capture2face.retarget.influences import rig_influences
+
+                infl = rig_influences(np.asarray(state.bone_positions)[None], rig)[0]
+            infl = np.asarray(infl, np.float32)
+            if infl.shape != (len(rig.pose_names), rig.n_bones):
+                raise ValueError(f"influences must be ({len(rig.pose_names)}, {rig.n_bones}), got {infl.shape}")
+            _set(prog, "u_bone_map_weight", np.ascontiguousarray(infl.T @ self._pose_to_map))  # (B, 4)
+        elif driver == "zones":
+            zones = state.zone_weights
+            if zones is None:
+                from capture2face.retarget.influences import zone_weights
+
+                zones = zone_weights(np.asarray(state.blend_weights)[None], rig.zone_table)[0]
+            zones = np.asarray(zones, np.float32).ravel()
+            if zones.shape != (8,):
+                raise ValueError(f"zone_weights must be (8,), got {zones.shape}")
+            _set(prog, "u_zone_weight", zones)
+        if driver in ("zones", "dynamic"):
+            _set(prog, "u_stretch_slot", tuple(self._slots["stretch"]))
+            _set(prog, "u_compress_slot", tuple(self._slots["compress"]))
+        if driver == "dynamic":
+            weights = dynamic_wrinkle_weights(rig, self.deformed_positions(state))
+            self._dynamic_buffer.write(weights.astype(np.float32).tobytes())
+
+    # ---- public API -------------------------------------------------------------------
+    @property
+    def gl_renderer(self) -> str:
+        return str(self.ctx.info["GL_RENDERER"])
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height) of the rendered images."""
+        return self._size
+
+    def deformed_positions(self, state: FrameState) -> np.ndarray:
+        """(V, 3) float32 deformed positions in head coordinates, computed by the GPU's
+        vertex stage and read back through transform feedback."""
+        self._deform_uniforms(self._feedback, state)
+        self._morph_positions_tex[0].use(_UNIT_MPOS)
+        self._morph_normals_tex[0].use(_UNIT_MNRM)
+        self._feedback_vao.transform(self._feedback_out, moderngl.POINTS, vertices=self.rig.n_vertices)
+        return np.frombuffer(self._feedback_out.read(), np.float32).reshape(-1, 3).copy()
+
+    def render(self, state: FrameState) -> np.ndarray:
+        """Draw one frame: (H, W, 3) uint8 sRGB, row 0 at the top."""
+        ctx = self.ctx
+        self._frame_uniforms(state)
+        self._target.use()
+        self._target.clear(*map(float, self.options.background), 1.0, depth=1.0)
+        ctx.enable(moderngl.DEPTH_TEST)
+        ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+        self._vao.render(moderngl.TRIANGLES)
+        if self._target is not self._resolve:
+            ctx.copy_framebuffer(self._resolve, self._target)
+        width, height = self._size
+        pixels = np.frombuffer(self._resolve.read(components=3, alignment=1), np.uint8)
+        return pixels.reshape(height, width, 3)[::-1].copy()
+
+    def close(self) -> None:
+        """Release the GL objects of this renderer (the shared context and programs stay)."""
+        for obj in reversed(self._resources):
+            obj.release()
+        self._resources.clear()
+
+    def __enter__(self) -> "Renderer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

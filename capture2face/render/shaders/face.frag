@@ -1,0 +1,143 @@
+// Shading pass, fragment stage: wrinkle maps over the base normal map (per-pixel weights
+// from the driver), skin lighting, filmic tone mapping, sRGB output.
+// Defines: N_MAPS (wrinkle maps, <= 4), BLEND_PD | BLEND_OAT, DRIVER_*, VIEW_SHADED |
+// VIEW_INFLUENCE.
+#include "normal_blend.glsl"
+
+uniform sampler2D u_albedo;        // sRGB texture, decoded to linear by the sampler
+uniform sampler2D u_normal_map;
+#if !defined(DRIVER_OFF) && N_MAPS > 0
+#define WRINKLES 1
+uniform sampler2DArray u_wrinkle_maps;
+#endif
+#ifdef DRIVER_ZONES
+uniform sampler2D u_zone_mask0;    // zones 0-3 in RGBA
+uniform sampler2D u_zone_mask1;    // zones 4-7
+uniform vec4 u_zone_weight[2];     // 8 zone weights in [-1, 1]
+uniform vec4 u_stretch_slot;
+uniform vec4 u_compress_slot;
+#endif
+
+uniform vec3 u_light_direction;    // camera space, unit, towards the key light
+uniform vec3 u_light_color;
+uniform vec3 u_fill_color;         // second light from the mirrored side
+uniform vec3 u_ambient;
+uniform vec3 u_map_color[4];       // influence view: colour of each wrinkle map
+
+in vec3 v_position;
+in vec3 v_normal;
+in vec4 v_tangent;
+in vec2 v_uv;
+in vec4 v_map_weight;
+flat in int v_material;
+
+out vec4 f_color;
+
+const float PI = 3.14159265;
+
+vec4 map_weights() {
+#ifdef DRIVER_ZONES
+    // Oat: dot the mask vector with the weight vector; +1 compress map, -1 stretch map.
+    float s = dot(texture(u_zone_mask0, v_uv), u_zone_weight[0]) + dot(texture(u_zone_mask1, v_uv), u_zone_weight[1]);
+    s = clamp(s, -1.0, 1.0);
+    return max(-s, 0.0) * u_stretch_slot + max(s, 0.0) * u_compress_slot;
+#else
+    return clamp(v_map_weight, 0.0, 1.0);
+#endif
+}
+
+// Tangent-space normal: base map with the weighted wrinkle maps blended on top.
+vec3 tangent_normal(vec4 w) {
+    vec3 base = unpack_normal(texture(u_normal_map, v_uv).rgb);
+#ifdef BLEND_OAT
+    vec3 wrinkle = vec3(0.0, 0.0, 1.0);
+#ifdef WRINKLES
+    for (int k = 0; k < N_MAPS; ++k)
+        if (w[k] > 0.0)
+            wrinkle += w[k] * (unpack_normal(texture(u_wrinkle_maps, vec3(v_uv, k)).rgb) - vec3(0.0, 0.0, 1.0));
+#endif
+    return oat_blend(normalize(wrinkle), base);
+#else
+    vec2 d = pd_encode(base);
+#ifdef WRINKLES
+    for (int k = 0; k < N_MAPS; ++k)
+        if (w[k] > 0.0)
+            d += w[k] * pd_encode(unpack_normal(texture(u_wrinkle_maps, vec3(v_uv, k)).rgb));
+#endif
+    return pd_decode(d);
+#endif
+}
+
+float beckmann(float ndoth, float m) {
+    float c2 = ndoth * ndoth;
+    float m2 = m * m;
+    return exp((c2 - 1.0) / (m2 * c2)) / (PI * m2 * c2 * c2);
+}
+
+// Kelemen / Szirmay-Kalos specular with a Beckmann lobe and Schlick Fresnel (d'Eon & Luebke).
+float ksk_specular(vec3 n, vec3 l, vec3 v, float m, float rho_s) {
+    float ndotl = dot(n, l);
+    if (ndotl <= 0.0) return 0.0;
+    vec3 h = l + v;
+    vec3 hn = normalize(h);
+    float ndoth = max(dot(n, hn), 1e-4);
+    float fresnel = 0.028 + 0.972 * pow(1.0 - max(dot(hn, v), 0.0), 5.0);
+    return ndotl * rho_s * max(beckmann(ndoth, m) * fresnel / dot(h, h), 0.0);
+}
+
+// Wrapped diffuse, wider in red: a cheap stand-in for subsurface scattering.
+vec3 skin_diffuse(float ndotl) {
+    const vec3 wrap = vec3(0.40, 0.18, 0.12);
+    return max((vec3(ndotl) + wrap) / (1.0 + wrap), 0.0);
+}
+
+vec3 aces_film(vec3 x) {  // Narkowicz's fit of the ACES filmic curve
+    return clamp((x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14), 0.0, 1.0);
+}
+
+vec3 linear_to_srgb(vec3 c) {
+    return mix(12.92 * c, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(0.0031308, c));
+}
+
+void main() {
+    vec3 ng = normalize(v_normal);
+    vec3 l = u_light_direction;
+    vec3 lf = normalize(vec3(-l.x, 0.3 * l.y, l.z));  // fill: mirrored across the view axis
+    vec3 v = normalize(-v_position);
+    vec4 w = v_material == 0 ? map_weights() : vec4(0.0);  // no wrinkles on eyes or mouth
+
+#ifdef VIEW_INFLUENCE
+    // Each wrinkle map's per-pixel weight painted in its colour over a grey shading.
+    vec3 grey = vec3(0.5) * (0.35 + 0.65 * max(dot(ng, l), 0.0));
+    float total = min(w.x + w.y + w.z + w.w, 1.0);
+    vec3 heat = w.x * u_map_color[0] + w.y * u_map_color[1] + w.z * u_map_color[2] + w.w * u_map_color[3];
+    f_color = vec4(grey * (1.0 - total) + heat, 1.0);
+#else
+    vec3 n = ng;
+    if (v_material == 0) {
+        vec3 t = normalize(v_tangent.xyz - ng * dot(ng, v_tangent.xyz));
+        vec3 b = v_tangent.w * cross(ng, t);
+        vec3 tn = tangent_normal(w);
+        n = normalize(t * tn.x + b * tn.y + ng * tn.z);
+    }
+    vec3 albedo = texture(u_albedo, v_uv).rgb;
+    float ndotl = dot(n, l);
+    vec3 diffuse;
+    float specular;
+    if (v_material == 1) {         // eye: glossy
+        diffuse = vec3(max(ndotl, 0.0));
+        specular = ksk_specular(n, l, v, 0.08, 1.2);
+    } else if (v_material == 2) {  // mouth interior: dark and matte
+        albedo *= 0.25;
+        diffuse = vec3(max(ndotl, 0.0));
+        specular = 0.1 * ksk_specular(n, l, v, 0.3, 0.18);
+    } else {                       // skin
+        diffuse = skin_diffuse(ndotl);
+        specular = ksk_specular(n, l, v, 0.3, 0.18);
+    }
+    float hemi = 0.6 + 0.4 * n.y;
+    vec3 radiance = albedo * (u_light_color * diffuse + u_fill_color * max(dot(n, lf), 0.0) + u_ambient * hemi)
+                  + u_light_color * specular;
+    f_color = vec4(linear_to_srgb(aces_film(radiance)), 1.0);
+#endif
+}
