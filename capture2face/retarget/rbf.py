@@ -1,0 +1,105 @@
+"""Feature-point retargeting network (Dutreve, Meyer, Bouakaz, VRST 2008).
+
+An RBF network is trained at the neutral frame on pairs (source feature point in head
+coordinates -> the target character's feature point). Applied to each frame's source
+feature points, it carries the source's expression onto the target's morphology: a
+displacement at the source lands where the local shape of the target puts it (a wider
+face stretches sideways motion, higher brows move the brow motion up with them).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import RBFInterpolator
+
+
+def farthest_point_subset(points: np.ndarray, count: int, keep: np.ndarray | None = None) -> np.ndarray:
+    """Indices of ``count`` well-spread points (greedy farthest-point sampling).
+
+    Args:
+        points: (N, 3).
+        count: how many to pick (all when >= N).
+        keep: indices that must be in the subset (picked first).
+    Returns:
+        (K,) int64 sorted indices.
+    """
+    n = len(points)
+    if count >= n:
+        return np.arange(n)
+    chosen = list(np.unique(keep)) if keep is not None and len(keep) else [int(np.argmin(points[:, 1]))]
+    dist = np.min(np.linalg.norm(points[:, None] - points[chosen][None], axis=2), axis=1)
+    while len(chosen) < count:
+        nxt = int(np.argmax(dist))
+        chosen.append(nxt)
+        dist = np.minimum(dist, np.linalg.norm(points - points[nxt], axis=1))
+    return np.sort(np.asarray(chosen, np.int64))
+
+
+@dataclass
+class FeatureMap:
+    """A trained source -> target feature-point network.
+
+    Attributes:
+        source_neutral: (N, 3) source feature points at the neutral frame.
+        target_neutral: (N, 3) the target character's feature points at rest.
+        network: the RBF interpolant (centres = a subset of ``source_neutral``).
+        offset: (N, 3) ``target_neutral - network(source_neutral)``: what makes the
+            neutral frame land exactly on the target's neutral even when the network
+            smooths (``smoothing > 0``) or uses fewer centres than feature points.
+    """
+
+    source_neutral: np.ndarray
+    target_neutral: np.ndarray
+    network: RBFInterpolator
+    offset: np.ndarray
+
+    def __call__(self, source_points: np.ndarray) -> np.ndarray:
+        """Map frames of source feature points onto the target.
+
+        Args:
+            source_points: (F, N, 3) or (N, 3) feature points in source head coordinates,
+                in the same order as ``source_neutral``.
+        Returns:
+            (F, N, 3) or (N, 3) float64 target feature points; the source neutral maps to
+            ``target_neutral`` exactly.
+        """
+        pts = np.asarray(source_points, np.float64)
+        flat = pts.reshape(-1, 3)
+        # One call over all F x N points: the kernel matrix is evaluated in big blocks.
+        mapped = self.network(flat).reshape(pts.shape)
+        return mapped + self.offset
+
+
+def fit_feature_map(
+    source_neutral: np.ndarray,
+    target_neutral: np.ndarray,
+    kernel: str = "thin_plate_spline",
+    smoothing: float = 0.0,
+    epsilon: float | None = None,
+    n_centers: int | None = None,
+    keep_centers: np.ndarray | None = None,
+) -> FeatureMap:
+    """Train the network on neutral pairs.
+
+    Args:
+        source_neutral: (N, 3) source feature points (head coordinates, neutral frame).
+        target_neutral: (N, 3) corresponding target feature points (target at rest).
+        kernel, smoothing, epsilon: passed to ``scipy.interpolate.RBFInterpolator``
+            (a degree-1 polynomial tail carries the global affine part).
+        n_centers: number of RBF centres (a well-spread subset of the feature points;
+            None = all). Fewer centres make the per-frame evaluation cheaper.
+        keep_centers: indices that must be centres (e.g. the bones' landmarks).
+    Returns:
+        The :class:`FeatureMap`.
+    """
+    src = np.asarray(source_neutral, np.float64)
+    tgt = np.asarray(target_neutral, np.float64)
+    centers = farthest_point_subset(src, n_centers or len(src), keep_centers)
+    kwargs = {"epsilon": epsilon} if epsilon is not None else {}
+    network = RBFInterpolator(
+        src[centers], tgt[centers], kernel=kernel, smoothing=smoothing, degree=1, **kwargs
+    )
+    offset = tgt - network(src)
+    return FeatureMap(source_neutral=src, target_neutral=tgt, network=network, offset=offset)

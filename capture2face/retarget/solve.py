@@ -1,0 +1,173 @@
+"""Bones and morph weights that reproduce the retargeted feature points.
+
+With bones that translate only and convex skinning weights, a landmark vertex v moves by
+
+    p_v = rest_v + sum_m w_m D_mv + sum_i W_vi t_i        (morphs first, then skinning)
+
+so the retargeted feature points are *linear* in the unknowns x = (t_1..t_{B-1}, w_1..w_M)
+(bone 0, the head, stays fixed). Each frame solves
+
+    min_x |A x - b_f|^2 + ridge |x|^2 + temporal |x_f - x_{f-1}|^2,   0 <= w <= 1
+
+over all frames at once. Why jointly rather than "bone = its mapped landmark": a bone's
+landmark vertex moves by sum_i W_vi t_i, not by its own t_i, so copying landmark motion
+into bones leaves a systematic error wherever skinning blends neighbouring bones, and the
+morph motion at that vertex would be counted twice.
+
+Solving: columns are scaled to unit norm (ridge and temporal terms then weigh every unknown
+by the landmark motion it causes). The temporal term couples frames through the path-graph
+Laplacian, whose eigenvectors are the DCT-II basis; ``A^T A + ridge`` is diagonalised once,
+so the unconstrained solve for all frames is two small matrix products and a DCT pair.
+The [0, 1] bounds on morph weights are enforced with ADMM, which reuses the same
+factorisation every iteration (only the right-hand side changes).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.fft import dct, idct
+
+
+@dataclass
+class LinearRigModel:
+    """The rig's feature points as a linear function of bone translations and weights.
+
+    Attributes:
+        rest: (N, 3) feature-point rest positions.
+        matrix: (3N, n) d(points)/d(x), x = (bone translations of ``free_bones`` (3 each,
+            xyz interleaved per bone), then morph weights of ``morphs``).
+        free_bones: (Bf,) indices of the bones solved for.
+        morphs: (Ms,) indices of the morphs solved for.
+    """
+
+    rest: np.ndarray
+    matrix: np.ndarray
+    free_bones: np.ndarray
+    morphs: np.ndarray
+
+    @property
+    def n_bone_vars(self) -> int:
+        return 3 * len(self.free_bones)
+
+
+def linear_rig_model(rig, vertices: np.ndarray, solve_morphs: bool = True) -> LinearRigModel:
+    """Build the linear model of ``rig`` at the given feature-point vertices.
+
+    Args:
+        rig: the :class:`~capture2face.rig.face_rig.FaceRig`.
+        vertices: (N,) vertex indices of the feature points.
+        solve_morphs: include the morph weights as unknowns.
+    """
+    skin = rig.dense_skin_weights()[vertices].astype(np.float64)  # (N, B)
+    n = len(vertices)
+    # Bones that move some feature point; bone 0 (head) is fixed by convention.
+    free = np.flatnonzero(skin[:, 1:].max(0) > 1e-6) + 1
+    cols = [np.kron(skin[:, [b]], np.eye(3)) for b in free]  # each (3N, 3)
+    morphs = np.zeros(0, np.int64)
+    if solve_morphs and rig.n_morphs:
+        deltas = rig.morph_positions[:, vertices].astype(np.float64).reshape(rig.n_morphs, 3 * n)
+        morphs = np.flatnonzero(np.abs(deltas).max(1) > 1e-6)
+        cols.append(deltas[morphs].T)
+    matrix = np.concatenate(cols, axis=1) if cols else np.zeros((3 * n, 0))
+    return LinearRigModel(
+        rest=rig.vertices[vertices].astype(np.float64), matrix=matrix,
+        free_bones=free.astype(np.int64), morphs=morphs,
+    )
+
+
+def _path_laplacian_eigenvalues(frames: int) -> np.ndarray:
+    """Eigenvalues of the path graph's Laplacian (eigenvectors: the orthonormal DCT-II)."""
+    return 2.0 - 2.0 * np.cos(np.pi * np.arange(frames) / frames)
+
+
+@dataclass
+class LinearSolver:
+    """Pre-factorised solver for :class:`LinearRigModel` over all frames of a clip."""
+
+    model: LinearRigModel
+    ridge: float
+    temporal: float
+    rho: float = 1.0
+    iterations: int = 200
+    tolerance: float = 1e-4
+
+    def __post_init__(self) -> None:
+        a = self.model.matrix
+        self.scale = np.maximum(np.linalg.norm(a, axis=0), 1e-12)  # (n,)
+        self.a = a / self.scale
+        n = a.shape[1]
+        self.bounded = np.zeros(n, bool)
+        self.bounded[self.model.n_bone_vars:] = True
+        gram = self.a.T @ self.a + self.ridge * np.eye(n)
+        # Unconstrained factorisation and the ADMM one (rho only on bounded unknowns).
+        self.eig_free = np.linalg.eigh(gram)
+        self.eig_admm = np.linalg.eigh(gram + self.rho * np.diag(self.bounded.astype(float)))
+        # Bounds in scaled units: w = z / scale, 0 <= w <= 1.
+        self.upper = np.where(self.bounded, self.scale, np.inf)
+        self.lower = np.where(self.bounded, 0.0, -np.inf)
+
+    def _solve(self, eig, rhs: np.ndarray, pin: int | None) -> np.ndarray:
+        """Solve ``G Z + temporal * Z Lt = rhs`` for Z (n, F), G = U diag(s) U^T, with
+        ``Z[:, pin] = 0`` exactly when ``pin`` is a frame index.
+
+        In G's eigenbasis every component is an independent 1-D problem over frames,
+        diagonal in the DCT basis. Pinning a frame subtracts, per component, the multiple
+        of its Green's function (the response to a unit impulse at that frame) that
+        cancels the value there: a Lagrange multiplier, exact and O(nF).
+        """
+        s, u = eig
+        frames = rhs.shape[1]
+        denom = s[:, None] + self.temporal * _path_laplacian_eigenvalues(frames)[None, :]
+        y = idct(dct(u.T @ rhs, type=2, norm="ortho", axis=1) / denom, type=2, norm="ortho", axis=1)
+        if pin is not None:
+            basis_at_pin = dct(np.eye(frames)[pin], type=2, norm="ortho")  # (F,) Q[pin, :]
+            green = idct(basis_at_pin[None, :] / denom, type=2, norm="ortho", axis=1)  # (n, F)
+            y -= (y[:, pin] / green[:, pin])[:, None] * green
+            y[:, pin] = 0.0
+        return u @ y
+
+    def solve(self, points: np.ndarray, pin: int | None = None) -> np.ndarray:
+        """Unknowns for every frame.
+
+        Args:
+            points: (F, N, 3) target feature points.
+            pin: a frame whose unknowns are held at exactly 0 (the neutral frame: rest
+                bones, no morphs), whatever the smoothness term says.
+        Returns:
+            (F, n) x = bone translations (cm) then morph weights in [0, 1].
+        """
+        frames = points.shape[0]
+        b = (points - self.model.rest).reshape(frames, -1).T  # (3N, F)
+        rhs = self.a.T @ b  # (n, F)
+        z = self._solve(self.eig_free, rhs, pin)
+        if self.bounded.any() and self._violates(z):
+            z = self._admm(rhs, z, pin)
+        z = np.clip(z, self.lower[:, None], self.upper[:, None])
+        return (z / self.scale[:, None]).T
+
+    def _violates(self, z: np.ndarray) -> bool:
+        zb = z[self.bounded]
+        return bool((zb < -1e-9).any() or (zb > self.upper[self.bounded, None] + 1e-9).any())
+
+    def _admm(self, rhs: np.ndarray, z0: np.ndarray, pin: int | None) -> np.ndarray:
+        """Box-constrained solve: split the bounded unknowns into z (smooth) = v (boxed)."""
+        lo, hi = self.lower[self.bounded, None], self.upper[self.bounded, None]
+        v = np.clip(z0[self.bounded], lo, hi)
+        dual = np.zeros_like(v)
+        z = z0
+        for _ in range(self.iterations):
+            r = rhs.copy()
+            r[self.bounded] += self.rho * (v - dual)
+            z = self._solve(self.eig_admm, r, pin)
+            v_old = v
+            v = np.clip(z[self.bounded] + dual, lo, hi)
+            dual += z[self.bounded] - v
+            primal = np.abs(z[self.bounded] - v).max()
+            change = np.abs(v - v_old).max()
+            if max(primal, change) < self.tolerance:
+                break
+        z = z.copy()
+        z[self.bounded] = v
+        return z
