@@ -130,3 +130,19 @@ def head_landmarks(landmarks_norm: np.ndarray, width: int, height: int,
     """Landmarks in head coordinates (F, L, 3) cm and the head pose (F, 4, 4)."""
     metric, pose = metric_landmarks(landmarks_norm, width, height, mesh, fov_y)
     return to_head(metric, pose), pose
+
+
+def project_camera_points(points: np.ndarray, width: int, height: int,
+                          fov_y: float = FOV_Y_DEGREES) -> np.ndarray:
+    """Camera-space points (..., 3) cm -> pixels (..., 2) through MediaPipe's camera.
+
+    Perspective with vertical field of view ``fov_y``, the image spanning the frustum
+    (x right, y down, origin at the top-left image corner); NaN behind the camera.
+    """
+    pts = np.asarray(points, np.float64)
+    f = 1.0 / np.tan(0.5 * np.radians(fov_y))
+    depth = -pts[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ndc_x = np.where(depth > 0, f * (height / width) * pts[..., 0] / depth, np.nan)
+        ndc_y = np.where(depth > 0, f * pts[..., 1] / depth, np.nan)
+    return np.stack([(ndc_x + 1.0) * 0.5 * width, (1.0 - ndc_y) * 0.5 * height], axis=-1)
