@@ -1,0 +1,140 @@
+"""``livelink.csv``: the performance as a Live Link Face CSV (Epic's iPhone app format), so
+it drives a MetaHuman or any ARKit-named rig.
+
+Header (exactly as the app writes it): ``Timecode,BlendShapeCount`` and 61 columns: the 52
+ARKit blendshapes (the app's capitalized spelling and order), head yaw/pitch/roll and the
+two eyes' yaw/pitch/roll. Each row: ``HH:MM:SS:FF.fff,61,<61 values>``.
+
+* **Timecode**: the frame's presentation time in the clip as hours:minutes:seconds:frame, the
+  frame counted at the clip's nominal rate rounded to an integer (timecode rates are
+  integers); ``.fff`` is the sub-frame fraction (0 for a constant-rate clip).
+* **Blendshapes** are matched by name, case-insensitively: the character's own morph
+  weights (``Animation.blend_weights``) where the character has that morph, else
+  MediaPipe's score for it, else 0 (MediaPipe has no ``tongueOut``). ``_neutral`` is
+  ignored.
+* **Angles** are normalized like the app's streamed values and the tools that read its
+  CSVs (PyLiveLinkFace, the Blender Live Link Face add-on): -1..1, where 1 is a quarter
+  turn (``ANGLE_UNIT_DEG`` = 90 degrees). Signs, in head coordinates (+x the subject's
+  left, +y up, +z out of the face): yaw > 0 turns the face / gaze towards the subject's
+  left, pitch > 0 tips it down, roll > 0 tilts the head towards the subject's right
+  shoulder (rotation about +z). Head angles come from the head pose (rotation = Ry(yaw)
+  Rx(pitch) Rz(roll)); eye yaw and pitch from MediaPipe's eyeLook* scores, a score of 1
+  being ``EYE_LOOK_MAX_DEG`` degrees; eye roll is 0.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+
+import numpy as np
+
+from capture2face.atomic import write_text_atomic
+from capture2face.errors import CaptureError
+
+HEADER = (
+    "Timecode,BlendShapeCount,EyeBlinkLeft,EyeLookDownLeft,EyeLookInLeft,EyeLookOutLeft,"
+    "EyeLookUpLeft,EyeSquintLeft,EyeWideLeft,EyeBlinkRight,EyeLookDownRight,EyeLookInRight,"
+    "EyeLookOutRight,EyeLookUpRight,EyeSquintRight,EyeWideRight,JawForward,JawRight,JawLeft,"
+    "JawOpen,MouthClose,MouthFunnel,MouthPucker,MouthRight,MouthLeft,MouthSmileLeft,"
+    "MouthSmileRight,MouthFrownLeft,MouthFrownRight,MouthDimpleLeft,MouthDimpleRight,"
+    "MouthStretchLeft,MouthStretchRight,MouthRollLower,MouthRollUpper,MouthShrugLower,"
+    "MouthShrugUpper,MouthPressLeft,MouthPressRight,MouthLowerDownLeft,MouthLowerDownRight,"
+    "MouthUpperUpLeft,MouthUpperUpRight,BrowDownLeft,BrowDownRight,BrowInnerUp,"
+    "BrowOuterUpLeft,BrowOuterUpRight,CheekPuff,CheekSquintLeft,CheekSquintRight,"
+    "NoseSneerLeft,NoseSneerRight,TongueOut,HeadYaw,HeadPitch,HeadRoll,LeftEyeYaw,"
+    "LeftEyePitch,LeftEyeRoll,RightEyeYaw,RightEyePitch,RightEyeRoll"
+)
+COLUMNS = HEADER.split(",")[2:]  # the 61 value columns
+BLENDSHAPE_COLUMNS = COLUMNS[:52]
+ANGLE_COLUMNS = COLUMNS[52:]
+ANGLE_UNIT_DEG = 90.0
+EYE_LOOK_MAX_DEG = 30.0
+
+
+def _scores(track_or_blendshapes, animation) -> tuple[np.ndarray, list[str]]:
+    """(F, S) MediaPipe scores and their names from a Track, a (scores, names) pair, or
+    (None) the animation's own copy."""
+    src = track_or_blendshapes
+    if src is None:
+        return np.asarray(animation.mediapipe_blendshapes, np.float32), list(animation.mediapipe_blendshape_names)
+    if hasattr(src, "blendshapes") and hasattr(src, "blendshape_names"):
+        return np.asarray(src.blendshapes, np.float32), list(src.blendshape_names)
+    scores, names = src
+    return np.asarray(scores, np.float32), list(names)
+
+
+def head_angles(head_pose: np.ndarray) -> np.ndarray:
+    """(F, 4, 4) head -> camera transforms -> (F, 3) yaw, pitch, roll in radians for
+    R = Ry(yaw) Rx(pitch) Rz(roll) (rotation part orthonormalized first)."""
+    m = np.asarray(head_pose, np.float64)[:, :3, :3].copy()
+    bad = ~np.isfinite(m).all(axis=(1, 2))
+    m[bad] = np.eye(3)
+    u, _, vt = np.linalg.svd(m)
+    r = u @ vt
+    yaw = np.arctan2(r[:, 0, 2], r[:, 2, 2])
+    pitch = np.arcsin(np.clip(-r[:, 1, 2], -1.0, 1.0))
+    roll = np.arctan2(r[:, 1, 0], r[:, 1, 1])
+    return np.stack([yaw, pitch, roll], 1)
+
+
+def timecodes(times: np.ndarray, fps: float) -> list[str]:
+    """``HH:MM:SS:FF.fff`` for each time (seconds, clip presentation time; negative
+    times are shifted to start at 0), frames counted at round(fps)."""
+    rate = max(int(round(fps)), 1) if fps and np.isfinite(fps) else 30
+    t = np.asarray(times, np.float64)
+    t = t - min(float(t[0]), 0.0) if len(t) else t  # never negative
+    frames = t * rate
+    whole = np.floor(frames + 1e-6)
+    frac = np.clip(frames - whole, 0.0, 0.999)
+    whole = whole.astype(np.int64)
+    ff = whole % rate
+    secs = whole // rate
+    return [f"{s // 3600:02d}:{s // 60 % 60:02d}:{s % 60:02d}:{f:02d}.{int(round(x * 1000)) if x < 0.9995 else 999:03d}"
+            for s, f, x in zip(secs.tolist(), ff.tolist(), frac.tolist())]
+
+
+def livelink_values(animation, track_or_blendshapes=None) -> np.ndarray:
+    """(F, 61) values in the column order of ``COLUMNS``."""
+    F = animation.n_frames
+    scores, names = _scores(track_or_blendshapes, animation)
+    if len(scores) != F:
+        raise CaptureError(f"Live Link export: {len(scores)} blendshape frames for {F} animation frames")
+    morph = {n.lower(): i for i, n in enumerate(animation.blend_names)}
+    mp = {n.lower(): i for i, n in enumerate(names) if n != "_neutral"}
+    out = np.zeros((F, len(COLUMNS)), np.float64)
+    for c, col in enumerate(BLENDSHAPE_COLUMNS):
+        key = col.lower()
+        if key in morph:
+            out[:, c] = animation.blend_weights[:, morph[key]]
+        elif key in mp:
+            out[:, c] = scores[:, mp[key]]
+    out[:, :52] = np.clip(np.nan_to_num(out[:, :52]), 0.0, 1.0)
+
+    unit = np.radians(ANGLE_UNIT_DEG)
+    out[:, 52:55] = head_angles(animation.head_pose) / unit
+
+    def s(name):
+        i = mp.get(name.lower())
+        return scores[:, i].astype(np.float64) if i is not None else np.zeros(F)
+
+    eye = EYE_LOOK_MAX_DEG / ANGLE_UNIT_DEG
+    out[:, 55] = (s("eyeLookOutLeft") - s("eyeLookInLeft")) * eye  # left eye: out = towards +x
+    out[:, 56] = (s("eyeLookDownLeft") - s("eyeLookUpLeft")) * eye
+    out[:, 58] = (s("eyeLookInRight") - s("eyeLookOutRight")) * eye  # right eye: in = towards +x
+    out[:, 59] = (s("eyeLookDownRight") - s("eyeLookUpRight")) * eye
+    out[:, 52:] = np.clip(np.nan_to_num(out[:, 52:]), -1.0, 1.0)
+    return out
+
+
+def write_livelink_csv(animation, track_or_blendshapes, path: str | os.PathLike) -> None:
+    """Write ``animation`` as a Live Link Face CSV (atomic). ``track_or_blendshapes``: the
+    clip's :class:`~capture2face.tracking.track.Track`, a ``(scores (F, S), names)`` pair,
+    or None to use the animation's copy of MediaPipe's scores."""
+    values = livelink_values(animation, track_or_blendshapes)
+    codes = timecodes(animation.times, animation.fps)
+    buf = io.StringIO()
+    np.savetxt(buf, values.reshape(len(codes), len(COLUMNS)), fmt="%.6f", delimiter=",")
+    rows = buf.getvalue().splitlines()
+    prefix = f",{len(COLUMNS)},"
+    write_text_atomic(path, "\n".join([HEADER] + [c + prefix + r for c, r in zip(codes, rows)]) + "\n")
