@@ -1,0 +1,304 @@
+"""Many clips at once: ``capture2face batch``.
+
+Clips run in parallel, each in a worker process of its own (MediaPipe and the GL context
+are per process; a fresh process per clip also returns its memory). One failing clip
+never stops the others: its error is recorded and the batch goes on. ``OUT/batch_report.json``
+is rewritten (atomically) after every clip, so an interrupted batch still says what got
+done, and ``resume=True`` skips the clips whose outputs are complete.
+
+With ``ray_address`` the clips become Ray tasks (``pip install capture2face[ray]``):
+``"local"`` starts a local Ray instance, ``"auto"`` or ``"ray://host:10001"`` joins a
+cluster whose workers have capture2face installed and can read the input paths.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import dataclasses
+import glob
+import json
+import multiprocessing
+import os
+import time
+from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
+from typing import Any, Iterable
+
+from capture2face.atomic import write_text_atomic
+from capture2face.errors import CaptureError
+
+VIDEO_EXTENSIONS = (".mp4", ".mov", ".m4v", ".mkv", ".avi", ".webm", ".mpg", ".mpeg", ".wmv", ".flv")
+LIST_EXTENSIONS = (".txt", ".lst")
+REPORT_NAME = "batch_report.json"
+_GLOB_CHARS = set("*?[")
+_MAX_ATTEMPTS = 2  # a clip whose worker process dies twice is marked failed
+
+
+@dataclasses.dataclass
+class BatchClip:
+    """One input clip and the output folder name it gets (``OUT/<name>/``)."""
+
+    path: str
+    name: str
+
+
+def expand_inputs(inputs: Iterable[str | os.PathLike]) -> list[BatchClip]:
+    """Clips from folders (their video files, sorted, not recursive), glob patterns, list
+    files (``.txt``/``.lst``: one clip per line, ``#`` comments, paths relative to the
+    list) and plain paths. A path that does not exist is kept: the batch reports it as
+    failed rather than silently dropping it.
+
+    Output names are the clip stems; clips sharing a stem get their parent folder's name
+    prefixed (``a/take.mp4`` -> ``a_take``, ``b/take.mp4`` -> ``b_take``).
+
+    Raises:
+        CaptureError: nothing to process.
+    """
+    paths: list[Path] = []
+    for item in inputs:
+        text = os.fspath(item)
+        p = Path(text)
+        if p.is_dir():
+            paths += sorted(c for c in p.iterdir() if c.is_file() and c.suffix.lower() in VIDEO_EXTENSIONS)
+        elif _GLOB_CHARS & set(text) and not p.exists():
+            matches = sorted(glob.glob(text, recursive=True))
+            if not matches:
+                raise CaptureError(f"no file matches {text}")
+            paths += [Path(m) for m in matches if not Path(m).is_dir()]
+        elif p.is_file() and p.suffix.lower() in LIST_EXTENSIONS:
+            for line in p.read_text(encoding="utf-8", errors="replace").splitlines():
+                line = line.split("#", 1)[0].strip()
+                if line:
+                    q = Path(line)
+                    paths.append(q if q.is_absolute() else p.parent / q)
+        else:
+            paths.append(p)
+    seen: set[Path] = set()
+    unique = []
+    for p in paths:
+        key = p.resolve()
+        if key not in seen:
+            seen.add(key)
+            unique.append(p)
+    if not unique:
+        raise CaptureError("no clips found in " + " ".join(os.fspath(i) for i in inputs))
+    stems: dict[str, int] = {}
+    for p in unique:
+        stems[p.stem] = stems.get(p.stem, 0) + 1
+    clips = []
+    used: set[str] = set()
+    for p in unique:
+        name = p.stem if stems[p.stem] == 1 else f"{p.resolve().parent.name}_{p.stem}"
+        base, k = name, 2
+        while name in used:
+            name, k = f"{base}_{k}", k + 1
+        used.add(name)
+        clips.append(BatchClip(str(p), name))
+    return clips
+
+
+def _raise_interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def _worker_init() -> None:
+    """Pool worker start-up: SIGTERM unwinds like Ctrl-C (outputs are staged, so a
+    terminated worker leaves nothing half-written); MediaPipe's C++ logs stay quiet."""
+    import signal
+
+    signal.signal(signal.SIGTERM, _raise_interrupt)
+    os.environ.setdefault("GLOG_minloglevel", "2")
+    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
+
+
+def _run_clip(path: str, out: str, name: str, options: Any) -> dict:
+    """Worker body: one clip through the pipeline; never raises for a bad clip."""
+    from capture2face.pipeline import run
+
+    t0 = time.perf_counter()
+    try:
+        report = run(path, out, options, progress=False, name=name)
+        return {"status": "ok", "seconds": round(time.perf_counter() - t0, 3), "error": None,
+                "frames": report["frames"], "output_dir": report["output_dir"]}
+    except CaptureError as exc:
+        error = str(exc)
+    except Exception as exc:  # noqa: BLE001 - a bug on one clip must not end the batch
+        error = f"{exc.__class__.__name__}: {exc}"
+    return {"status": "failed", "seconds": round(time.perf_counter() - t0, 3), "error": error}
+
+
+class _Report:
+    """``batch_report.json``, rewritten after every finished clip."""
+
+    def __init__(self, out: Path, clips: list[BatchClip], options: Any):
+        self.path = out / REPORT_NAME
+        self.t0 = time.perf_counter()
+        self.data = {
+            "output": str(out),
+            "options": _options_dict(options),
+            "clips": [{"path": c.path, "name": c.name, "status": "pending", "seconds": None, "error": None}
+                      for c in clips],
+        }
+
+    def set(self, i: int, result: dict) -> None:
+        self.data["clips"][i].update(result)
+        self.write()
+
+    def write(self) -> None:
+        clips = self.data["clips"]
+        self.data["summary"] = {
+            s: sum(1 for c in clips if c["status"] == s) for s in ("ok", "failed", "skipped", "pending")
+        }
+        self.data["seconds"] = round(time.perf_counter() - self.t0, 3)
+        write_text_atomic(self.path, json.dumps(self.data, indent=2) + "\n")
+
+
+def _options_dict(options: Any) -> dict:
+    if dataclasses.is_dataclass(options):
+        return {k: (os.fspath(v) if isinstance(v, os.PathLike) else v)
+                for k, v in dataclasses.asdict(options).items() if _jsonable(v)}
+    return {}
+
+
+def _jsonable(v: Any) -> bool:
+    return v is None or isinstance(v, (str, int, float, bool, os.PathLike))
+
+
+def run_batch(inputs: Iterable[str | os.PathLike], out: str | os.PathLike, options: Any = None,
+              jobs: int | None = None, resume: bool = False, ray_address: str | None = None,
+              progress: bool = True) -> dict:
+    """Run :func:`capture2face.pipeline.run` on many clips.
+
+    Args:
+        inputs: clips, folders, glob patterns or list files (see :func:`expand_inputs`).
+        out: output folder; clip ``x.mp4`` goes to ``out/x/``.
+        options: a :class:`~capture2face.pipeline.RunOptions` shared by every clip.
+        jobs: clips processed at once (default: the CPU count, at most the clip count).
+            ``jobs=1`` runs the clips one after another in this process.
+        resume: skip clips whose ``out/<name>/`` holds a complete run.
+        ray_address: distribute the clips as Ray tasks ("local", "auto", "ray://...").
+        progress: a progress bar over clips.
+    Returns:
+        The report written to ``out/batch_report.json``: ``clips`` (path, name, status
+        ok/failed/skipped, seconds, error), ``summary`` (counts), ``seconds``.
+    Raises:
+        CaptureError: no clips found, output folder not writable, Ray not installed.
+    """
+    from capture2face.pipeline import RunOptions, outputs_complete
+    from capture2face.staging import check_writable
+
+    options = options or RunOptions()
+    out = Path(out)
+    clips = expand_inputs(inputs)
+    check_writable(out)
+    if options.character is not None:
+        from capture2face.pipeline import load_character
+
+        load_character(options.character)  # a bad character fails the batch once, up front
+    report = _Report(out, clips, options)
+    todo = []
+    for i, c in enumerate(clips):
+        if resume and outputs_complete(out / c.name):
+            report.data["clips"][i].update(status="skipped", seconds=0.0, error=None)
+        else:
+            todo.append(i)
+    report.write()
+
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(clips), initial=len(clips) - len(todo), desc="clips", unit="clip")
+
+    def done(i: int, result: dict) -> None:
+        report.set(i, result)
+        if bar is not None:
+            bar.update(1)
+            if result["status"] == "failed":
+                bar.write(f"failed: {clips[i].path}: {result['error']}")
+
+    try:
+        if not todo:
+            pass
+        elif ray_address:
+            _run_ray(clips, todo, out, options, ray_address, done)
+        else:
+            n_jobs = max(1, min(jobs or os.cpu_count() or 1, len(todo)))
+            if n_jobs == 1:
+                for i in todo:
+                    done(i, _run_clip(clips[i].path, str(out), clips[i].name, options))
+            else:
+                _run_pool(clips, todo, out, options, n_jobs, done)
+    finally:
+        if bar is not None:
+            bar.close()
+        report.write()
+    return report.data
+
+
+def _run_pool(clips: list[BatchClip], todo: list[int], out: Path, options: Any, n_jobs: int,
+              done) -> None:
+    """Process pool, one fresh process per clip; a pool broken by a crashing worker
+    (segfault, out of memory) is rebuilt and the unfinished clips resubmitted."""
+    ctx = multiprocessing.get_context("spawn")  # fork would copy threads and GL state
+    attempts = {i: 0 for i in todo}
+    pending = list(todo)
+    while pending:
+        retry: list[int] = []
+        with cf.ProcessPoolExecutor(n_jobs, mp_context=ctx, max_tasks_per_child=1,
+                                    initializer=_worker_init) as pool:
+            futures = {pool.submit(_run_clip, clips[i].path, str(out), clips[i].name, options): i
+                       for i in pending}
+            for attempts_i in futures.values():
+                attempts[attempts_i] += 1
+            try:
+                for fut in cf.as_completed(futures):
+                    i = futures[fut]
+                    try:
+                        done(i, fut.result())
+                    except BrokenProcessPool:
+                        if attempts[i] >= _MAX_ATTEMPTS:
+                            done(i, {"status": "failed", "seconds": None,
+                                     "error": "the worker process crashed on this clip"})
+                        else:
+                            retry.append(i)
+            except BaseException:
+                # Interrupted: drop queued clips and ask running workers to unwind (their
+                # SIGTERM handler raises KeyboardInterrupt, so staged outputs are removed).
+                for f in futures:
+                    f.cancel()
+                for proc in list(getattr(pool, "_processes", {}).values()):
+                    if proc.is_alive():
+                        proc.terminate()
+                raise
+        pending = retry
+
+
+def _run_ray(clips: list[BatchClip], todo: list[int], out: Path, options: Any, address: str,
+             done) -> None:
+    try:
+        import ray
+    except ImportError:
+        raise CaptureError("--ray needs Ray: pip install 'capture2face[ray]'") from None
+    started = False
+    if not ray.is_initialized():
+        kwargs = {"include_dashboard": False, "log_to_driver": False}
+        ray.init(address=None if address == "local" else address, **kwargs)
+        started = True
+    try:
+        # Each task is a clip; MediaPipe and the renderer use the worker's own cores.
+        task = ray.remote(num_cpus=1, max_retries=1)(_run_clip)
+        refs = {task.remote(clips[i].path, str(out.resolve()), clips[i].name, options): i for i in todo}
+        remaining = list(refs)
+        while remaining:
+            ready, remaining = ray.wait(remaining, num_returns=1)
+            for ref in ready:
+                i = refs[ref]
+                try:
+                    done(i, ray.get(ref))
+                except Exception as exc:  # noqa: BLE001 - the worker died (RayTaskError, ...)
+                    done(i, {"status": "failed", "seconds": None,
+                             "error": f"ray task failed: {exc.__class__.__name__}"})
+    finally:
+        if started:
+            ray.shutdown()

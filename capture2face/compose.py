@@ -1,0 +1,97 @@
+"""compare.mp4 frames: source with its landmarks | character | wrinkle-influence view.
+
+Pure NumPy/OpenCV on (H, W, 3) uint8 RGB arrays (no GL); OpenCV's resize releases the
+GIL, so composing runs well in the encoder thread beside the GL thread.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+LANDMARK_COLOR = np.array([60, 255, 90], np.uint8)  # tracked frame
+INTERPOLATED_COLOR = np.array([255, 190, 40], np.uint8)  # gap bridged by interpolation/hold
+LABEL_COLOR = (235, 235, 235)
+LABELS = ("source", "character", "wrinkle influence")
+
+
+class SourceFitter:
+    """Letterbox source frames (h, w) into a square ``size`` panel, keeping the aspect.
+
+    Attributes:
+        scale: panel pixels per source pixel.
+        offset: (2,) panel position of the source's top-left corner (x, y).
+    """
+
+    def __init__(self, width: int, height: int, size: int):
+        self.size = int(size)
+        self.scale = min(size / width, size / height)
+        self.out_w = max(1, int(round(width * self.scale)))
+        self.out_h = max(1, int(round(height * self.scale)))
+        self.offset = np.array([(size - self.out_w) // 2, (size - self.out_h) // 2])
+        self.src_size = (int(width), int(height))
+
+    def fit(self, rgb: np.ndarray) -> np.ndarray:
+        """(h, w, 3) source -> (size, size, 3) panel, black bars where the aspect differs."""
+        panel = np.zeros((self.size, self.size, 3), np.uint8)
+        if rgb.shape[1] != self.src_size[0] or rgb.shape[0] != self.src_size[1]:
+            # A frame of another size (never in a sane clip): fit it on its own terms.
+            return SourceFitter(rgb.shape[1], rgb.shape[0], self.size).fit(rgb)
+        interp = cv2.INTER_AREA if self.scale < 1 else cv2.INTER_LINEAR
+        small = cv2.resize(rgb, (self.out_w, self.out_h), interpolation=interp)
+        x, y = self.offset
+        panel[y:y + self.out_h, x:x + self.out_w] = small
+        return panel
+
+    def to_panel(self, points_px: np.ndarray) -> np.ndarray:
+        """(N, 2) source pixel coordinates -> panel pixel coordinates."""
+        return np.asarray(points_px, np.float64) * self.scale + self.offset
+
+
+def draw_points(image: np.ndarray, points: np.ndarray, color: np.ndarray, radius: int = 1) -> None:
+    """Paint (N, 2) pixel positions as (2r+1)^2 squares into ``image`` in place
+    (vectorized: one fancy-index write, no per-point calls)."""
+    h, w = image.shape[:2]
+    centre = np.floor(points).astype(np.int64)  # pixel centres at +0.5
+    keep = np.isfinite(points).all(1)
+    centre = centre[keep]
+    d = np.arange(-radius, radius + 1)
+    dx, dy = np.meshgrid(d, d)
+    xs = (centre[:, 0:1] + dx.ravel()).ravel()
+    ys = (centre[:, 1:2] + dy.ravel()).ravel()
+    inside = (xs >= 0) & (xs < w) & (ys >= 0) & (ys < h)
+    image[ys[inside], xs[inside]] = color
+
+
+def label(image: np.ndarray, text: str, x: int = 0) -> None:
+    """Small caption at the top-left corner of the panel starting at column ``x``, in place."""
+    scale = max(0.35, image.shape[0] / 1100.0)
+    thick = 1 if image.shape[0] < 700 else 2
+    org = (x + 8, int(12 + 18 * scale))
+    cv2.putText(image, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), thick + 2, cv2.LINE_AA)
+    cv2.putText(image, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, LABEL_COLOR, thick, cv2.LINE_AA)
+
+
+def compare_frame(fitter: SourceFitter, source: np.ndarray | None, landmarks_px: np.ndarray | None,
+                  tracked: bool, avatar: np.ndarray, influence: np.ndarray) -> np.ndarray:
+    """One compare.mp4 frame.
+
+    Args:
+        fitter: letterboxing of the source into a panel of the avatar's size.
+        source: (h, w, 3) source frame (None: a black panel, e.g. past a truncated end).
+        landmarks_px: (L, 2) the track's landmarks in source pixels (None: none drawn).
+        tracked: the face was detected in this frame (else the landmarks are the track's
+            interpolated or held values, drawn in another colour).
+        avatar, influence: (S, S, 3) rendered panels.
+    Returns:
+        (S, 3 S, 3) uint8.
+    """
+    s = avatar.shape[0]
+    panel = fitter.fit(source) if source is not None else np.zeros((s, s, 3), np.uint8)
+    if landmarks_px is not None:
+        draw_points(panel, fitter.to_panel(landmarks_px), LANDMARK_COLOR if tracked else INTERPOLATED_COLOR,
+                    radius=1 if s >= 384 else 0)
+    out = np.concatenate([panel, avatar, influence], axis=1)
+    for k, text in enumerate(LABELS):
+        label(out, text, k * s)
+    return out

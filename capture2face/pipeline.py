@@ -1,0 +1,373 @@
+"""``capture2face run``: one clip in, an animated wrinkled character out.
+
+Three passes over the clip, because retargeting needs the neutral frame, which is picked
+from the whole clip:
+
+1. decode + track (:func:`track_stage`; MediaPipe at its own speed, decoding prefetched);
+2. retarget every frame at once (:func:`retarget_stage`; vectorized, milliseconds) and
+   write the animation exports (:func:`export_stage`);
+3. render + compose + encode (:func:`render_stage`): the GL thread (this one, which owns
+   the context) renders the character and its wrinkle-influence view while worker
+   threads decode the source again, compose compare.mp4 frames and run the two H.264
+   encoders, all joined by bounded queues (memory stays flat whatever the clip's length).
+
+Every output is written into a hidden temporary folder that replaces ``OUT/<clip stem>/``
+only when all of it is complete (:mod:`capture2face.staging`), so a failure or an
+interrupt (SIGINT, SIGTERM) leaves nothing half-written behind.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import time
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from capture2face.atomic import write_text_atomic
+from capture2face.errors import CaptureError
+from capture2face.rig.face_rig import FaceRig
+
+WRINKLE_DRIVERS = ("auto", "zones", "dynamic", "off")
+OUTPUT_FILES = ("avatar.mp4", "compare.mp4", "track.npz", "animation.npz", "animation.glb",
+                "livelink.csv", "report.json")
+BUILTIN_CHARACTERS = ("default", "wide")
+
+log = logging.getLogger("capture2face")
+
+
+@dataclass
+class RunOptions:
+    """What ``run`` makes of a clip.
+
+    Attributes:
+        character: None (the default avatar), a built-in name ("default", "wide"), a
+            FaceRig .npz (``FaceRig.save``), a .glb with its mapping JSON beside it
+            (``<name>.json``), or a :class:`FaceRig`.
+        wrinkles: wrinkle driver: auto (Dutreve bone masks), zones, dynamic, off.
+        size: rendered frame size in pixels (square, even).
+        neutral_frame: index of the neutral frame (None: picked automatically).
+        face_model: MediaPipe ``face_landmarker.task`` (None: the default lookup).
+        compare: also write compare.mp4.
+        samples: MSAA samples of the renders.
+        crf: H.264 quality of the videos (lower = better, larger).
+        queue_frames: frames buffered between overlapped stages.
+    """
+
+    character: Any = None
+    wrinkles: str = "auto"
+    size: int = 512
+    neutral_frame: int | None = None
+    face_model: str | os.PathLike | None = None
+    compare: bool = True
+    samples: int = 4
+    crf: int = 20
+    queue_frames: int = 8
+
+    def validate(self) -> None:
+        if self.wrinkles not in WRINKLE_DRIVERS:
+            raise CaptureError(f"unknown wrinkle driver '{self.wrinkles}'; choose one of {', '.join(WRINKLE_DRIVERS)}")
+        if not isinstance(self.size, (int, np.integer)) or self.size < 64 or self.size % 2:
+            raise CaptureError(f"--size must be an even number of pixels >= 64 (got {self.size})")
+        if self.neutral_frame is not None and self.neutral_frame < 0:
+            raise CaptureError(f"--neutral-frame must be >= 0 (got {self.neutral_frame})")
+
+
+# ---- character ------------------------------------------------------------------------
+def load_character(character: Any = None) -> FaceRig:
+    """The rig to animate (see :attr:`RunOptions.character`).
+
+    Raises:
+        CaptureError: missing, corrupt or unsupported character file.
+    """
+    from capture2face.rig.avatar import default_avatar
+
+    if character is None:
+        return default_avatar()
+    if isinstance(character, FaceRig):
+        return character
+    text = os.fspath(character)
+    if text in BUILTIN_CHARACTERS and not Path(text).exists():
+        return default_avatar(variant=None if text == "default" else text)
+    path = Path(text)
+    if not path.is_file():
+        raise CaptureError(f"character {path}: no such file" if not path.exists()
+                           else f"character {path}: not a file")
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".npz":
+            return FaceRig.load(path)
+        if suffix in (".glb", ".gltf"):
+            from capture2face.rig.gltf import import_glb
+
+            mapping = path.with_suffix(".json")
+            return import_glb(path, mapping if mapping.is_file() else None)
+    except CaptureError as exc:
+        msg = str(exc)
+        raise CaptureError(msg if msg.startswith(("character", str(path))) else f"character {path}: {msg}") from None
+    except Exception as exc:  # noqa: BLE001 - any parse failure of a user's file is their input
+        raise CaptureError(f"character {path}: not a readable {suffix[1:]} character "
+                           f"({exc.__class__.__name__}: {exc})".rstrip()) from None
+    raise CaptureError(f"character {path}: unsupported format '{suffix}'; "
+                       "use a FaceRig .npz or a .glb with its mapping .json")
+
+
+# ---- stages (each callable on its own) ------------------------------------------------
+def track_stage(clip: str | os.PathLike, options: RunOptions, progress: bool = True):
+    """Pass 1: the clip's :class:`~capture2face.tracking.track.Track`."""
+    from capture2face.tracking import TrackOptions, track_clip
+
+    return track_clip(clip, TrackOptions(face_model=options.face_model,
+                                         neutral_frame=options.neutral_frame), progress=progress)
+
+
+def retarget_stage(track, rig: FaceRig):
+    """Pass 2: the :class:`~capture2face.retarget.animation.Animation` of ``rig``."""
+    from capture2face.retarget import RetargetOptions, retarget
+
+    return retarget(track, rig, RetargetOptions())
+
+
+def export_stage(rig: FaceRig, animation, folder: str | os.PathLike) -> None:
+    """animation.npz, animation.glb and livelink.csv into ``folder``."""
+    from capture2face.export.livelink import write_livelink_csv
+    from capture2face.rig.gltf import export_glb
+
+    folder = Path(folder)
+    animation.save(folder / "animation.npz")
+    export_glb(rig, folder / "animation.glb", animation=animation)
+    write_livelink_csv(animation, folder / "livelink.csv")
+
+
+def avatar_head_poses(rig: FaceRig, head_pose: np.ndarray, fov_y_degrees: float) -> np.ndarray:
+    """(F, 4, 4) camera poses for the character: the tracked head rotation, with the face
+    kept centred and framed (the source's camera distance means nothing for the rig).
+
+    Args:
+        head_pose: (F, 4, 4) tracked head -> camera transforms.
+    """
+    from capture2face.render.camera import framing_pose
+
+    base = framing_pose(rig, fov_y_degrees=fov_y_degrees)  # rotation-free framing
+    centre_cam = base[:3, 3] + rig_centre(rig)  # where the face centre sits: (0, 0, -distance)
+    rot = np.asarray(head_pose, np.float64)[:, :3, :3]
+    poses = np.tile(np.eye(4), (len(rot), 1, 1))
+    poses[:, :3, :3] = rot
+    poses[:, :3, 3] = centre_cam - rot @ rig_centre(rig)
+    return poses
+
+
+def rig_centre(rig: FaceRig) -> np.ndarray:
+    from capture2face.render.camera import face_centre_and_height
+
+    return face_centre_and_height(rig)[0]
+
+
+def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder: str | os.PathLike,
+                 options: RunOptions, progress: bool = True) -> dict:
+    """Pass 3: avatar.mp4 and compare.mp4 into ``folder``, stages overlapped.
+
+    Returns:
+        ``{"render_s": GL thread busy seconds, "frames": n}``.
+    """
+    from tqdm import tqdm
+
+    from capture2face.compose import SourceFitter, compare_frame
+    from capture2face.overlap import StageGroup
+    from capture2face.render import FrameState, Renderer, RenderOptions
+    from capture2face.render.video import VideoWriter
+    from capture2face.tracking.video import iter_frames
+
+    folder = Path(folder)
+    n = animation.n_frames
+    size = int(options.size)
+    fps = float(track.fps)
+    render_opts = RenderOptions(size=size, wrinkles=options.wrinkles, samples=options.samples)
+    heat_opts = RenderOptions(size=size, wrinkles=options.wrinkles if options.wrinkles != "off" else "auto",
+                              view="influence", samples=options.samples)
+    poses = avatar_head_poses(rig, animation.head_pose, render_opts.fov_y_degrees).astype(np.float32)
+    fitter = SourceFitter(track.width, track.height, size)
+    q = max(2, int(options.queue_frames))
+
+    def encode_avatar(frames) -> None:
+        with VideoWriter(folder / "avatar.mp4", fps, (size, size), crf=options.crf) as out:
+            for frame in frames:
+                out.write(frame)
+
+    def decode_source(sink) -> None:
+        for _, rgb in iter_frames(clip, max_frames=n):
+            sink.put(rgb)
+        sink.close()
+
+    def encode_compare(panels, sources) -> None:
+        src = iter(sources)
+        with VideoWriter(folder / "compare.mp4", fps, (3 * size, size), crf=options.crf) as out:
+            for i, (avatar, heat) in enumerate(panels):
+                out.write(compare_frame(fitter, next(src, None), track.landmarks_px[i],
+                                        bool(track.presence[i]), avatar, heat))
+            for _ in src:  # drain, so the decoder is never left blocked
+                pass
+
+    busy = 0.0
+    with StageGroup() as group, contextlib.ExitStack() as stack:
+        avatar_q = group.channel(q)
+        group.spawn("encode-avatar", encode_avatar, avatar_q)
+        if options.compare:
+            source_q, panel_q = group.channel(q), group.channel(q)
+            group.spawn("decode", decode_source, source_q)
+            group.spawn("encode-compare", encode_compare, panel_q, source_q)
+        renderer = stack.enter_context(Renderer.create_from_options(rig, render_opts))
+        heat = stack.enter_context(Renderer.create_from_options(rig, heat_opts)) if options.compare else None
+        bar = stack.enter_context(tqdm(total=n, disable=not progress, unit="frame", desc="rendering", leave=False))
+        for i in range(n):
+            t0 = time.perf_counter()
+            state = FrameState(
+                bone_positions=animation.bone_positions[i], blend_weights=animation.blend_weights[i],
+                head_pose=poses[i], influences=animation.influences[i], zone_weights=animation.zone_weights[i],
+            )
+            image = renderer.render(state)
+            panels = (image, heat.render(state)) if heat is not None else None
+            busy += time.perf_counter() - t0
+            avatar_q.put(image)
+            if panels is not None:
+                panel_q.put(panels)
+            bar.update(1)
+        avatar_q.close()
+        if options.compare:
+            panel_q.close()
+    return {"render_s": busy, "frames": n}
+
+
+# ---- outputs ---------------------------------------------------------------------------
+def outputs_complete(folder: str | os.PathLike) -> bool:
+    """True when ``folder`` holds a finished run: report.json and every output it lists."""
+    folder = Path(folder)
+    try:
+        report = json.loads((folder / "report.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    names = report.get("outputs") or []
+    return bool(names) and all((folder / name).is_file() and (folder / name).stat().st_size > 0 for name in names)
+
+
+class _WarningLog(logging.Handler):
+    """Collects the ``capture2face`` logger's warnings during a run for report.json."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.messages: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.messages.append(record.getMessage())
+
+
+@contextlib.contextmanager
+def _collect_warnings():
+    handler = _WarningLog()
+    log.addHandler(handler)
+    try:
+        yield handler.messages
+    finally:
+        log.removeHandler(handler)
+
+
+def _track_warnings(track) -> list[str]:
+    out = []
+    missing = track.n_frames - track.tracked_frames
+    if missing:
+        out.append(f"no face in {missing} of {track.n_frames} frames ({track.n_gaps} gaps); "
+                   "short gaps are interpolated, longer ones hold the last pose")
+    if track.n_long_gaps:
+        out.append(f"{track.n_long_gaps} gaps longer than the interpolation limit hold the last pose")
+    if track.n_faces_max > 1:
+        out.append(f"up to {track.n_faces_max} faces in view; the one continuing the track was kept")
+    return out
+
+
+def _options_json(options: RunOptions) -> dict:
+    out = {}
+    for f in fields(options):
+        v = getattr(options, f.name)
+        if isinstance(v, FaceRig):
+            v = v.name
+        elif isinstance(v, os.PathLike):
+            v = os.fspath(v)
+        out[f.name] = v
+    return out
+
+
+def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions | None = None,
+        progress: bool = True, name: str | None = None) -> dict:
+    """Clip -> ``out_dir/<clip stem>/`` with avatar.mp4, compare.mp4, track.npz,
+    animation.npz, animation.glb, livelink.csv and report.json.
+
+    Args:
+        clip: the source video.
+        out_dir: parent folder of the clip's output folder (created if needed).
+        options: :class:`RunOptions`.
+        progress: tqdm progress bars.
+        name: output folder name (default: the clip's stem).
+    Returns:
+        The report (also written as report.json): frames, tracked_frames, fps, seconds
+        per stage, warnings, outputs.
+    Raises:
+        CaptureError: unreadable clip, no face, bad character, output not writable, ...
+            Nothing is left in ``out_dir`` then (nor on KeyboardInterrupt).
+    """
+    from capture2face.staging import staged_folder
+    from capture2face.tracking.video import open_video
+
+    options = options or RunOptions()
+    options.validate()
+    t_start = time.perf_counter()
+    info = open_video(clip)  # bad input fails here, before anything is written
+    rig = load_character(options.character)
+    final = Path(out_dir) / (name or Path(clip).stem)
+    seconds: dict[str, float] = {}
+    with _collect_warnings() as warnings, staged_folder(final) as tmp:
+        t = time.perf_counter()
+        track = track_stage(clip, options, progress)
+        track.save(tmp / "track.npz")
+        seconds["track"] = time.perf_counter() - t
+
+        t = time.perf_counter()
+        animation = retarget_stage(track, rig)
+        seconds["retarget"] = time.perf_counter() - t
+
+        t = time.perf_counter()
+        export_stage(rig, animation, tmp)
+        seconds["export"] = time.perf_counter() - t
+
+        t = time.perf_counter()
+        rendered = render_stage(clip, track, animation, rig, tmp, options, progress)
+        seconds["render_encode"] = time.perf_counter() - t
+        seconds["render_gl"] = rendered["render_s"]
+
+        seconds["total"] = time.perf_counter() - t_start
+        n = track.n_frames
+        report = {
+            "clip": os.fspath(clip),
+            "output_dir": os.fspath(final),
+            "character": rig.name,
+            "wrinkles": options.wrinkles,
+            "size": int(options.size),
+            "frames": n,
+            "tracked_frames": track.tracked_frames,
+            "fps": float(track.fps),
+            "source_size": [int(track.width), int(track.height)],
+            "neutral_frame": int(track.neutral_frame),
+            "seconds": {k: round(v, 3) for k, v in seconds.items()},
+            "fps_processing": n / seconds["total"],
+            "track_fps": n / seconds["track"],
+            "warnings": _track_warnings(track) + list(warnings),
+            "outputs": [f for f in OUTPUT_FILES if f != "compare.mp4" or options.compare],
+            "options": _options_json(options),
+            "video": {"codec": info.codec, "rotation": info.rotation},
+        }
+        write_text_atomic(tmp / "report.json", json.dumps(report, indent=2) + "\n")
+    return report

@@ -1,0 +1,217 @@
+"""Bad input through the command line: exit code 2, one clear line on stderr, no
+traceback, and nothing left in the output folder. Interrupts leave nothing behind."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ENV = dict(os.environ, GLOG_minloglevel="2", TF_CPP_MIN_LOG_LEVEL="2", PYTHONUNBUFFERED="1")
+
+
+def cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "capture2face", *args], capture_output=True,
+                          text=True, timeout=timeout, env=ENV)
+
+
+def write_video(path: Path, frames: int, size: int = 128, seed: int = 0, **mux_options) -> Path:
+    """A clip of smooth random colour blobs: a valid H.264 video with no face in it."""
+    import av
+
+    rng = np.random.default_rng(seed)
+    with av.open(str(path), "w", options=mux_options) as c:
+        s = c.add_stream("libx264", rate=25)
+        s.width = s.height = size
+        s.pix_fmt = "yuv420p"
+        base = rng.integers(0, 255, (8, 8, 3)).astype(np.float32)
+        for i in range(frames):
+            small = np.clip(base + 40 * np.sin(i / 5 + base / 40), 0, 255).astype(np.uint8)
+            img = np.kron(small, np.ones((size // 8, size // 8, 1), np.uint8))
+            for p in s.encode(av.VideoFrame.from_ndarray(img, format="rgb24")):
+                c.mux(p)
+        for p in s.encode():
+            c.mux(p)
+    return path
+
+
+def write_audio_only(path: Path) -> Path:
+    import av
+
+    with av.open(str(path), "w") as c:
+        s = c.add_stream("aac", rate=44100)
+        s.layout = "mono"
+        t = np.arange(22050) / 44100
+        for i in range(0, len(t), 1024):
+            chunk = (0.3 * np.sin(2 * np.pi * 440 * t[i:i + 1024]))[None].astype(np.float32)
+            frame = av.AudioFrame.from_ndarray(chunk, format="fltp", layout="mono")
+            frame.sample_rate = 44100
+            for p in s.encode(frame):
+                c.mux(p)
+        for p in s.encode(None):
+            c.mux(p)
+    return path
+
+
+def write_zero_frames(path: Path) -> Path:
+    """An .mp4 whose video stream exists but holds no frame (fragmented mp4 writes the
+    track header up front; a plain mp4 would drop the empty track)."""
+    import av
+
+    with av.open(str(path), "w", options={"movflags": "frag_keyframe+empty_moov"}) as c:
+        s = c.add_stream("libx264", rate=25)
+        s.width = s.height = 64
+        s.pix_fmt = "yuv420p"
+        c.start_encoding()
+    return path
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory) -> dict[str, Path]:
+    d = tmp_path_factory.mktemp("bad_inputs")
+    faceless = write_video(d / "noface.mp4", 20)
+    truncated = d / "truncated.mp4"
+    data = write_video(d / "full.mp4", 40, seed=1).read_bytes()
+    truncated.write_bytes(data[: len(data) // 2])  # moov sits at the end: the index is gone
+    (d / "empty.mp4").write_bytes(b"")
+    (d / "text.mp4").write_text("this is not a video\n" * 20)
+    (d / "folder.mp4").mkdir()
+    (d / "corrupt.npz").write_bytes(os.urandom(2048))
+    (d / "corrupt.glb").write_bytes(b"glTF" + os.urandom(400))
+    return {
+        "noface": faceless, "truncated": truncated, "empty": d / "empty.mp4", "text": d / "text.mp4",
+        "folder": d / "folder.mp4", "audio": write_audio_only(d / "audio.mp4"),
+        "zero": write_zero_frames(d / "zero.mp4"), "missing": d / "missing.mp4",
+        "corrupt_npz": d / "corrupt.npz", "corrupt_glb": d / "corrupt.glb",
+    }
+
+
+def assert_clean_failure(result: subprocess.CompletedProcess, out: Path, must_mention: str) -> None:
+    assert result.returncode == 2, (result.returncode, result.stderr[-2000:])
+    lines = [ln for ln in result.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, result.stderr[-2000:]
+    assert lines[0].startswith("capture2face: error: "), lines[0]
+    assert must_mention.lower() in lines[0].lower(), lines[0]
+    assert "Traceback" not in result.stderr
+    assert not out.exists() or not any(out.iterdir()), sorted(p.name for p in out.rglob("*"))
+
+
+@pytest.mark.parametrize("case,mention", [
+    ("missing", "no such file"),
+    ("folder", "directory"),
+    ("empty", "empty"),
+    ("text", "not a video"),
+    ("truncated", "truncated"),
+    ("audio", "no video stream"),
+    ("zero", "no frames"),
+])
+def test_unreadable_clip_fails_cleanly(inputs, tmp_path, case, mention):
+    out = tmp_path / "out"
+    assert_clean_failure(cli("-q", "run", str(inputs[case]), "-o", str(out)), out, mention)
+
+
+@pytest.mark.slow
+def test_clip_without_a_face_fails_cleanly(inputs, tmp_path):
+    out = tmp_path / "out"
+    result = cli("-q", "run", str(inputs["noface"]), "-o", str(out), "--size", "128")
+    assert_clean_failure(result, out, "no face")
+
+
+@pytest.mark.parametrize("case", ["corrupt_npz", "corrupt_glb"])
+def test_corrupt_character_fails_cleanly(inputs, tmp_path, case):
+    out = tmp_path / "out"
+    result = cli("-q", "run", str(inputs["noface"]), "-o", str(out), "--character", str(inputs[case]))
+    assert_clean_failure(result, out, inputs[case].name)
+
+
+def test_missing_character_fails_cleanly(inputs, tmp_path):
+    out = tmp_path / "out"
+    result = cli("-q", "run", str(inputs["noface"]), "-o", str(out), "--character", str(tmp_path / "nobody.glb"))
+    assert_clean_failure(result, out, "no such file")
+
+
+def test_output_path_that_is_a_file_fails_cleanly(inputs, tmp_path):
+    blocker = tmp_path / "blocker"
+    blocker.write_text("a file where the output folder should go")
+    result = cli("-q", "run", str(inputs["noface"]), "-o", str(blocker / "out"))
+    assert_clean_failure(result, blocker.parent / "nothing-here", "cannot write")
+    assert blocker.read_text().startswith("a file")
+
+
+def test_unwritable_output_folder_fails_cleanly(inputs, tmp_path):
+    if os.geteuid() != 0:
+        locked = tmp_path / "locked"
+        locked.mkdir()
+        locked.chmod(0o555)
+        out = locked / "out"
+    elif _sysfs_readonly():
+        out = Path("/sys/capture2face-test-out")  # root may write anywhere but sysfs
+    else:
+        pytest.skip("running as root and no read-only folder to write into")
+    try:
+        result = cli("-q", "run", str(inputs["noface"]), "-o", str(out))
+        assert_clean_failure(result, out, "cannot write")
+    finally:
+        if os.geteuid() != 0:
+            (tmp_path / "locked").chmod(0o755)
+
+
+def _sysfs_readonly() -> bool:
+    try:
+        os.mkdir("/sys/capture2face-probe")
+    except OSError:
+        return os.path.isdir("/sys")
+    os.rmdir("/sys/capture2face-probe")
+    return False
+
+
+def test_debug_shows_the_traceback(inputs, tmp_path):
+    result = cli("--debug", "-q", "run", str(inputs["text"]), "-o", str(tmp_path / "out"))
+    assert result.returncode != 0
+    assert "Traceback" in result.stderr and "CaptureError" in result.stderr
+
+
+# ---- interrupts ---------------------------------------------------------------------------
+def _wait_for(predicate, proc, timeout: float) -> bool:
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        if predicate():
+            return True
+        if proc.poll() is not None:
+            return False
+        time.sleep(0.05)
+    return False
+
+
+def _staging(out: Path) -> list[Path]:
+    return [p for p in out.glob(".tmp-*") if p.is_dir()] if out.exists() else []
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig,when", [(signal.SIGINT, "render"), (signal.SIGTERM, "track")])
+def test_interrupted_run_leaves_nothing(sample_clip, tmp_path, sig, when):
+    """SIGINT while rendering, SIGTERM while tracking: exit 130, no file left behind."""
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "capture2face", "-q", "run", str(sample_clip), "-o", str(out),
+                             "--size", "256"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
+    try:
+        if when == "track":
+            reached = _wait_for(lambda: bool(_staging(out)), proc, 120)
+        else:  # track.npz is written before rendering starts
+            reached = _wait_for(lambda: any((d / "track.npz").exists() for d in _staging(out)), proc, 180)
+        assert reached, "the run ended before the interrupt point"
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err[-2000:]
+    assert "interrupted" in err and "Traceback" not in err
+    left = sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*"))
+    assert left == [], left
