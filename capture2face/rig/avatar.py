@@ -1,0 +1,693 @@
+"""The default avatar: a FaceRig built by code from MediaPipe's canonical face mesh.
+
+Built on first use and cached as ``avatar-<variant>-<hash>.rig.npz`` in
+``$CAPTURE2FACE_CACHE`` (default ``~/.cache/capture2face``); the hash covers the source of
+every builder module, so a code change rebuilds it. Nothing is downloaded.
+
+Vertex layout: canonical vertices 0..467 (vertex i *is* landmark i), then the edge
+midpoints of one subdivision step (skin, material 0), then the right and left eyeballs
+(material 1), then the mouth interior (material 2).
+
+Sides are the subject's: ``_L`` bones and ``...Left`` morphs are on the subject's left,
++x in head coordinates, u > 0.5 in texture space.
+
+Bone groups: the three brow bones of one side form a group (the brow moves as one muscle
+sheet, so its wrinkles follow the side's mean); every other bone is its own group.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from capture2face.rig import canonical, features, mesh_ops
+from capture2face.rig.face_rig import REGION_NAMES, ZONE_NAMES, FaceRig
+
+VARIANTS = ("default", "wide")
+
+# Eye and lip contours of the canonical mesh (MediaPipe landmark ids).
+EYE_RINGS = {  # side: (outer corner, inner corner, upper-lid landmark)
+    "R": (33, 133, 159),
+    "L": (263, 362, 386),
+}
+LIP_INNER_CORNERS = (78, 308)
+LIP_UPPER_LINES = [61, 185, 40, 39, 37, 0, 267, 269, 270, 409, 291,
+                   76, 184, 74, 73, 72, 11, 302, 303, 304, 408, 306,
+                   62, 183, 42, 41, 38, 12, 268, 271, 272, 407, 292,
+                   191, 80, 81, 82, 13, 312, 311, 310, 415]
+LIP_LOWER_LINES = [146, 91, 181, 84, 17, 314, 405, 321, 375,
+                   77, 90, 180, 85, 16, 315, 404, 320, 307,
+                   96, 89, 179, 86, 15, 316, 403, 319, 325,
+                   95, 88, 178, 87, 14, 317, 402, 318, 324]
+BROW_R = [70, 63, 105, 66, 107, 46, 53, 52, 65, 55]
+BROW_INNER_R = [107, 66, 55, 65]
+BROW_OUTER_R = [70, 63, 46, 53]
+
+
+@dataclass(frozen=True)
+class BoneSpec:
+    name: str
+    landmark: int
+    radius: float  # cm of geodesic distance beyond which the bone's weight is 0
+    group: str
+
+
+# (name, landmark, skinning radius). "_R" = subject's right (-x).
+BONES = [
+    BoneSpec("head", -1, 0.0, "head"),
+    BoneSpec("brow_inner_R", 107, 2.5, "brow_R"), BoneSpec("brow_mid_R", 105, 2.5, "brow_R"),
+    BoneSpec("brow_outer_R", 70, 2.5, "brow_R"),
+    BoneSpec("brow_inner_L", 336, 2.5, "brow_L"), BoneSpec("brow_mid_L", 334, 2.5, "brow_L"),
+    BoneSpec("brow_outer_L", 300, 2.5, "brow_L"),
+    BoneSpec("eyelid_upper_R", 159, 1.2, ""), BoneSpec("eyelid_lower_R", 145, 1.2, ""),
+    BoneSpec("eyelid_upper_L", 386, 1.2, ""), BoneSpec("eyelid_lower_L", 374, 1.2, ""),
+    BoneSpec("cheek_R", 205, 2.8, ""), BoneSpec("cheek_L", 425, 2.8, ""),
+    BoneSpec("nose_wing_R", 129, 1.3, ""), BoneSpec("nose_wing_L", 358, 1.3, ""),
+    BoneSpec("lip_upper_R", 82, 1.4, ""), BoneSpec("lip_upper_C", 13, 1.4, ""),
+    BoneSpec("lip_upper_L", 312, 1.4, ""),
+    BoneSpec("mouth_corner_R", 61, 1.6, ""), BoneSpec("mouth_corner_L", 291, 1.6, ""),
+    BoneSpec("lip_lower_R", 87, 1.4, ""), BoneSpec("lip_lower_C", 14, 1.4, ""),
+    BoneSpec("lip_lower_L", 317, 1.4, ""),
+    BoneSpec("jaw", 152, 5.0, ""),
+]
+
+# Reference poses as bone displacements (cm) for the subject's left side and the middle;
+# "_R" bones get the mirror image (x negated). Every face bone moves in both poses.
+_POSES = {
+    "stretch": {  # brows raised, eyes wide, mouth open
+        "brow_inner": (0.0, 1.0, 0.1), "brow_mid": (0.0, 1.1, 0.05), "brow_outer": (0.0, 0.9, 0.0),
+        "eyelid_upper": (0.0, 0.35, 0.05), "eyelid_lower": (0.0, -0.2, 0.0),
+        "cheek": (0.0, -0.35, -0.05), "nose_wing": (0.0, -0.25, 0.0),
+        "lip_upper_C": (0.0, 0.3, 0.0), "lip_upper": (0.0, 0.3, 0.0),
+        "mouth_corner": (-0.2, -0.6, -0.1),
+        "lip_lower_C": (0.0, -1.1, -0.2), "lip_lower": (0.0, -1.0, -0.2),
+        "jaw": (0.0, -1.5, -0.5),
+    },
+    "compress": {  # brows down and together, squint, lips puckered
+        "brow_inner": (-0.35, -0.45, 0.1), "brow_mid": (-0.25, -0.5, 0.05), "brow_outer": (-0.1, -0.45, 0.0),
+        "eyelid_upper": (0.0, -0.3, 0.0), "eyelid_lower": (0.0, 0.25, 0.05),
+        "cheek": (0.0, 0.4, 0.15), "nose_wing": (0.0, 0.3, 0.1),
+        "lip_upper_C": (0.0, -0.1, 0.6), "lip_upper": (-0.25, -0.1, 0.55),
+        "mouth_corner": (-0.8, 0.0, 0.3),
+        "lip_lower_C": (0.0, 0.15, 0.6), "lip_lower": (-0.25, 0.15, 0.55),
+        "jaw": (0.0, 0.35, 0.25),
+    },
+}
+# Morph weights shown with each pose (display only; pose evaluation uses bones).
+_POSE_MORPHS = {
+    "stretch": {"eyeWideLeft": 0.5, "eyeWideRight": 0.5, "jawOpen": 0.3},
+    "compress": {"eyeSquintLeft": 0.5, "eyeSquintRight": 0.5, "mouthPucker": 0.5,
+                 "browDownLeft": 0.3, "browDownRight": 0.3},
+}
+
+# Expression x zone table (Oat's signs: +1 compress map, -1 stretch map). Sided entries
+# are written for "Left" and mirrored for "Right".
+_ZONE_TABLE = {
+    "browInnerUp": {"forehead_left": -1.0, "forehead_right": -1.0, "glabella": -0.5},
+    "browOuterUpLeft": {"forehead_left": -1.0},
+    "browDownLeft": {"glabella": 0.6, "forehead_left": 0.3},
+    "eyeSquintLeft": {"crows_feet_left": 1.0},
+    "eyeBlinkLeft": {"crows_feet_left": 0.3},
+    "eyeWideLeft": {"forehead_left": -0.4, "crows_feet_left": -0.3},
+    "mouthSmileLeft": {"crows_feet_left": 0.5, "nasolabial_left": 1.0},
+    "mouthFrownLeft": {"chin": 0.5, "nasolabial_left": -0.3},
+    "mouthUpperUpLeft": {"nasolabial_left": 0.5},
+    "mouthLowerDownLeft": {"chin": -0.3},
+    "noseSneerLeft": {"glabella": 0.5, "nasolabial_left": 0.6},
+    "mouthPucker": {"chin": 0.8, "nasolabial_left": -0.3, "nasolabial_right": -0.3},
+    "mouthFunnel": {"chin": 0.4},
+    "jawOpen": {"chin": -0.6, "nasolabial_left": -0.4, "nasolabial_right": -0.4},
+    "cheekPuff": {"nasolabial_left": -0.6, "nasolabial_right": -0.6, "chin": -0.2},
+}
+
+IRIS_RADIUS_CM = 0.58
+
+
+def cache_dir() -> Path:
+    return Path(os.environ.get("CAPTURE2FACE_CACHE") or Path.home() / ".cache" / "capture2face")
+
+
+def _source_hash() -> str:
+    """Hash of the builder's source files: a code change gives a new cache file."""
+    from capture2face.rig import maps
+
+    h = hashlib.sha256()
+    for module in (canonical, features, mesh_ops, maps, __import__(__name__, fromlist=["x"])):
+        h.update(Path(module.__file__).read_bytes())
+    h.update(Path(__file__).with_name("face_rig.py").read_bytes())
+    return h.hexdigest()[:16]
+
+
+_MEMO: dict[str, FaceRig] = {}
+
+
+def default_avatar(variant: str | None = None) -> FaceRig:
+    """The default avatar (``variant=None`` or ``"default"``) or a built-in variant
+    (``"wide"``: face 15% wider, brows 0.5 cm higher, longer chin, longer nose: another
+    morphology with the same topology, bones and morphs).
+
+    Built on first use and cached on disk and in memory.
+    """
+    from capture2face.errors import CaptureError
+
+    variant = variant or "default"
+    if variant not in VARIANTS:
+        raise CaptureError(f"unknown avatar variant '{variant}' (choose from {', '.join(VARIANTS)})")
+    key = f"{variant}-{_source_hash()}"
+    if key in _MEMO:
+        return _MEMO[key]
+    path = cache_dir() / f"avatar-{key}.rig.npz"
+    rig = None
+    if path.is_file():
+        try:
+            rig = FaceRig.load(path)
+        except CaptureError:
+            rig = None  # a corrupt cache file is rebuilt
+    if rig is None:
+        rig = build_avatar(variant)
+        try:
+            rig.save(path)
+        except OSError:
+            pass  # a read-only cache still gives the rig, just not cached
+    _MEMO[key] = rig
+    return rig
+
+
+# ---------------------------------------------------------------------------------------
+# Geometry
+
+
+def _variant_shape(v: np.ndarray, variant: str) -> np.ndarray:
+    """Reshape the canonical vertices (468, 3) for a variant; topology is untouched."""
+    if variant == "default":
+        return v.copy()
+    out = v.astype(np.float64).copy()
+    x, y, z = out[:, 0], out[:, 1], out[:, 2]
+    out[:, 0] = x * 1.15
+    out[:, 1] += 0.5 * features.smoothstep((y - 3.2) / 1.2)  # brows and forehead up
+    out[:, 1] -= 0.5 * features.smoothstep((-5.5 - y) / 2.5)  # longer chin
+    nose = np.exp(-((x / 1.3) ** 2 + ((y + 0.5) / 2.0) ** 2))
+    out[:, 2] += 0.3 * nose  # longer nose
+    return out
+
+
+def _remove_hole_fills(triangles: np.ndarray, rings: list[list[int]]) -> np.ndarray:
+    """Drop triangles whose three corners lie on one eye or lip contour (the canonical
+    mesh closes the eyes and the mouth; the avatar needs them open)."""
+    drop = np.zeros(len(triangles), bool)
+    for ring in rings:
+        drop |= np.isin(triangles, ring).all(axis=1)
+    return triangles[~drop]
+
+
+def _contour_loop(loops: list[np.ndarray], member: int) -> np.ndarray:
+    for loop in loops:
+        if member in loop:
+            return loop
+    raise RuntimeError(f"no boundary loop through vertex {member}")
+
+
+def _split_loop(loop: np.ndarray, a: int, b: int, through: int) -> tuple[np.ndarray, np.ndarray]:
+    """Split a closed loop at vertices a and b; return (part containing ``through``,
+    the other part), both without the corners."""
+    loop = list(loop)
+    ia = loop.index(a)
+    loop = loop[ia:] + loop[:ia]
+    ib = loop.index(b)
+    first, second = np.array(loop[1:ib]), np.array(loop[ib + 1:])
+    return (first, second) if through in first else (second, first)
+
+
+def _uv_sphere(n_theta: int, n_phi: int):
+    """Unit sphere around +z: returns (dirs (N, 3), theta, phi, triangles) with vertex 0
+    at the front pole. Ring i has polar angle theta_i; the back pole is the last vertex."""
+    thetas = np.linspace(0.0, np.pi, n_theta + 1)[1:-1]
+    phis = np.arange(n_phi) * 2 * np.pi / n_phi
+    th, ph = np.meshgrid(thetas, phis, indexing="ij")
+    theta = np.concatenate([[0.0], th.ravel(), [np.pi]])
+    phi = np.concatenate([[0.0], ph.ravel(), [0.0]])
+    dirs = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], 1)
+    tris = []
+    ring = lambda i, j: 1 + i * n_phi + (j % n_phi)
+    for j in range(n_phi):
+        tris.append((0, ring(0, j), ring(0, j + 1)))
+        for i in range(len(thetas) - 1):
+            tris.append((ring(i, j), ring(i + 1, j), ring(i + 1, j + 1)))
+            tris.append((ring(i, j), ring(i + 1, j + 1), ring(i, j + 1)))
+        last = len(theta) - 1
+        tris.append((ring(len(thetas) - 1, j), last, ring(len(thetas) - 1, j + 1)))
+    return dirs, theta, phi, np.array(tris, np.int32)
+
+
+def _eyeball(ring_pos: np.ndarray, side: str):
+    """A sphere behind an eye opening whose front silhouette covers the opening and which
+    stays behind every lid vertex. Returns (vertices, uvs, triangles, iris vertex ids
+    (5,): centre then 4 rim points at phi = 0, 90, 180, 270 degrees)."""
+    centre_xy = 0.5 * (ring_pos[:, :2].max(0) + ring_pos[:, :2].min(0))
+    reach = np.linalg.norm(ring_pos[:, :2] - centre_xy, axis=1)
+    radius = reach.max() + 0.2
+    middle = np.abs(ring_pos[:, 0] - centre_xy[0]) < 0.6
+    z_front = ring_pos[middle, 2].min() - 0.12
+    cz = z_front - radius
+    # Push the sphere back until every contour vertex is at least 0.06 cm in front of it.
+    depth_at = lambda c: c + np.sqrt(np.maximum(radius**2 - reach**2, 0.0))
+    cz -= max(0.0, float((depth_at(cz) - ring_pos[:, 2] + 0.06).max()))
+    centre = np.array([centre_xy[0], centre_xy[1], cz])
+    n_phi = 24
+    dirs, theta, phi, tris = _uv_sphere(14, n_phi)
+    # Put the iris rim on a latitude ring so the iris landmarks sit on vertices.
+    iris_theta = np.arcsin(IRIS_RADIUS_CM / radius)
+    ring_thetas = np.unique(theta)
+    k = int(np.argmin(np.abs(ring_thetas[1:-1] - iris_theta))) + 1
+    theta = np.where(np.isclose(theta, ring_thetas[k]), iris_theta, theta)
+    dirs = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], 1)
+    verts = centre + radius * dirs
+    from capture2face.rig import maps
+
+    cu, cv = maps.EYE_TEXTURE_CENTRES[side]
+    r_uv = maps.eye_uv_radius(theta)
+    uvs = np.stack([cu + r_uv * np.cos(phi), cv - r_uv * np.sin(phi)], 1)
+    rim = 1 + (k - 1) * n_phi + np.array([0, 6, 12, 18])
+    return verts, uvs, tris, np.concatenate([[0], rim]), iris_theta
+
+
+def _mouth_interior(lip_loop: np.ndarray, pos: np.ndarray):
+    """A dark cavity hanging back from the inner lip contour: the contour copied, three
+    rings shrinking backwards, and a cap. Returns (vertices, source (N,) contour vertex
+    each new vertex copies its skinning from (-1 = cap), depth (N,) in [0, 1], triangles
+    local to the new vertices)."""
+    ring = pos[lip_loop]
+    c = ring.mean(0)
+    steps = [(1.0, 1.0, 0.0), (0.92, 0.9, 0.5), (0.75, 0.8, 1.3), (0.45, 0.55, 2.1)]
+    verts, source, depth = [], [], []
+    for sx, sy, dz in steps:
+        verts.append(np.stack([c[0] + sx * (ring[:, 0] - c[0]), c[1] + sy * (ring[:, 1] - c[1]),
+                               ring[:, 2] - dz], 1))
+        source.append(lip_loop)
+        depth.append(np.full(len(lip_loop), dz / 2.5))
+    cap = np.array([[c[0], c[1], ring[:, 2].min() - 2.5]])
+    verts = np.vstack(verts + [cap])
+    source = np.concatenate(source + [[-1]])
+    depth = np.concatenate(depth + [[1.0]])
+    n = len(lip_loop)
+    tris = []
+    for r in range(len(steps) - 1):
+        for j in range(n):
+            a, b = r * n + j, r * n + (j + 1) % n
+            tris += [(a, a + n, b + n), (a, b + n, b)]
+    cap_id = len(verts) - 1
+    last = (len(steps) - 1) * n
+    tris += [(last + j, cap_id, last + (j + 1) % n) for j in range(n)]
+    tris = np.array(tris, np.int32)
+    # Face the cavity walls towards a point in front of the mouth (what the camera sees).
+    p = verts[tris]
+    normal = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    look = c + np.array([0.0, 0.0, 2.0]) - p.mean(1)
+    flip = (normal * look).sum(1) < 0
+    tris[flip] = tris[flip][:, ::-1]
+    return verts, source, depth, tris
+
+
+# ---------------------------------------------------------------------------------------
+# Skinning
+
+
+def _skin_weights(pos: np.ndarray, tris: np.ndarray, n_skin: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Geodesic compact-support falloffs, head takes the remainder, top 4 kept.
+
+    Returns (joints (n_skin, 4), weights (n_skin, 4), dense (n_skin, B))."""
+    sources = np.array([b.landmark for b in BONES[1:]])
+    dist = mesh_ops.geodesic_distances(pos[:n_skin], tris, sources)  # (B-1, n_skin)
+    radius = np.array([b.radius for b in BONES[1:]])[:, None]
+    r = np.clip(dist / radius, 0.0, 1.0)
+    k = (1.0 - r**2) ** 3  # smooth, 1 at the bone's landmark, 0 at and beyond the radius
+    total = k.sum(0)
+    dense = np.zeros((n_skin, len(BONES)))
+    dense[:, 1:] = (k / np.maximum(total, 1.0)).T
+    dense[:, 0] = np.maximum(0.0, 1.0 - total)
+    return (*_top4(dense), dense)
+
+
+def _top4(dense: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    order = np.argsort(-dense, axis=1, kind="stable")[:, :4]
+    w = np.take_along_axis(dense, order, axis=1)
+    w = w / w.sum(1, keepdims=True)
+    joints = np.where(w > 0, order, 0).astype(np.int32)
+    return joints, w.astype(np.float32)
+
+
+# ---------------------------------------------------------------------------------------
+# Morph targets
+
+
+class _MorphBuilder:
+    """Procedural displacement fields on the skin: prescribed displacements at handle
+    vertices, extended biharmonically over the surface within a geodesic radius."""
+
+    def __init__(self, pos: np.ndarray, tris: np.ndarray, normals: np.ndarray):
+        self.pos, self.tris, self.normals = pos, tris, normals
+        self.n = len(pos)
+        self.lap = mesh_ops.uniform_laplacian(self.n, tris)
+        self.graph = mesh_ops.edge_graph(pos, tris)
+
+    def distance_to(self, vertices) -> np.ndarray:
+        from scipy.sparse.csgraph import dijkstra
+
+        return dijkstra(self.graph, indices=np.asarray(vertices), directed=False, min_only=True)
+
+    def extend(self, handles: dict, radius: float, pinned=()) -> np.ndarray:
+        """handles: {vertex id array: (n, 3) or (3,) displacement}; vertices farther
+        than ``radius`` from every handle, and ``pinned`` ones, stay still."""
+        fixed = np.zeros(self.n, bool)
+        values = np.zeros((self.n, 3))
+        ids = []
+        for idx, disp in handles:
+            idx = np.atleast_1d(np.asarray(idx))
+            values[idx] = disp
+            fixed[idx] = True
+            ids.append(idx)
+        pinned = np.asarray(list(pinned), dtype=np.int64)
+        pinned = pinned[~fixed[pinned]] if len(pinned) else pinned
+        fixed[pinned] = True
+        values[pinned] = 0.0
+        far = self.distance_to(np.concatenate(ids)) > radius
+        fixed |= far & ~np.isin(np.arange(self.n), np.concatenate(ids))
+        values[far & ~np.isin(np.arange(self.n), np.concatenate(ids))] = 0.0
+        return mesh_ops.smooth_extension(self.lap, fixed, values, order=2)
+
+    def harmonic(self, fixed: np.ndarray, values: np.ndarray) -> np.ndarray:
+        return mesh_ops.smooth_extension(self.lap, fixed, values[:, None], order=1)[:, 0]
+
+
+def _mirror_map(v: np.ndarray) -> np.ndarray:
+    """(468,) landmark index of each canonical landmark's mirror image (x -> -x)."""
+    from scipy.spatial import cKDTree
+
+    _, idx = cKDTree(v).query(v * np.array([-1.0, 1.0, 1.0]))
+    return idx
+
+
+def _build_morphs(mb: _MorphBuilder, sets: dict, mirror: np.ndarray) -> dict[str, np.ndarray]:
+    """All morph targets as (n_skin, 3) displacement fields (cm)."""
+    pos = mb.pos
+    flip = np.array([-1.0, 1.0, 1.0])
+    out: dict[str, np.ndarray] = {}
+
+    def sided(name: str, make):
+        """make(side_sign, m) -> field for the subject's left (+1) or right (-1); m maps a
+        left landmark id to the side's id."""
+        out[name + "Left"] = make(1.0, lambda i: np.asarray(i))
+        out[name + "Right"] = make(-1.0, lambda i: mirror[np.asarray(i)])
+
+    eye = sets["eye"]  # side -> dict(upper, lower, ring)
+    # Eyelids: close the upper lid onto the lower one (meeting 20% above the lower lid).
+    def lid_targets(s):
+        e = eye[s]
+        lo = e["lower_full"]
+        order = np.argsort(pos[lo, 0])
+        at_x = lambda x: np.stack([np.interp(x, pos[lo[order], 0], pos[lo[order], c]) for c in range(3)], 1)
+        up = e["upper"]
+        lower_under_upper = at_x(pos[up, 0])
+        meet = lower_under_upper + 0.2 * (pos[up] - lower_under_upper)
+        up_order = np.argsort(pos[e["upper_full"], 0])
+        uf = e["upper_full"][up_order]
+        upper_over_lower = np.stack([np.interp(pos[e["lower"], 0], pos[uf, 0], pos[uf, c]) for c in range(3)], 1)
+        lower_rise = 0.2 * (upper_over_lower - pos[e["lower"]])
+        return meet - pos[up], lower_rise
+
+    for s, name in (("L", "Left"), ("R", "Right")):
+        e = eye[s]
+        d_up, d_lo = lid_targets(s)
+        out["eyeBlink" + name] = mb.extend([(e["upper"], d_up), (e["lower"], d_lo), (e["corners"], 0.0)], 2.2)
+        out["eyeWide" + name] = mb.extend(
+            [(e["upper"], np.array([0.0, 0.28, 0.04]) * e["upper_profile"][:, None]), (e["lower"], 0.0), (e["corners"], 0.0)], 2.2)
+        below = e["below"]
+        out["eyeSquint" + name] = mb.extend(
+            [(e["lower"], np.array([0.0, 0.17, 0.04]) * e["lower_profile"][:, None]),
+             (e["upper"], np.array([0.0, -0.08, 0.0]) * e["upper_profile"][:, None]),
+             (below, np.array([0.0, 0.2, 0.08]))], 2.5)
+
+    # Brows. Left landmark lists come from mirroring the right ones.
+    brow_l = mirror[BROW_R]
+    inner_l, outer_l = mirror[BROW_INNER_R], mirror[BROW_OUTER_R]
+    eye_rings = np.concatenate([eye["L"]["ring"], eye["R"]["ring"]])
+    out["browInnerUp"] = mb.extend([(np.concatenate([BROW_INNER_R, inner_l]), np.array([0.0, 0.7, 0.05])),
+                                    (9, np.array([0.0, 0.3, 0.0]))], 3.0, pinned=eye_rings)
+    sided("browDown", lambda sg, m: mb.extend(
+        [(m(brow_l), np.array([0.0, -0.45, 0.05])), (m(inner_l), np.array([-0.25 * sg, -0.45, 0.12]))], 2.5,
+        pinned=eye_rings))
+    sided("browOuterUp", lambda sg, m: mb.extend([(m(outer_l), np.array([0.0, 0.6, 0.0]))], 2.5, pinned=eye_rings))
+
+    # Mouth.
+    corner_l = np.array([291, 308])
+    cheek_l = 425
+    sided("mouthSmile", lambda sg, m: mb.extend(
+        [(m(corner_l), np.array([0.55 * sg, 0.45, -0.25])), (m(cheek_l), np.array([0.1 * sg, 0.35, 0.15]))],
+        3.5, pinned=eye_rings))
+    sided("mouthFrown", lambda sg, m: mb.extend([(m(corner_l), np.array([0.05 * sg, -0.45, -0.05]))], 3.0))
+    upper_l = np.array([267, 269, 270, 312, 311, 310, 302])  # left half of the upper lip
+    lower_l = np.array([314, 405, 321, 317, 402, 318])
+    sided("mouthUpperUp", lambda sg, m: mb.extend([(m(upper_l), np.array([0.0, 0.3, 0.05]))], 2.0,
+                                                  pinned=sets["lip_lower"]))
+    sided("mouthLowerDown", lambda sg, m: mb.extend([(m(lower_l), np.array([0.0, -0.3, 0.0]))], 2.0,
+                                                    pinned=sets["lip_upper"]))
+    lips = np.concatenate([sets["lip_upper"], sets["lip_lower"]])
+    x = pos[lips, 0]
+    half = np.abs(pos[[61, 291], 0]).mean()
+    centre_weight = np.clip(1.0 - (x / half) ** 2, 0.0, 1.0)
+    is_upper = np.isin(lips, sets["lip_upper"])
+    press = np.where(is_upper, -0.05, 0.05)
+    pucker = np.stack([-0.28 * x, press, 0.1 + 0.45 * centre_weight], 1)
+    out["mouthPucker"] = mb.extend([(lips, pucker)], 3.0)
+    inner_upper, inner_lower = sets["lip_inner_upper"], sets["lip_inner_lower"]
+    funnel = np.stack([-0.16 * x, np.zeros_like(x), 0.1 + 0.35 * centre_weight], 1)
+    gap = np.where(np.isin(lips, inner_upper), 0.25, np.where(np.isin(lips, inner_lower), -0.25, 0.0))
+    gap = gap * centre_weight
+    funnel[:, 1] += gap + np.where(is_upper, 0.1, -0.1) * centre_weight
+    out["mouthFunnel"] = mb.extend([(lips, funnel)], 3.0)
+
+    # Jaw: the lower face rotates about an axis through the jaw joints.
+    s = sets["lowerness"]
+    pivot = np.array([0.0, 0.3, -3.0])
+    ang = 0.2 * s
+    r = pos - pivot
+    cos, sin = np.cos(ang), np.sin(ang)
+    rotated = np.stack([r[:, 0], r[:, 1] * cos - r[:, 2] * sin, r[:, 1] * sin + r[:, 2] * cos], 1)
+    out["jawOpen"] = rotated - r
+    out["jawLeft"] = s[:, None] * np.array([0.5, 0.0, 0.0])
+    out["jawRight"] = s[:, None] * np.array([-0.5, 0.0, 0.0])
+
+    # Cheeks puff out along the normal.
+    bump = np.zeros(len(pos))
+    for cheek in (205, 425):
+        centre = pos[cheek] + np.array([0.4 * np.sign(pos[cheek, 0]), -1.6, 0.0])
+        d = np.linalg.norm(pos - centre, axis=1)
+        bump += np.clip(1 - (d / 3.2) ** 2, 0, 1) ** 2
+    out["cheekPuff"] = 0.7 * bump[:, None] * mb.normals + 0.1 * out["mouthPucker"]
+    sided("noseSneer", lambda sg, m: mb.extend([(m([358, 294, 278]), np.array([0.05 * sg, 0.25, 0.05]))], 2.0,
+                                               pinned=np.concatenate([sets["lip_upper"], eye_rings])))
+    return out
+
+
+# ---------------------------------------------------------------------------------------
+# The builder
+
+
+def build_avatar(variant: str = "default") -> FaceRig:
+    """Build the avatar from scratch (no cache). See :func:`default_avatar`."""
+    from capture2face.rig import maps
+
+    mesh = canonical.load_canonical_mesh()
+    base = _variant_shape(mesh.vertices.astype(np.float64), variant)
+    mirror = _mirror_map(mesh.vertices.astype(np.float64))
+
+    # Open the eyes and the mouth, then subdivide once (original vertices keep their ids).
+    eye_contours = [[33, 246, 161, 160, 159, 158, 157, 173, 133, 155, 154, 153, 145, 144, 163, 7]]
+    eye_contours.append(list(mirror[eye_contours[0]]))
+    lip_contour = [78, 191, 80, 81, 82, 13, 312, 311, 310, 415, 308, 95, 88, 178, 87, 14, 317, 402, 318, 324]
+    tris0 = _remove_hole_fills(mesh.triangles, eye_contours + [lip_contour])
+    n0 = mesh_ops.vertex_normals(base, tris0)
+    pos, tris, edges = mesh_ops.midpoint_subdivide(base, tris0, n0)
+    uvs = np.vstack([mesh.uvs, 0.5 * (mesh.uvs[edges[:, 0]] + mesh.uvs[edges[:, 1]])]).astype(np.float64)
+    n_skin = len(pos)
+    normals = mesh_ops.vertex_normals(pos, tris)
+
+    # Vertex sets: contours (with their new edge vertices), lips, lowerness.
+    loops = mesh_ops.boundary_loops(tris)
+    sets: dict = {"eye": {}}
+    for side, (outer, inner, upper_mark) in EYE_RINGS.items():
+        loop = _contour_loop(loops, upper_mark)
+        upper, lower = _split_loop(loop, outer, inner, upper_mark)
+        corners = np.array([outer, inner])
+        prof = lambda ids: np.clip(1 - ((pos[ids, 0] - pos[corners, 0].mean()) / (0.5 * abs(pos[outer, 0] - pos[inner, 0]))) ** 2, 0, 1) ** 0.5
+        # Skin just below the lower lid, raised by a squint.
+        below_c = pos[lower].mean(0) + np.array([0.0, -0.9, 0.0])
+        below = np.argsort(np.linalg.norm(pos - below_c, axis=1))[:3]
+        sets["eye"][side] = dict(upper=upper, lower=lower, corners=corners, ring=loop,
+                                 upper_full=np.concatenate([upper, corners]),
+                                 lower_full=np.concatenate([lower, corners]),
+                                 upper_profile=prof(upper), lower_profile=prof(lower), below=below)
+    lip_loop = _contour_loop(loops, 13)
+    inner_upper, inner_lower = _split_loop(lip_loop, *LIP_INNER_CORNERS, 13)
+    edge_mid = {tuple(e): len(base) + i for i, e in enumerate(edges.tolist())}
+
+    def with_midpoints(ids):
+        ids = set(int(i) for i in ids)
+        mids = [m for (a, b), m in edge_mid.items() if a in ids and b in ids]
+        return np.array(sorted(ids | set(mids)))
+
+    sets["lip_upper"] = with_midpoints(LIP_UPPER_LINES + list(inner_upper[inner_upper < len(base)]))
+    sets["lip_lower"] = with_midpoints(LIP_LOWER_LINES + list(inner_lower[inner_lower < len(base)]))
+    sets["lip_upper"] = np.union1d(sets["lip_upper"], inner_upper)
+    sets["lip_lower"] = np.union1d(sets["lip_lower"], inner_lower)
+    sets["lip_inner_upper"], sets["lip_inner_lower"] = inner_upper, inner_lower
+
+    mb = _MorphBuilder(pos, tris, normals)
+    # Lowerness: 1 on the lower lip and jaw, 0 on the upper lip and above, harmonic between
+    # (the surface path goes around the mouth, so the lips separate cleanly).
+    fixed = np.zeros(n_skin, bool)
+    val = np.zeros(n_skin)
+    top = pos[:, 1] > pos[[129, 358], 1].mean() - 0.3
+    bottom = pos[:, 1] < pos[152, 1] + 2.2
+    for ids, value in ((top, 0.0), (sets["lip_upper"], 0.0), (bottom, 1.0), (sets["lip_lower"], 1.0)):
+        fixed[ids] = True
+        val[ids] = value
+    sets["lowerness"] = np.clip(mb.harmonic(fixed, val), 0.0, 1.0)
+
+    joints, weights, _ = _skin_weights(pos, tris, n_skin)
+    skin_morphs = _build_morphs(mb, sets, mirror)
+
+    # Eyes and mouth interior.
+    parts_pos, parts_uv, parts_tri, parts_mat = [pos], [uvs], [tris], [np.zeros(n_skin, np.uint8)]
+    landmark_vertices = np.full(478, -1, np.int32)
+    landmark_vertices[:468] = np.arange(468)
+    offset = n_skin
+    iris_theta = {}
+    for side, first_landmark in (("R", 468), ("L", 473)):
+        ring = sets["eye"][side]["ring"]
+        ev, euv, etri, iris, iris_theta[side] = _eyeball(pos[ring], side)
+        parts_pos.append(ev)
+        parts_uv.append(euv)
+        parts_tri.append(etri + offset)
+        parts_mat.append(np.ones(len(ev), np.uint8))
+        landmark_vertices[first_landmark:first_landmark + 5] = offset + iris
+        offset += len(ev)
+    mv, msource, mdepth, mtri = _mouth_interior(lip_loop, pos)
+    mouth_start = offset
+    parts_pos.append(mv)
+    # Mouth UVs: angle around the mouth -> angle in the disc, depth -> radius.
+    angle = np.arctan2(*(mv[:, :2] - mv[:-1, :2].mean(0)).T[::-1])
+    radius = maps.MOUTH_TEXTURE_RADIUS * (0.25 + 0.75 * mdepth)
+    mouth_uv = np.array(maps.MOUTH_TEXTURE_CENTRE) + radius[:, None] * np.stack([np.cos(angle), np.sin(angle)], 1)
+    parts_uv.append(mouth_uv)
+    parts_tri.append(mtri + offset)
+    parts_mat.append(np.full(len(mv), 2, np.uint8))
+
+    all_pos = np.vstack(parts_pos)
+    all_uv = np.vstack(parts_uv)
+    all_tri = np.vstack(parts_tri).astype(np.int32)
+    material = np.concatenate(parts_mat)
+    V = len(all_pos)
+    n_eye = mouth_start - n_skin
+
+    # Skinning of the extra parts: eyes ride the head; the mouth interior copies the
+    # contour vertex it hangs from (the cap takes the mean of the last ring).
+    src = np.where(msource >= 0, msource, 0)
+    m_joints, m_weights = joints[src].copy(), weights[src].copy()
+    cap_dense = np.zeros((1, len(BONES)))
+    last_ring = msource[-1 - len(lip_loop):-1]
+    np.add.at(cap_dense[0], joints[last_ring].ravel(), weights[last_ring].ravel() / len(last_ring))
+    cj, cw = _top4(cap_dense)
+    m_joints[msource < 0], m_weights[msource < 0] = cj, cw
+    all_joints = np.vstack([joints, np.zeros((n_eye, 4), np.int32), m_joints]).astype(np.int32)
+    eye_w = np.zeros((n_eye, 4), np.float32)
+    eye_w[:, 0] = 1.0
+    all_weights = np.vstack([weights, eye_w, m_weights]).astype(np.float32)
+
+    # Morphs over all vertices: eyes still; mouth interior follows its contour vertex,
+    # less so deeper in.
+    morph_names = list(skin_morphs)
+    attenuation = (1.0 - 0.5 * mdepth)[:, None]
+    rest_normals = mesh_ops.vertex_normals(all_pos, all_tri)
+    mp = np.zeros((len(morph_names), V, 3))
+    for i, name in enumerate(morph_names):
+        d = skin_morphs[name]
+        inner = d[src] * attenuation
+        inner[msource < 0] = d[last_ring].mean(0) * attenuation[-1]
+        mp[i, :n_skin] = d
+        mp[i, mouth_start:] = inner
+    morphed_normals = mesh_ops.vertex_normals(all_pos[None] + mp, all_tri)
+    mn = morphed_normals - rest_normals[None]
+
+    # Bones.
+    bone_names = [b.name for b in BONES]
+    bone_landmarks = np.array([b.landmark for b in BONES], np.int32)
+    bone_rest = np.zeros((len(BONES), 3))
+    bone_rest[1:] = all_pos[bone_landmarks[1:]]
+    group_names = [b.group or b.name for b in BONES]
+    bone_groups = np.unique(group_names, return_inverse=True)[1].astype(np.int32)
+
+    pose_names = ["stretch", "compress"]
+    pose_bones = np.stack([bone_rest + _pose_displacements(p) for p in pose_names])
+    pose_morph_weights = np.zeros((2, len(morph_names)))
+    for p, pname in enumerate(pose_names):
+        for mname, w in _POSE_MORPHS[pname].items():
+            pose_morph_weights[p, morph_names.index(mname)] = w
+
+    # Regions and zones from one UV layout.
+    layout = features.feature_layout(mesh.uvs)
+    region_weights = features.region_fields(all_uv[:, 0], all_uv[:, 1], layout) * (material == 0)
+    zone_table = _zone_table(morph_names)
+
+    tangents = mesh_ops.uv_tangents(all_pos, rest_normals, all_uv, all_tri)
+    position_ids = np.arange(V, dtype=np.int32)
+    textures = maps.build_maps(mesh.uvs, all_uv, all_tri, material, iris_theta)
+
+    f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)
+    return FaceRig(
+        name="default" if variant == "default" else f"default_{variant}",
+        vertices=f32(all_pos), normals=f32(rest_normals), uvs=f32(all_uv), tangents=f32(tangents),
+        triangles=all_tri, position_ids=position_ids, material=material,
+        landmark_vertices=landmark_vertices,
+        bone_names=bone_names, bone_rest=f32(bone_rest),
+        bone_parents=np.array([-1] + [0] * (len(BONES) - 1), np.int32),
+        bone_landmarks=bone_landmarks, bone_groups=bone_groups,
+        skin_joints=all_joints, skin_weights=all_weights,
+        morph_names=morph_names, morph_positions=f32(mp), morph_normals=f32(mn),
+        pose_names=pose_names, pose_bones=f32(pose_bones), pose_morph_weights=f32(pose_morph_weights),
+        pose_maps=np.array([0, 1], np.int32), wrinkle_map_names=["stretch", "compress"],
+        albedo=textures["albedo"], normal_map=textures["normal"],
+        wrinkle_maps=np.stack([textures["stretch"], textures["compress"]]),
+        zone_names=list(ZONE_NAMES), zone_masks=textures["zones"], zone_table=f32(zone_table),
+        region_names=list(REGION_NAMES), region_weights=f32(region_weights),
+    )
+
+
+def _pose_displacements(pose: str) -> np.ndarray:
+    table = _POSES[pose]
+    out = np.zeros((len(BONES), 3))
+    for i, b in enumerate(BONES[1:], start=1):
+        key = b.name if b.name in table else b.name.rsplit("_", 1)[0]
+        d = np.array(table[key], float)
+        if b.name.endswith("_R"):
+            d = d * np.array([-1.0, 1.0, 1.0])
+        out[i] = d
+    return out
+
+
+def _zone_table(morph_names: list[str]) -> np.ndarray:
+    table = np.zeros((len(morph_names), len(ZONE_NAMES)))
+    swap = lambda z: z.replace("left", "@").replace("right", "left").replace("@", "right")
+    for name, entries in _ZONE_TABLE.items():
+        rows = [(name, entries)]
+        if name.endswith("Left"):
+            rows.append((name[:-4] + "Right", {swap(z): w for z, w in entries.items()}))
+        for row_name, row in rows:
+            if row_name in morph_names:
+                for zone, w in row.items():
+                    table[morph_names.index(row_name), ZONE_NAMES.index(zone)] = w
+    return table

@@ -1,0 +1,325 @@
+"""Procedural textures of the default avatar, painted in UV space with NumPy.
+
+Every map is H x W = 1024 x 1024, UV origin top-left (texel row = v * H). Features are
+placed from the canonical landmark UVs through ``features.feature_layout``.
+
+Normal maps (base and wrinkle) are tangent space, OpenGL style: x along the tangent
+(+u, texture right), y along the bitangent, which points along -v (texture up, the
+face's up), z out of the surface. They are built from height fields h(row, col) by
+central differences: ``n = normalize(-dh/du, +dh/dv, 1)`` (the + because the bitangent
+is -v), and stored as ``round(n * 127.5 + 127.5)`` uint8. A flat texel is (128, 128, 255).
+
+Texture-space layout besides the skin: two eye discs (top corners, sclera / iris / pupil
+painted around the disc centre, which is each eyeball's front pole) and a mouth-interior
+disc (bottom-left corner); the skin's UVs never reach the corners.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+from scipy import ndimage
+
+from capture2face.rig import features
+
+SIZE = 1024
+
+EYE_TEXTURE_CENTRES = {"R": (0.085, 0.085), "L": (0.915, 0.085)}
+EYE_TEXTURE_RADIUS = 0.08
+EYE_VISIBLE_THETA = 0.95  # polar angle (rad) of the eyeball front that gets most of the disc
+MOUTH_TEXTURE_CENTRE = (0.085, 0.915)
+MOUTH_TEXTURE_RADIUS = 0.07
+
+SKIN_SRGB = np.array([222.0, 172.0, 148.0])
+LIP_SRGB = np.array([178.0, 88.0, 88.0])
+BROW_SRGB = np.array([78.0, 56.0, 44.0])
+IRIS_SRGB = np.array([82.0, 108.0, 128.0])
+SCLERA_SRGB = np.array([236.0, 232.0, 224.0])
+
+
+def eye_uv_radius(theta: np.ndarray) -> np.ndarray:
+    """Radius in the eye disc (UV units) of an eyeball point at polar angle ``theta``
+    from the front pole: the visible front gets 85% of the disc, the rest is squeezed
+    into the outer ring."""
+    theta = np.asarray(theta, float)
+    front = 0.85 * theta / EYE_VISIBLE_THETA
+    back = 0.85 + 0.15 * (theta - EYE_VISIBLE_THETA) / (np.pi - EYE_VISIBLE_THETA)
+    return EYE_TEXTURE_RADIUS * np.where(theta <= EYE_VISIBLE_THETA, front, back)
+
+
+def eye_theta_of_radius(r_uv: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`eye_uv_radius`."""
+    x = np.asarray(r_uv, float) / EYE_TEXTURE_RADIUS
+    return np.where(x <= 0.85, x / 0.85 * EYE_VISIBLE_THETA,
+                    EYE_VISIBLE_THETA + (x - 0.85) / 0.15 * (np.pi - EYE_VISIBLE_THETA))
+
+
+def _grid(size: int) -> tuple[np.ndarray, np.ndarray]:
+    c = (np.arange(size) + 0.5) / size
+    return np.meshgrid(c, c)  # u (columns), v (rows)
+
+
+def height_to_normal(height: np.ndarray, strength: float = 1.0) -> np.ndarray:
+    """(H, W) height (texel units) -> (H, W, 3) float unit tangent-space normals.
+
+    Central differences; x = -dh/du, y = +dh/dv (bitangent = -v), z = 1, normalized."""
+    dv, du = np.gradient(height.astype(np.float64))
+    n = np.stack([-strength * du, strength * dv, np.ones_like(du)], axis=-1)
+    return n / np.linalg.norm(n, axis=-1, keepdims=True)
+
+
+def encode_normals(n: np.ndarray) -> np.ndarray:
+    return np.clip(np.round(n * 127.5 + 127.5), 0, 255).astype(np.uint8)
+
+
+def decode_normals(img: np.ndarray) -> np.ndarray:
+    """uint8 (..., 3) -> float unit normals."""
+    n = img.astype(np.float64) / 127.5 - 1.0
+    return n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-9)
+
+
+def _band_noise(shape, sigma: float, rng: np.random.Generator) -> np.ndarray:
+    """Gaussian-filtered white noise scaled to unit standard deviation."""
+    n = ndimage.gaussian_filter(rng.standard_normal(shape), sigma, mode="wrap")
+    return n / max(n.std(), 1e-12)
+
+
+def _groove(dist: np.ndarray, width: float) -> np.ndarray:
+    """Profile of a wrinkle across its line: a groove with soft shoulders (1 at centre)."""
+    x = dist / width
+    return np.exp(-x * x) - 0.25 * np.exp(-((np.abs(x) - 1.6) ** 2) / 0.5)
+
+
+def _coverage(uvs: np.ndarray, triangles: np.ndarray, size: int) -> np.ndarray:
+    """(size, size) bool: texels covered by the given UV triangles."""
+    mask = np.zeros((size, size), np.uint8)
+    pts = np.round(uvs[triangles] * size * 16 - 0.5 * 16).astype(np.int32)  # 4 fractional bits
+    cv2.fillPoly(mask, list(pts), 1, lineType=cv2.LINE_8, shift=4)
+    return mask.astype(bool)
+
+
+# ---------------------------------------------------------------------------------------
+# Wrinkle height fields
+
+
+def _segment_param(u, v, a, b):
+    """Signed perpendicular distance (left of a->b positive) and parameter t (unclamped)."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    d = b - a
+    length = np.hypot(*d)
+    t = ((u - a[0]) * d[0] + (v - a[1]) * d[1]) / (length * length)
+    signed = ((u - a[0]) * d[1] - (v - a[1]) * d[0]) / length
+    return signed, t
+
+
+def _window(t: np.ndarray, fade: float = 0.2) -> np.ndarray:
+    """1 in the middle of [0, 1], fading to 0 at both ends."""
+    return features.smoothstep(t / fade) * features.smoothstep((1.0 - t) / fade)
+
+
+def stretch_height(u, v, layout: features.FeatureLayout, rng: np.random.Generator) -> np.ndarray:
+    """Horizontal forehead furrows (brows raised)."""
+    (cu, cv), (au, av) = layout.forehead
+    h = np.zeros_like(u)
+    n_lines = 5
+    top, bottom = cv - 0.75 * av, cv + 0.85 * av
+    for k in range(n_lines):
+        base_v = top + (bottom - top) * k / (n_lines - 1)
+        half = au * (0.55 + 0.25 * rng.random()) * (1.0 - 0.25 * abs(k - 2) / 2)
+        wobble = 0.0025 * np.sin(2 * np.pi * (u * (5 + 2 * rng.random())) + rng.random() * 6.3)
+        line_v = base_v + 0.12 * (u - cu) ** 2 + wobble  # slight arch, ends droop
+        t = (u - (cu - half)) / (2 * half)
+        # Real furrows break near the midline on some lines.
+        gap = 1.0 - (0.8 * np.exp(-(((u - cu - 0.02 * rng.standard_normal()) / 0.02) ** 2)) if k % 2 else 0.0)
+        depth = 1.0 - 0.3 * abs(k - 2) / 2
+        h -= depth * _groove(v - line_v, 0.0042) * _window(t, 0.25) * gap
+    return h
+
+
+def _mirror_u(f):
+    """Evaluate a left-side feature function on the right side as well (u -> 1 - u)."""
+    return lambda u, v, *a: f(u, v, *a) + f(1.0 - u, v, *a)
+
+
+def compress_height(u, v, layout: features.FeatureLayout, rng: np.random.Generator) -> np.ndarray:
+    """Vertical glabella lines, crow's feet, nasolabial folds and chin dimpling."""
+    h = np.zeros_like(u)
+    # Glabella: two (and a faint third) near-vertical lines between the brows, fanning
+    # slightly apart towards the top.
+    (gu, gv), (gau, gav) = layout.glabella
+    for offset, depth, length in ((-0.36, 1.0, 1.0), (0.36, 1.0, 0.95), (0.05, 0.45, 0.6)):
+        top_v, bot_v = gv - 0.9 * gav * length, gv + 0.75 * gav * length
+        t = (v - top_v) / (bot_v - top_v)
+        line_u = gu + offset * gau * (1.0 + 0.25 * (1.0 - t))
+        h -= depth * 1.3 * _groove(u - line_u, 0.0045) * _window(t, 0.25)
+
+    # Crow's feet: lines fanning out from the outer eye corner.
+    def crows(uu, vv):
+        out = np.zeros_like(uu)
+        corner = layout.eye_corner_left
+        for angle, length, depth in ((-38, 0.045, 0.6), (-15, 0.055, 0.9), (8, 0.06, 1.0), (30, 0.05, 0.8)):
+            a = np.deg2rad(angle)
+            start = corner + 0.014 * np.array([np.cos(a), np.sin(a)])
+            end = corner + (0.014 + length) * np.array([np.cos(a), np.sin(a)])
+            d, t = _segment_param(uu, vv, start, end)
+            out -= depth * _groove(d, 0.0032) * _window(t, 0.3)
+        return out
+
+    h += _mirror_u(lambda uu, vv: crows(uu, vv))(u, v)
+
+    # Nasolabial folds: a deep curved groove with the cheek bulging over it.
+    def naso(uu, vv):
+        a, b = (np.asarray(p, float) for p in layout.nasolabial_left)
+        d, t = _segment_param(uu, vv, a, b)
+        bow = 0.012 * np.sin(np.pi * np.clip(t, 0, 1))  # bowed out towards the cheek
+        # Positive d is on the left of a->b, the cheek side for the subject's left fold.
+        side = np.sign(((b - a)[1]) * 1.0) or 1.0
+        dist = d - side * bow
+        fold = -1.6 * np.exp(-(dist / 0.006) ** 2) + 0.9 * np.exp(-((dist * side - 0.012) / 0.01) ** 2)
+        return fold * _window(t, 0.25)
+
+    h += _mirror_u(naso)(u, v)
+
+    # Chin dimpling (peau d'orange): band-pass bumps under the chin mask.
+    (ccu, ccv), (cau, cav) = layout.chin
+    mask = features.ellipse_mask(u, v, (ccu, ccv), (cau, cav), soft=0.6)
+    bumps = _band_noise(u.shape, 3.0, rng) - 0.5 * _band_noise(u.shape, 7.0, rng)
+    h += 0.5 * bumps * mask
+    return h
+
+
+def pore_height(u, v, rng: np.random.Generator) -> np.ndarray:
+    """Fine skin detail: pores (small pits, larger and denser on nose and cheeks) over a
+    faint micro-relief."""
+    shape = u.shape
+    density = 0.035 + 0.03 * np.exp(-(((u - 0.5) / 0.15) ** 2 + ((v - 0.55) / 0.1) ** 2))
+    seeds = (rng.random(shape) < density).astype(np.float64) * (0.5 + rng.random(shape))
+    pits = ndimage.gaussian_filter(seeds, 0.9)
+    micro = _band_noise(shape, 0.8, rng)
+    return -3.0 * pits + 0.06 * micro
+
+
+# ---------------------------------------------------------------------------------------
+# Albedo
+
+
+def _fill(size: int, polygon_uv: np.ndarray, blur: float) -> np.ndarray:
+    mask = np.zeros((size, size), np.float32)
+    pts = np.round(np.asarray(polygon_uv) * size * 16).astype(np.int32)
+    cv2.fillPoly(mask, [pts], 1.0, shift=4)
+    return ndimage.gaussian_filter(mask, blur) if blur else mask
+
+
+def _albedo(u, v, landmark_uvs, layout, rng, eye_iris_theta: dict) -> np.ndarray:
+    size = u.shape[0]
+    lm = landmark_uvs
+    colour = np.broadcast_to(SKIN_SRGB, u.shape + (3,)).astype(np.float64).copy()
+    # Low-frequency tone variation and a little blotchiness.
+    colour *= 1.0 + 0.035 * _band_noise(u.shape, 40, rng)[..., None] + 0.012 * _band_noise(u.shape, 4, rng)[..., None]
+    # Redness: cheeks, nose tip, chin.
+    red = (0.55 * np.exp(-(((np.abs(u - 0.5) - 0.19) / 0.06) ** 2 + ((v - 0.56) / 0.06) ** 2))
+           + 0.45 * np.exp(-(((u - 0.5) / 0.04) ** 2 + ((v - 0.53) / 0.035) ** 2))
+           + 0.2 * np.exp(-(((u - 0.5) / 0.06) ** 2 + ((v - 0.86) / 0.04) ** 2)))
+    colour += red[..., None] * np.array([6.0, -16.0, -12.0])
+    # Around the eyes: slightly darker, cooler skin.
+    for c in (lm[159], lm[386]):
+        ring = np.exp(-(((u - c[0]) / 0.07) ** 2 + ((v - c[1] - 0.008) / 0.04) ** 2))
+        colour += ring[..., None] * np.array([-14.0, -16.0, -6.0])
+    # Lips.
+    outer_upper = [61, 185, 40, 39, 37, 0, 267, 269, 270, 409, 291]
+    outer_lower = [375, 321, 405, 314, 17, 84, 181, 91, 146]
+    lips = _fill(size, lm[outer_upper + outer_lower], 2.0)
+    lip_tone = LIP_SRGB * (1.0 + 0.05 * _band_noise(u.shape, 2.0, rng)[..., None])
+    colour = colour * (1 - lips[..., None]) + lip_tone * lips[..., None]
+    # Brows: hair strokes inside the brow outlines.
+    brow_r = [70, 63, 105, 66, 107, 55, 65, 52, 53, 46]
+    brow_l = [300, 293, 334, 296, 336, 285, 295, 282, 283, 276]
+    brows = _fill(size, lm[brow_r], 3.0) + _fill(size, lm[brow_l], 3.0)
+    strokes = ndimage.gaussian_filter(rng.standard_normal(u.shape), (0.6, 3.5))  # elongated along u
+    hair = np.clip(brows * (0.75 + 0.5 * strokes / strokes.std()), 0, 1)
+    colour = colour * (1 - 0.8 * hair[..., None]) + BROW_SRGB * 0.8 * hair[..., None]
+    # Eyes.
+    for side, (ecu, ecv) in EYE_TEXTURE_CENTRES.items():
+        r = np.hypot(u - ecu, v - ecv)
+        inside = r < EYE_TEXTURE_RADIUS * 1.05
+        theta = eye_theta_of_radius(r)
+        iris_t = eye_iris_theta[side]
+        rel = theta / iris_t
+        phi = np.arctan2(v - ecv, u - ecu)
+        streaks = 1.0 + 0.18 * np.sin(phi * 37 + 3 * np.sin(phi * 5)) * (rel > 0.35)
+        iris = IRIS_SRGB * streaks[..., None] * (1.0 - 0.35 * features.smoothstep((rel - 0.75) / 0.25))[..., None]
+        sclera = SCLERA_SRGB - features.smoothstep((rel - 1.5) / 2.0)[..., None] * np.array([10.0, 40.0, 40.0])
+        eye = np.where((rel < 1.0)[..., None], iris, sclera)
+        eye = np.where((rel < 0.38)[..., None], np.array([12.0, 10.0, 10.0]), eye)
+        edge = features.smoothstep((rel - 0.96) / 0.08)[..., None]  # soft limbus
+        eye = np.where((rel < 1.04)[..., None] & (rel >= 0.96)[..., None], iris * (1 - edge) + sclera * edge, eye)
+        colour = np.where(inside[..., None], eye, colour)
+    # Mouth interior: dark red, darker deeper in.
+    r = np.hypot(u - MOUTH_TEXTURE_CENTRE[0], v - MOUTH_TEXTURE_CENTRE[1]) / MOUTH_TEXTURE_RADIUS
+    mouth = (np.array([110.0, 42.0, 46.0])[None, None] * (1.0 - 0.75 * np.clip(r, 0, 1))[..., None])
+    colour = np.where((r < 1.1)[..., None], mouth, colour)
+    return np.clip(np.round(colour), 0, 255).astype(np.uint8)
+
+
+# ---------------------------------------------------------------------------------------
+
+
+def build_maps(landmark_uvs: np.ndarray, uvs: np.ndarray, triangles: np.ndarray, material: np.ndarray,
+               eye_iris_theta: dict, size: int = SIZE, seed: int = 7) -> dict[str, np.ndarray]:
+    """All textures of the avatar.
+
+    Args:
+        landmark_uvs: (468, 2) canonical landmark UVs (feature placement).
+        uvs, triangles, material: the rig's (V, 2), (T, 3), (V,) (skin coverage).
+        eye_iris_theta: {"R": rad, "L": rad} polar angle of each iris rim on its eyeball.
+    Returns:
+        dict with "albedo" (H, W, 3), "normal", "stretch", "compress" (H, W, 3) uint8
+        normal maps, "zones" (H, W, 8) uint8.
+    """
+    rng = np.random.default_rng(seed)
+    u, v = _grid(size)
+    layout = features.feature_layout(landmark_uvs)
+    skin_tris = triangles[(material[triangles] == 0).all(axis=1)]
+    skin = ndimage.binary_dilation(_coverage(uvs, skin_tris, size), iterations=4)
+
+    # Heights are in texel units; a texel is ~0.2 mm on the face.
+    stretch = stretch_height(u, v, layout, rng) * skin
+    compress = compress_height(u, v, layout, rng) * skin
+    pores = pore_height(u, v, rng) * skin
+    zones = features.zone_fields(u, v, layout) * skin
+    return {
+        "albedo": _albedo(u, v, landmark_uvs, layout, rng, eye_iris_theta),
+        "normal": encode_normals(height_to_normal(pores, 0.35)),
+        "stretch": encode_normals(height_to_normal(ndimage.gaussian_filter(stretch, 0.7), 2.2)),
+        "compress": encode_normals(height_to_normal(ndimage.gaussian_filter(compress, 0.7), 2.2)),
+        "zones": np.clip(np.round(np.moveaxis(zones, 0, -1) * 255), 0, 255).astype(np.uint8),
+    }
+
+
+def write_maps(rig, directory: str | os.PathLike) -> list[Path]:
+    """Write a rig's textures as PNGs: albedo.png, normal.png, wrinkle_<name>.png,
+    zones_0.png and zones_1.png (RGBA: zones 0-3 and 4-7). Returns the paths written."""
+    from capture2face.atomic import atomic_path
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    images = {"albedo.png": rig.albedo, "normal.png": rig.normal_map}
+    for name, img in zip(rig.wrinkle_map_names, rig.wrinkle_maps):
+        images[f"wrinkle_{name}.png"] = img
+    images["zones_0.png"] = rig.zone_masks[..., 0:4]
+    images["zones_1.png"] = rig.zone_masks[..., 4:8]
+    written = []
+    for fname, img in images.items():
+        path = directory / fname
+        # OpenCV writes BGR(A); our arrays are RGB(A).
+        bgr = cv2.cvtColor(img, cv2.COLOR_RGBA2BGRA if img.shape[-1] == 4 else cv2.COLOR_RGB2BGR)
+        with atomic_path(path) as tmp:
+            if not cv2.imwrite(str(tmp), bgr):
+                from capture2face.errors import CaptureError
+
+                raise CaptureError(f"could not write {path}")
+        written.append(path)
+    return written
