@@ -142,3 +142,289 @@ def cpu_deform(rig: FaceRig, bone_positions, blend_weights) -> np.ndarray:
 @pytest.fixture(scope="session")
 def rig() -> FaceRig:
     return make_test_rig()
+
+
+# ---------------------------------------------------------------------------------------
+# Helpers
+
+from capture2face.render import FrameState, Renderer, RenderOptions, heatmap  # noqa: E402
+from capture2face.render.camera import framing_pose, project  # noqa: E402
+from capture2face.render.dynamic import dynamic_wrinkle_weights  # noqa: E402
+from capture2face.render.normal_blend import oat_blend, pd_decode, pd_encode  # noqa: E402
+
+SIZE = 256
+
+
+def random_unit_normals(n, seed, cone=0.6):
+    rng = np.random.default_rng(seed)
+    v = np.concatenate([rng.uniform(-cone, cone, (n, 2)), np.ones((n, 1))], 1)
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def skinned_mask(rig, bones, pose, size, moved, dilate=3):
+    """(H, W) bool: pixels covered by triangles with any weight on the ``moved`` bones."""
+    import cv2
+
+    dense = rig.dense_skin_weights()[:, moved].sum(1)
+    tris = rig.triangles[(dense[rig.triangles] > 0).any(1)]
+    pix = project(cpu_deform(rig, bones, np.zeros(rig.n_morphs)), pose, 30.0, size)
+    mask = np.zeros((size, size), np.uint8)
+    cv2.fillPoly(mask, [np.round(pix[t] * 16).astype(np.int32) for t in tris], 1, shift=4)
+    return cv2.dilate(mask, np.ones((2 * dilate + 1,) * 2, np.uint8)).astype(bool)
+
+
+@pytest.fixture(scope="session")
+def view(rig):
+    return framing_pose(rig, yaw=10.0, pitch=5.0)
+
+
+# ---------------------------------------------------------------------------------------
+# Deformation on the GPU
+
+
+def test_gpu_deformation_matches_cpu_reference(rig, view):
+    rng = np.random.default_rng(0)
+    tol = 1e-4 * rig.face_size()
+    with Renderer.create_from_options(rig, RenderOptions(size=64, wrinkles="off")) as renderer:
+        for _ in range(3):
+            bones = rig.bone_rest + rng.normal(0, 0.8, rig.bone_rest.shape) * [[0], [1], [1], [1]]
+            weights = rng.uniform(0, 1, rig.n_morphs)
+            weights[rng.integers(rig.n_morphs)] = 0.0  # an inactive morph is skipped
+            gpu = renderer.deformed_positions(FrameState(bones, weights, view))
+            cpu = cpu_deform(rig, bones, weights)
+            assert np.abs(cpu - rig.vertices).max() > 0.3  # the deformation is not trivial
+            assert np.abs(gpu - cpu).max() < tol
+
+
+# ---------------------------------------------------------------------------------------
+# Normal blending, NumPy and GLSL
+
+
+def test_partial_derivative_round_trip():
+    from capture2face.render.glsl_eval import eval_glsl
+
+    n = random_unit_normals(200, 1)
+    assert np.abs(pd_decode(pd_encode(n)) - n).max() < 1e-12
+    glsl = eval_glsl("normal_blend.glsl", "pd_decode(pd_encode(a))", {"a": n}, 3)
+    assert np.abs(glsl - n).max() < 1e-5
+    # Blending is a weighted sum of derivatives: a flat map (derivative 0) adds nothing,
+    # and two tilts add up.
+    assert np.allclose(pd_encode(n) + pd_encode([0, 0, 1]), pd_encode(n))
+    glsl_sum = eval_glsl("normal_blend.glsl", "pd_encode(a) + 0.5 * pd_encode(b)", {"a": n, "b": n[::-1]}, 2)
+    assert np.abs(glsl_sum - (pd_encode(n) + 0.5 * pd_encode(n[::-1]))).max() < 1e-4
+
+
+def test_oat_blend_with_flat_wrinkle_returns_base():
+    from capture2face.render.glsl_eval import eval_glsl
+
+    n = random_unit_normals(200, 2)
+    flat = np.tile([0.0, 0.0, 1.0], (len(n), 1))
+    assert np.abs(oat_blend(flat, n) - n).max() < 1e-12
+    glsl = eval_glsl("normal_blend.glsl", "oat_blend(w, n)", {"w": flat, "n": n}, 3)
+    assert np.abs(glsl - n).max() < 1e-5
+    # A non-flat wrinkle does tilt the result, towards the wrinkle's direction.
+    tilted = oat_blend(np.tile([0.6, 0.0, 0.8], (len(n), 1)), n)
+    assert (tilted[:, 0] > n[:, 0]).all()
+
+
+# ---------------------------------------------------------------------------------------
+# Dynamic (area-change) driver
+
+
+def test_dynamic_weights_compress_stretch_and_seam(rig):
+    skin = rig.material == 0
+    centre = rig.vertices[skin].mean(0)
+    for scale, sign in ((0.8, 1.0), (1.25, -1.0)):
+        scaled = centre + scale * (rig.vertices - centre)
+        w = dynamic_wrinkle_weights(rig, scaled)
+        expected = 1.0 - scale**2  # area ratio of a uniform scale
+        assert np.sign(expected) == sign
+        assert np.abs(w - expected).max() < 1e-5
+    # Brows up: the forehead stretches non-uniformly; the two copies of each seam vertex
+    # still get one weight, which they would not if the seam were not merged.
+    bones = rig.pose_bones[rig.pose_index("stretch")]
+    moved = cpu_deform(rig, bones, np.zeros(rig.n_morphs))
+    w = dynamic_wrinkle_weights(rig, moved)
+    ids, counts = np.unique(rig.position_ids, return_counts=True)
+    shared = np.isin(rig.position_ids, ids[counts == 2])
+    assert shared.sum() >= 2 * 30
+    order = np.argsort(rig.position_ids[shared], kind="stable")
+    pairs = w[shared][order].reshape(-1, 2)
+    assert np.abs(pairs).max() > 0.01
+    assert (pairs[:, 0] == pairs[:, 1]).all()
+    split = dynamic_wrinkle_weights(rig.replace(position_ids=np.arange(rig.n_vertices, dtype=np.int32)), moved)
+    split_pairs = split[shared][order].reshape(-1, 2)
+    assert np.abs(split_pairs[:, 0] - split_pairs[:, 1]).max() > 1e-3
+    assert w[rig.material == 0].min() < -0.05  # stretched somewhere
+
+
+# ---------------------------------------------------------------------------------------
+# Rendering
+
+
+@pytest.fixture(scope="session")
+def renders(rig, view):
+    """Renders at the stretch pose and rest, per driver/blend, shared by several tests."""
+    stretch = FrameState.at_pose(rig, view, "stretch")
+    zero = FrameState(stretch.bone_positions, stretch.blend_weights, view,
+                      influences=np.zeros((len(rig.pose_names), rig.n_bones), np.float32))
+    out = {}
+    for driver, blend in (("off", "pd"), ("auto", "pd"), ("auto", "oat")):
+        with Renderer.create_from_options(rig, RenderOptions(size=SIZE, wrinkles=driver, normal_blend=blend)) as r:
+            out[driver, blend, "stretch"] = r.render(stretch)
+            out[driver, blend, "stretch again"] = r.render(stretch)
+            out[driver, blend, "zero influence"] = r.render(zero)
+            out[driver, blend, "rest"] = r.render(FrameState.at_pose(rig, view))
+    return out
+
+
+def test_same_frame_twice_is_identical(renders):
+    for driver, blend in (("off", "pd"), ("auto", "pd"), ("auto", "oat")):
+        a, b = renders[driver, blend, "stretch"], renders[driver, blend, "stretch again"]
+        assert a.shape == (SIZE, SIZE, 3) and a.dtype == np.uint8
+        assert a.std() > 10  # a face, not an empty frame
+        assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("blend", ["pd", "oat"])
+def test_auto_with_zero_influence_equals_off(renders, blend):
+    assert np.array_equal(renders["auto", blend, "zero influence"], renders["off", "pd", "stretch"])
+    assert np.array_equal(renders["auto", blend, "rest"], renders["off", "pd", "rest"])
+
+
+@pytest.mark.parametrize("blend", ["pd", "oat"])
+def test_stretch_wrinkles_inside_forehead_only(rig, view, renders, blend):
+    stretch = rig.pose_index("stretch")
+    bones = rig.pose_bones[stretch]
+    moved = np.flatnonzero(np.linalg.norm(bones - rig.bone_rest, axis=1) > 0)
+    diff = np.abs(renders["auto", blend, "stretch"].astype(int) - renders["off", "pd", "stretch"]).sum(2)
+    outside = ~skinned_mask(rig, bones, view, SIZE, moved)
+    assert diff[outside].max() == 0
+    # Inside: around the vertices most influenced by the moved bones (the forehead).
+    dense = rig.dense_skin_weights()[:, moved].sum(1)
+    core = (dense > 0.5) & (rig.material == 0)
+    pix = np.round(project(cpu_deform(rig, bones, np.zeros(rig.n_morphs))[core], view, 30.0, SIZE) - 0.5).astype(int)
+    inside = np.zeros_like(outside)
+    inside[pix[:, 1], pix[:, 0]] = True
+    assert (diff[inside] > 6).mean() > 0.2
+    assert diff[inside].mean() > 4
+
+
+def test_zones_driver_follows_zone_weights(rig, view):
+    rest = FrameState.at_pose(rig, view)
+    with Renderer.create_from_options(rig, RenderOptions(size=SIZE, wrinkles="zones")) as r:
+        none = r.render(rest)  # zone weights from blend weights: all zero at rest
+        left = r.render(FrameState(rest.bone_positions, rest.blend_weights, view,
+                                   zone_weights=np.array([-1, 0, 0, 0, 0, 0, 0, 0], np.float32)))
+    with Renderer.create_from_options(rig, RenderOptions(size=SIZE, wrinkles="off")) as r:
+        off = r.render(rest)
+    assert np.array_equal(none, off)
+    diff = np.abs(left.astype(int) - off).sum(2)
+    # Zone 0 is the top-left block of the UV square: u < 0.5 (x < 0, the image's left),
+    # v < 1/3 (the top of the patch).
+    ys, xs = np.nonzero(diff > 6)
+    assert len(xs) > 100
+    top = project(rig.vertices[rig.vertices[:, 1] > 8.5], view, 30.0, SIZE)
+    centre = project(np.array([[0.0, 3.0, 5.0]]), view, 30.0, SIZE)[0]
+    assert xs.max() < centre[0] + 3 and ys.max() < centre[1] + 3 and ys.min() > top[:, 1].min() - 3
+
+
+def test_dynamic_driver_and_influence_view_render(rig, view):
+    stretch = FrameState.at_pose(rig, view, "stretch")
+    images = {}
+    for driver, mode in (("dynamic", "shaded"), ("off", "shaded"), ("auto", "influence"), ("off", "influence")):
+        with Renderer.create_from_options(rig, RenderOptions(size=SIZE, wrinkles=driver, view=mode)) as r:
+            images[driver, mode] = r.render(stretch)
+    dyn = np.abs(images["dynamic", "shaded"].astype(int) - images["off", "shaded"]).sum(2)
+    assert (dyn > 4).sum() > 100 and dyn.max() > 10
+    # Influence view: the stretch pose paints the forehead in the stretch colour (blue).
+    infl = images["auto", "influence"].astype(int)
+    grey = images["off", "influence"].astype(int)
+    bluer = (infl[..., 2] - infl[..., 0]) - (grey[..., 2] - grey[..., 0])
+    assert (bluer > 60).sum() > 200
+    assert np.abs(grey[..., 0] - grey[..., 2]).max() < 30  # no influence: grey
+
+
+# ---------------------------------------------------------------------------------------
+# Camera
+
+
+def test_project_agrees_with_rasterizer(rig):
+    """A dark dot painted in the albedo around one vertex's UV lands where ``project``
+    puts that vertex (non-square frame, off-centre vertex, rotated head)."""
+    tex = 512
+    v = int(np.argmin(np.linalg.norm(rig.vertices - [-4.2, 5.1, 4.0], axis=1)))
+    plain = np.full((tex, tex, 3), 230, np.uint8)
+    albedo = plain.copy()
+    cu, cv = rig.uvs[v] * tex
+    yy, xx = np.mgrid[0:tex, 0:tex] + 0.5
+    albedo[(xx - cu) ** 2 + (yy - cv) ** 2 < 12.0**2] = 0
+    flat = np.full((tex, tex, 3), [128, 128, 255], np.uint8)
+    size = (320, 240)
+    pose = framing_pose(rig, yaw=-12.0, pitch=8.0, roll=5.0)
+    state = FrameState.at_pose(rig, pose)
+    images = []
+    for image in (plain, albedo):
+        with Renderer.create_from_options(rig.replace(albedo=image, normal_map=flat),
+                                          RenderOptions(size=size, wrinkles="off", samples=1)) as r:
+            images.append(r.render(state).astype(float).mean(2))
+    darkness = np.clip(images[0] - images[1], 0, None)
+    assert darkness.max() > 50
+    ys, xs = np.mgrid[0:240, 0:320] + 0.5  # pixel centres
+    centroid = np.array([(darkness * xs).sum(), (darkness * ys).sum()]) / darkness.sum()
+    expected = project(rig.vertices[v:v + 1], pose, 30.0, size)[0]
+    assert np.linalg.norm(centroid - expected) < 0.5
+    # The dot is a few pixels wide, so that is well within it.
+    assert 2 < np.sqrt((darkness > 25).sum() / np.pi) < 10
+
+
+def test_framing_pose_centres_the_face(rig):
+    for size in (256, (320, 240)):
+        pose = framing_pose(rig, yaw=0.0)
+        pix = project(rig.vertices[rig.material == 0], pose, 30.0, size)
+        w, h = (size, size) if isinstance(size, int) else size
+        fill = (pix[:, 1].max() - pix[:, 1].min()) / h
+        assert 0.58 < fill < 0.7
+        assert abs((pix[:, 0].max() + pix[:, 0].min()) / 2 - w / 2) < 0.02 * w
+
+
+def test_heatmap_endpoints_and_shape():
+    img = heatmap(np.linspace(0, 1, 11)[None].repeat(3, 0))
+    assert img.shape == (3, 11, 3) and img.dtype == np.uint8
+    assert img[0, 0].sum() < 120 and img[0, 1, 2] > 2 * img[0, 1, 0]  # cold end dark, then blue
+    assert img[0, -1, 0] > 100 and img[0, -1, 0] > img[0, -1, 2]  # hot end is red
+    assert np.abs(np.diff(img[0].astype(int), axis=0)).sum(1).min() > 0  # every step changes colour
+
+
+# ---------------------------------------------------------------------------------------
+# Video
+
+
+def test_video_writer_frames_and_rate(tmp_path):
+    import av
+
+    from capture2face.render.video import VideoWriter
+
+    path = tmp_path / "out.mp4"
+    n, size = 12, (64, 48)
+    with VideoWriter(path, 29.97, size) as out:
+        for i in range(n):
+            out.write(np.full((48, 64, 3), 20 * i, np.uint8))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.mp4"]
+    with av.open(str(path)) as container:
+        stream = container.streams.video[0]
+        assert stream.average_rate == Fraction(2997, 100)
+        frames = [f.to_ndarray(format="rgb24") for f in container.decode(stream)]
+    assert len(frames) == n
+    assert frames[0].shape == (48, 64, 3)
+    assert np.allclose([f.mean() for f in frames], [20 * i for i in range(n)], atol=3)
+
+
+def test_video_writer_is_atomic(tmp_path):
+    from capture2face.render.video import VideoWriter
+
+    with pytest.raises(RuntimeError):
+        with VideoWriter(tmp_path / "broken.mp4", 25, (32, 32)) as out:
+            out.write(np.zeros((32, 32, 3), np.uint8))
+            raise RuntimeError("interrupted")
+    assert list(tmp_path.iterdir()) == []

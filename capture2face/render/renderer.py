@@ -250,6 +250,8 @@ class Renderer:
         self._face_size = rig.face_size()
 
     def _mipmapped(self, tex) -> None:
+        # Face atlases do not tile: clamp, so filtering at u, v = 0 or 1 never wraps around.
+        tex.repeat_x = tex.repeat_y = False
         tex.build_mipmaps()
         tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
         tex.anisotropy = 4.0
@@ -355,6 +357,7 @@ class Renderer:
         self._deform_uniforms(self._feedback, state)
         self._morph_positions_tex[0].use(_UNIT_MPOS)
         self._morph_normals_tex[0].use(_UNIT_MNRM)
+        self._resolve.use()  # Mesa skips draws, even discarded ones, without a complete framebuffer
         self._feedback_vao.transform(self._feedback_out, moderngl.POINTS, vertices=self.rig.n_vertices)
         return np.frombuffer(self._feedback_out.read(), np.float32).reshape(-1, 3).copy()
 

@@ -1,0 +1,82 @@
+"""Render throughput: ``python -m capture2face.render.benchmark [--size 512] [--frames 60]``.
+
+Frames sweep rest -> stretch -> rest -> compress with a slowly turning head, so every
+frame has new uniforms (and, for ``dynamic``, new per-vertex weights). Timing covers
+``Renderer.render`` including the read-back of the image; setup and one warm-up frame are
+excluded.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from capture2face.render.camera import framing_pose
+from capture2face.render.renderer import WRINKLE_DRIVERS, FrameState, Renderer, RenderOptions
+from capture2face.rig.face_rig import FaceRig
+
+
+def sweep_states(rig: FaceRig, frames: int, fov_y_degrees: float = 30.0) -> list[FrameState]:
+    """``frames`` states going through rest and every reference pose."""
+    t = np.linspace(0.0, 1.0, frames, endpoint=False)
+    n_poses = max(len(rig.pose_names), 1)
+    phase = t * n_poses
+    k = np.minimum(phase.astype(int), n_poses - 1)
+    amount = np.sin(np.pi * (phase - k))  # 0 -> 1 -> 0 through each pose
+    states = []
+    for i in range(frames):
+        bones, weights = rig.bone_rest.astype(np.float64), np.zeros(rig.n_morphs)
+        if len(rig.pose_names):
+            bones = bones + amount[i] * (rig.pose_bones[k[i]] - rig.bone_rest)
+            weights = amount[i] * rig.pose_morph_weights[k[i]]
+        pose = framing_pose(rig, yaw=15.0 * np.sin(2 * np.pi * t[i]), pitch=5.0 * np.cos(2 * np.pi * t[i]),
+                            fov_y_degrees=fov_y_degrees)
+        states.append(FrameState(bones, weights, pose))
+    return states
+
+
+def render_fps(rig: FaceRig, wrinkles: str = "auto", frames: int = 60, size: int | tuple[int, int] = 512,
+               **options) -> dict:
+    """Frames per second of ``Renderer.render`` for ``rig``.
+
+    Returns:
+        {"fps", "ms_per_frame", "frames", "size", "wrinkles", "gl_renderer"}.
+    """
+    opts = RenderOptions(size=size, wrinkles=wrinkles, **options)
+    states = sweep_states(rig, frames, opts.fov_y_degrees)
+    with Renderer.create_from_options(rig, opts) as renderer:
+        renderer.render(states[0])  # warm-up: shader compile and first-use costs
+        start = time.perf_counter()
+        for state in states:
+            renderer.render(state)
+        elapsed = time.perf_counter() - start
+        gl = renderer.gl_renderer
+    return {
+        "fps": frames / elapsed, "ms_per_frame": 1000.0 * elapsed / frames, "frames": frames,
+        "size": opts.width_height, "wrinkles": wrinkles, "gl_renderer": gl,
+    }
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--size", type=int, default=512)
+    parser.add_argument("--frames", type=int, default=60)
+    parser.add_argument("--wrinkles", nargs="+", default=["off", "auto"], choices=WRINKLE_DRIVERS)
+    parser.add_argument("--rig", help="a .rig.npz (default: the default avatar)")
+    args = parser.parse_args(argv)
+    if args.rig:
+        rig = FaceRig.load(args.rig)
+    else:
+        from capture2face.rig.avatar import default_avatar
+
+        rig = default_avatar()
+    for driver in args.wrinkles:
+        r = render_fps(rig, driver, args.frames, args.size)
+        print(f"{driver:8s} {r['size'][0]}x{r['size'][1]}: {r['fps']:6.1f} fps ({r['ms_per_frame']:.1f} ms/frame) "
+              f"on {r['gl_renderer']}, {rig.n_vertices} vertices")
+
+
+if __name__ == "__main__":
+    main()
