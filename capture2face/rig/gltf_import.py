@@ -418,6 +418,13 @@ def _build(r, g, glb, mapping, mapping_dir, ours, vertex_normals, uv_tangents) -
                                    np.where(m["tan"][:, 3:] < 0, -1.0, 1.0) * np.sign(np.linalg.det(lin))], 1)
     else:
         tangents = uv_tangents(pos, normals, uvs.astype(np.float64), tris)
+    # Where UVs are degenerate and the normal is parallel to the fallback axis, any
+    # perpendicular will do: take one from the x axis.
+    bad = ~(np.linalg.norm(tangents[:, :3], axis=1) > 0.5)
+    if bad.any():
+        alt = np.cross(normals[bad], np.array([1.0, 0.0, 0.0]))
+        tangents[bad, :3] = alt / np.maximum(np.linalg.norm(alt, axis=1, keepdims=True), 1e-12)
+        tangents[bad, 3] = 1.0
 
     # ---- morph targets ---------------------------------------------------------------------
     M = m["mpos"].shape[0]
