@@ -64,11 +64,13 @@ def feature_correspondence(rig) -> tuple[np.ndarray, np.ndarray, bool]:
 
     Returns:
         (landmarks (N,), target points (N, 3), per_vertex): with per-landmark vertices
-        (``per_vertex`` True) every landmark that sits on a vertex; otherwise the bones'
+        (``per_vertex`` True) every landmark that sits on a skin vertex; otherwise the bones'
         landmarks and the bones' rest positions.
     """
     lv = np.asarray(rig.landmark_vertices)
+    # Skin only: iris landmarks follow the gaze, which the rig's eyeballs do not.
     has = np.flatnonzero(lv >= 0)
+    has = has[np.asarray(rig.material)[lv[has]] == 0]
     if len(has) >= 3 * max(1, rig.n_bones - 1):
         return has, rig.vertices[lv[has]].astype(np.float64), True
     bones = np.flatnonzero(np.asarray(rig.bone_landmarks) >= 0)

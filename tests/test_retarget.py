@@ -1,0 +1,252 @@
+"""Retargeting: RBF network, bone/morph solve, influences, Animation I/O.
+
+A "perfect track" is made without rendering: true bones and weights -> the rig's CPU
+deformation -> landmark vertices, optionally moved by a similarity transform and noise the
+way a tracker's head-coordinate landmarks differ from the rig's.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.optimize import minimize
+
+from capture2face.retarget import RetargetOptions, retarget, retarget_ms_per_frame
+from capture2face.retarget import influences as inf
+from capture2face.retarget.animation import Animation
+from capture2face.retarget.rbf import fit_feature_map
+from capture2face.retarget.solve import LinearRigModel, LinearSolver
+from capture2face.rig.avatar import default_avatar
+from capture2face.rig.deform import deform
+from capture2face.synth.trajectories import random_performance
+from capture2face.tracking.landmarker import BLENDSHAPE_NAMES
+from capture2face.tracking.track import Track
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return default_avatar()
+
+
+@pytest.fixture(scope="module")
+def wide():
+    return default_avatar(variant="wide")
+
+
+@pytest.fixture(scope="module")
+def performance(rig):
+    return random_performance(rig, 120, seed=3)
+
+
+def perfect_track(rig, perf, scale=1.0, angle_deg=0.0, shift=(0.0, 0.0, 0.0), noise=0.0,
+                  blendshapes=None, seed=0) -> Track:
+    """Landmarks of the CPU-deformed rig, as a tracker would report them (head coordinates
+    off by a similarity transform, plus optional noise)."""
+    frames = perf.n_frames
+    pos, _ = deform(rig, perf.bone_positions, perf.blend_weights)
+    lv = rig.landmark_vertices
+    lm = np.zeros((frames, len(lv), 3))
+    lm[:, lv >= 0] = pos[:, lv[lv >= 0]]
+    lm[:, lv < 0] = lm[:, lv >= 0].mean(1, keepdims=True)  # irises: somewhere, unused
+    a = np.radians(angle_deg)
+    rot = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    lm = scale * lm @ rot.T + np.asarray(shift)
+    lm += np.random.default_rng(seed).normal(0.0, noise, lm.shape)
+    names = list(BLENDSHAPE_NAMES)
+    return Track(
+        times=perf.times, landmarks_px=np.zeros((frames, len(lv), 2), np.float32),
+        landmarks_depth=np.zeros((frames, len(lv)), np.float32),
+        landmarks_head=lm.astype(np.float32), presence=np.ones(frames, bool),
+        interpolated=np.zeros(frames, bool), held=np.zeros(frames, bool),
+        blendshapes=(np.zeros((frames, len(names)), np.float32) if blendshapes is None else blendshapes),
+        blendshape_names=names, head_pose=perf.head_pose, neutral_frame=int(np.flatnonzero(perf.key_pose == 0)[0]),
+        width=512, height=512, fps=perf.fps,
+    )
+
+
+# ---- influences (Dutreve §5.1-5.2) --------------------------------------------------
+
+def test_influence_is_one_at_reference_pose_and_zero_at_rest(rig):
+    at_pose = inf.pose_influences(rig.pose_bones, rig.bone_rest, rig.pose_bones)  # (P, P, B)
+    at_rest = inf.pose_influences(rig.bone_rest[None], rig.bone_rest, rig.pose_bones)
+    moving = np.linalg.norm(rig.pose_bones - rig.bone_rest, axis=2) > 1e-4  # (P, B)
+    for p in range(len(rig.pose_names)):
+        np.testing.assert_array_equal(at_pose[p, p][moving[p]], 1.0)
+        np.testing.assert_array_equal(at_pose[p, p][~moving[p]], 0.0)
+    np.testing.assert_array_equal(at_rest, 0.0)
+    np.testing.assert_array_equal(inf.rest_influence(at_rest), 1.0)
+    # Half way to a pose: a half, for every bone that moves in it.
+    half = 0.5 * (rig.bone_rest + rig.pose_bones[0])
+    got = inf.pose_influences(half[None], rig.bone_rest, rig.pose_bones)[0, 0]
+    np.testing.assert_allclose(got[moving[0]], 0.5, atol=1e-6)
+
+
+def test_group_influences_average_members():
+    infl = np.array([[[0.2, 0.4, 1.0, 0.0]]], np.float32)  # (1, 1, 4)
+    out = inf.group_influences(infl, np.array([0, 0, 1, 2]))
+    np.testing.assert_allclose(out[0, 0], [0.3, 0.3, 1.0, 0.0], atol=1e-7)
+
+
+def test_region_and_zone_weights(rig):
+    at_pose = inf.rig_influences(rig.pose_bones, rig)  # frames = poses
+    region = inf.region_influence(at_pose, rig)
+    assert region.shape == (len(rig.pose_names), len(rig.region_names), len(rig.pose_names))
+    assert region.min() >= 0.0 and region.max() <= 1.0 + 1e-6
+    # Region influence = the region-weighted mean of the per-vertex bone masks (§5.2).
+    per_vertex = inf.vertex_influences(at_pose, rig.dense_skin_weights())  # (P, P, V)
+    rw = rig.region_weights / rig.region_weights.sum(1, keepdims=True)
+    np.testing.assert_allclose(region, np.einsum("fpv,rv->frp", per_vertex, rw), atol=1e-5)
+    # The stretch pose (brows up) lights the forehead for "stretch", not for "compress".
+    s, c = rig.pose_index("stretch"), rig.pose_index("compress")
+    fh = rig.region_names.index("forehead")
+    assert region[s, fh, s] > 0.1 and region[s, fh, c] < 0.5 * region[s, fh, s]
+    z = inf.zone_weights(np.ones((1, rig.n_morphs)) * 5, rig.zone_table)
+    assert z.min() >= -1.0 and z.max() <= 1.0
+
+
+# ---- RBF network -----------------------------------------------------------------------
+
+@pytest.mark.parametrize("smoothing,centers", [(0.0, None), (0.5, 24)])
+def test_network_maps_neutral_exactly(rig, wide, smoothing, centers):
+    lv = rig.landmark_vertices[rig.landmark_vertices >= 0]
+    src = rig.vertices[lv] * 1.07 + np.random.default_rng(1).normal(0, 0.05, (len(lv), 3))
+    net = fit_feature_map(src, wide.vertices[lv], kernel="linear", smoothing=smoothing, n_centers=centers)
+    np.testing.assert_allclose(net(src[None])[0], wide.vertices[lv], atol=1e-9)
+
+
+# ---- the solve --------------------------------------------------------------------------
+
+def test_linear_solver_matches_bounded_least_squares():
+    """The DCT/ADMM solve equals a generic bounded minimiser of the same objective."""
+    rng = np.random.default_rng(0)
+    n_pts, nb, nm, frames, pin = 15, 2, 3, 12, 4
+    a = rng.normal(size=(3 * n_pts, 3 * nb + nm))
+    model = LinearRigModel(rest=np.zeros((n_pts, 3)), matrix=a, free_bones=np.arange(1, nb + 1),
+                           morphs=np.arange(nm))
+    x_true = np.c_[rng.normal(size=(frames, 3 * nb)), rng.uniform(-0.5, 1.5, (frames, nm))]
+    pts = (x_true @ a.T).reshape(frames, n_pts, 3) + rng.normal(0, 0.1, (frames, n_pts, 3))
+    ridge, temporal = 1e-2, 0.5
+    x = LinearSolver(model, ridge=ridge, temporal=temporal, tolerance=1e-10, iterations=5000).solve(pts, pin=pin)
+    scale = np.linalg.norm(a, axis=0)
+
+    def objective(flat):
+        z = flat.reshape(frames, -1)
+        r = (z / scale) @ a.T - pts.reshape(frames, -1)
+        return 0.5 * (r**2).sum() + 0.5 * ridge * (z**2).sum() + 0.5 * temporal * ((z[1:] - z[:-1]) ** 2).sum()
+
+    bounds = [(0, 0) if f == pin else ((0, scale[j]) if j >= 3 * nb else (None, None))
+              for f in range(frames) for j in range(3 * nb + nm)]
+    ref = minimize(objective, np.zeros(frames * (3 * nb + nm)), bounds=bounds, method="L-BFGS-B",
+                   options=dict(maxiter=50000, ftol=1e-15, gtol=1e-10))
+    np.testing.assert_allclose(x, ref.x.reshape(frames, -1) / scale, atol=1e-4)
+    assert x[:, 3 * nb:].min() >= 0.0 and x[:, 3 * nb:].max() <= 1.0
+    np.testing.assert_array_equal(x[pin], 0.0)
+    assert (x_true[:, 3 * nb:] > 1).any() and (x_true[:, 3 * nb:] < 0).any()  # bounds were active
+
+
+# ---- retarget ---------------------------------------------------------------------------
+
+def _bone_error_iod(anim, bones, rig):
+    face = np.arange(1, rig.n_bones)
+    return np.linalg.norm(anim.bone_positions[:, face] - bones[:, face], axis=2) / rig.interocular()
+
+
+def test_perfect_track_recovers_bones_and_weights(rig, performance):
+    track = perfect_track(rig, performance, scale=1.08, angle_deg=4.0, shift=(0.3, -0.2, 0.5))
+    anim = retarget(track, rig)
+    err = _bone_error_iod(anim, performance.bone_positions, rig)
+    assert err.max() < 5e-3, err.max()
+    assert np.median(err) < 1e-3
+    observable = np.abs(rig.morph_positions[:, rig.landmark_vertices[rig.landmark_vertices >= 0]]).max((1, 2)) > 1e-3
+    w_err = np.abs(anim.blend_weights - performance.blend_weights)[:, observable]
+    assert w_err.mean() < 0.01, w_err.mean()
+    truth_inf = inf.rig_influences(performance.bone_positions, rig)
+    assert np.abs(anim.influences - truth_inf).mean() < 0.01
+
+
+def test_joint_solve_beats_bone_equals_landmark(rig, performance):
+    track = perfect_track(rig, performance)
+    joint = _bone_error_iod(retarget(track, rig), performance.bone_positions, rig)
+    direct = _bone_error_iod(retarget(track, rig, RetargetOptions(joint_solve=False)), performance.bone_positions, rig)
+    assert np.percentile(joint, 95) < 0.5 * np.percentile(direct, 95)
+
+
+def test_neutral_frame_maps_exactly_and_animation_is_complete(rig, performance):
+    names = list(BLENDSHAPE_NAMES)
+    scores = np.random.default_rng(2).uniform(0, 1, (performance.n_frames, len(names))).astype(np.float32)
+    track = perfect_track(rig, performance, scale=0.95, noise=0.03, blendshapes=scores)
+    anim = retarget(track, rig, RetargetOptions(smoothing=0.1, temporal_smoothness=1.0))
+    n = track.neutral_frame
+    np.testing.assert_array_equal(anim.bone_positions[n], rig.bone_rest)
+    np.testing.assert_array_equal(anim.blend_weights[n], 0.0)
+    np.testing.assert_array_equal(anim.influences[n], 0.0)
+    np.testing.assert_array_equal(anim.rest_influence[n], 1.0)
+    F, B, M, P = track.n_frames, rig.n_bones, rig.n_morphs, len(rig.pose_names)
+    assert anim.bone_positions.shape == (F, B, 3) and anim.blend_weights.shape == (F, M)
+    assert anim.influences.shape == (F, P, B) and anim.rest_influence.shape == (F, B)
+    assert anim.region_influence.shape == (F, len(rig.region_names), P)
+    assert anim.zone_weights.shape == (F, 8) and np.abs(anim.zone_weights).max() <= 1.0
+    assert anim.blend_weights.min() >= 0.0 and anim.blend_weights.max() <= 1.0
+    np.testing.assert_array_equal(anim.mediapipe_blendshapes, scores)
+    assert anim.mediapipe_blendshape_names == names
+    np.testing.assert_array_equal(anim.head_pose, track.head_pose)
+    np.testing.assert_array_equal(anim.times, track.times)
+    assert anim.pose_names == rig.pose_names and {"stretch", "compress"} <= set(anim.pose_names)
+    np.testing.assert_allclose(anim.zone_weights, inf.zone_weights(anim.blend_weights, rig.zone_table))
+
+
+def test_cross_character_neutral_and_motion_scale(rig, wide, performance):
+    from capture2face.evaluate import truth_on_target
+
+    track = perfect_track(rig, performance)
+    anim = retarget(track, wide)
+    n = track.neutral_frame
+    np.testing.assert_array_equal(anim.bone_positions[n], wide.bone_rest)
+    truth = truth_on_target(performance.bone_positions, rig, wide)
+    err = _bone_error_iod(anim, truth, wide)
+    assert np.median(err) < 0.01 and np.percentile(err, 95) < 0.03
+    # Sideways motion grows with the wider face: ratio of x displacement ~ width ratio.
+    face = np.arange(1, rig.n_bones)
+    dx_src = np.abs(performance.bone_positions[:, face, 0] - rig.bone_rest[face, 0]).mean()
+    dx_tgt = np.abs(anim.bone_positions[:, face, 0] - wide.bone_rest[face, 0]).mean()
+    skin = lambda r: r.vertices[r.material == 0]
+    width_ratio = np.ptp(skin(wide)[:, 0]) / np.ptp(skin(rig)[:, 0])
+    assert width_ratio > 1.05
+    assert abs(dx_tgt / dx_src - width_ratio) < 0.5 * (width_ratio - 1.0) + 0.03
+
+
+def test_character_without_landmark_vertices_uses_bone_landmarks(rig, performance):
+    names = list(BLENDSHAPE_NAMES)
+    scores = np.random.default_rng(5).uniform(0, 1, (performance.n_frames, len(names))).astype(np.float32)
+    track = perfect_track(rig, performance, blendshapes=scores)
+    imported = rig.replace(landmark_vertices=np.full_like(rig.landmark_vertices, -1))
+    anim = retarget(track, imported)
+    # Each bone follows its landmark's motion.
+    lm = track.landmarks_head.astype(np.float64)
+    bl = rig.bone_landmarks
+    face = np.flatnonzero(bl >= 0)
+    expected = rig.bone_rest[face] + lm[:, bl[face]] - lm[track.neutral_frame, bl[face]]
+    np.testing.assert_allclose(anim.bone_positions[:, face], expected, atol=2e-3)
+    # ARKit-named morphs take MediaPipe's scores.
+    shared = [(m, names.index(n)) for m, n in enumerate(rig.morph_names) if n in names]
+    assert shared
+    for m, s in shared:
+        np.testing.assert_array_equal(anim.blend_weights[:, m], scores[:, s])
+
+
+def test_animation_save_load_bit_exact(rig, performance, tmp_path):
+    anim = retarget(perfect_track(rig, performance, noise=0.02), rig)
+    anim.save(tmp_path / "animation.npz")
+    back = Animation.load(tmp_path / "animation.npz")
+    for field in anim.__dataclass_fields__:
+        a, b = getattr(anim, field), getattr(back, field)
+        if isinstance(a, np.ndarray):
+            assert a.dtype == b.dtype and a.shape == b.shape
+            assert a.tobytes() == b.tobytes(), field
+        else:
+            assert a == b, field
+
+
+def test_retarget_timing_is_measurable(rig, performance):
+    ms = retarget_ms_per_frame(perfect_track(rig, performance), rig, repeats=1)
+    assert np.isfinite(ms) and ms > 0.0
