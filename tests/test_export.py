@@ -207,3 +207,12 @@ def test_head_angles_and_timecodes():
     assert timecodes(np.array([0.0, 1 / 30, 59.99, 3661.5, 1 / 60]), 30.0) == [
         "00:00:00:00.000", "00:00:00:01.000", "00:00:59:29.700", "01:01:01:15.000", "00:00:00:00.500"]
     assert timecodes(np.arange(3) / 25.0, 25.0)[2] == "00:00:00:02.000"
+
+
+def test_untracked_head_poses_become_identity():
+    pose = np.zeros((3, 4, 4))
+    pose[1] = np.nan
+    pose[2, :3, :3] = rot_y(0.3)
+    np.testing.assert_allclose(head_angles(pose), [[0, 0, 0], [0, 0, 0], [0.3, 0, 0]], atol=1e-12)
+    q = head_rotations(pose)
+    np.testing.assert_allclose(q[:2], [[0, 0, 0, 1], [0, 0, 0, 1]], atol=1e-12)

@@ -44,16 +44,27 @@ def _frame_times(animation, fps: float | None) -> np.ndarray:
     return (np.arange(n, dtype=np.float64) / float(fps)).astype(np.float32)
 
 
+def rotation_part(head_pose: np.ndarray) -> np.ndarray:
+    """(F, 4, 4) head -> camera transforms -> (F, 3, 3) nearest rotations (SVD). Frames
+    whose pose is non-finite or singular (never tracked) get the identity."""
+    m = np.asarray(head_pose, np.float64)[:, :3, :3].copy()
+    finite = np.isfinite(m).all(axis=(1, 2))
+    m[~finite] = np.eye(3)
+    bad = ~finite | (np.abs(np.linalg.det(m)) < 1e-9)
+    m[bad] = np.eye(3)
+    u, _, vt = np.linalg.svd(m)
+    r = u @ vt
+    flip = np.linalg.det(r) < 0  # a reflection is no rotation: take the nearest one
+    u[flip, :, 2] *= -1.0
+    r[flip] = u[flip] @ vt[flip]
+    return r
+
+
 def head_rotations(head_pose: np.ndarray) -> np.ndarray:
     """(F, 4, 4) head -> camera transforms -> (F, 4) unit quaternions (x, y, z, w) of their
     rotation part, orthonormalized (SVD) and sign-continuous so LINEAR (slerp) playback
     takes the short way. Non-finite poses become the identity."""
-    m = np.asarray(head_pose, np.float64)[:, :3, :3].copy()
-    bad = ~np.isfinite(m).all(axis=(1, 2))
-    m[bad] = np.eye(3)
-    u, _, vt = np.linalg.svd(m)
-    r = u @ vt
-    r[np.linalg.det(r) < 0] *= -1.0  # reflections cannot be rotations; flip to the nearest
+    r = rotation_part(head_pose)
     # Shepperd's method, vectorized: pick the largest of w, x, y, z for stability.
     tr = np.trace(r, axis1=1, axis2=2)
     diag = np.stack([r[:, 0, 0], r[:, 1, 1], r[:, 2, 2]], 1)

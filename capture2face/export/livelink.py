@@ -67,11 +67,9 @@ def _scores(track_or_blendshapes, animation) -> tuple[np.ndarray, list[str]]:
 def head_angles(head_pose: np.ndarray) -> np.ndarray:
     """(F, 4, 4) head -> camera transforms -> (F, 3) yaw, pitch, roll in radians for
     R = Ry(yaw) Rx(pitch) Rz(roll) (rotation part orthonormalized first)."""
-    m = np.asarray(head_pose, np.float64)[:, :3, :3].copy()
-    bad = ~np.isfinite(m).all(axis=(1, 2))
-    m[bad] = np.eye(3)
-    u, _, vt = np.linalg.svd(m)
-    r = u @ vt
+    from capture2face.export.animation_glb import rotation_part
+
+    r = rotation_part(head_pose)
     yaw = np.arctan2(r[:, 0, 2], r[:, 2, 2])
     pitch = np.arcsin(np.clip(-r[:, 1, 2], -1.0, 1.0))
     roll = np.arctan2(r[:, 1, 0], r[:, 1, 1])
