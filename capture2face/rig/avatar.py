@@ -66,13 +66,13 @@ BONES = [
     BoneSpec("eyelid_upper_R", 159, 1.2, ""), BoneSpec("eyelid_lower_R", 145, 1.2, ""),
     BoneSpec("eyelid_upper_L", 386, 1.2, ""), BoneSpec("eyelid_lower_L", 374, 1.2, ""),
     BoneSpec("cheek_R", 205, 2.8, ""), BoneSpec("cheek_L", 425, 2.8, ""),
-    BoneSpec("nose_wing_R", 129, 1.3, ""), BoneSpec("nose_wing_L", 358, 1.3, ""),
+    BoneSpec("nose_wing_R", 129, 1.6, ""), BoneSpec("nose_wing_L", 358, 1.6, ""),
     BoneSpec("lip_upper_R", 82, 1.4, ""), BoneSpec("lip_upper_C", 13, 1.4, ""),
     BoneSpec("lip_upper_L", 312, 1.4, ""),
     BoneSpec("mouth_corner_R", 61, 1.6, ""), BoneSpec("mouth_corner_L", 291, 1.6, ""),
     BoneSpec("lip_lower_R", 87, 1.4, ""), BoneSpec("lip_lower_C", 14, 1.4, ""),
     BoneSpec("lip_lower_L", 317, 1.4, ""),
-    BoneSpec("jaw", 152, 5.0, ""),
+    BoneSpec("jaw", 152, 6.5, ""),
 ]
 
 # Reference poses as bone displacements (cm) for the subject's left side and the middle;
@@ -84,8 +84,8 @@ _POSES = {
         "cheek": (0.0, -0.35, -0.05), "nose_wing": (0.0, -0.25, 0.0),
         "lip_upper_C": (0.0, 0.3, 0.0), "lip_upper": (0.0, 0.3, 0.0),
         "mouth_corner": (-0.2, -0.6, -0.1),
-        "lip_lower_C": (0.0, -1.1, -0.2), "lip_lower": (0.0, -1.0, -0.2),
-        "jaw": (0.0, -1.5, -0.5),
+        "lip_lower_C": (0.0, -1.0, -0.2), "lip_lower": (0.0, -0.9, -0.2),
+        "jaw": (0.0, -1.1, -0.35),
     },
     "compress": {  # brows down and together, squint, lips puckered
         "brow_inner": (-0.35, -0.45, 0.1), "brow_mid": (-0.25, -0.5, 0.05), "brow_outer": (-0.1, -0.45, 0.0),

@@ -128,7 +128,7 @@ def stretch_height(u, v, layout: features.FeatureLayout, rng: np.random.Generato
     top, bottom = cv - 0.75 * av, cv + 0.85 * av
     for k in range(n_lines):
         base_v = top + (bottom - top) * k / (n_lines - 1)
-        half = au * (0.55 + 0.25 * rng.random()) * (1.0 - 0.25 * abs(k - 2) / 2)
+        half = au * (0.8 + 0.15 * rng.random()) * (1.0 - 0.2 * abs(k - 2) / 2)
         wobble = 0.0025 * np.sin(2 * np.pi * (u * (5 + 2 * rng.random())) + rng.random() * 6.3)
         line_v = base_v + 0.12 * (u - cu) ** 2 + wobble  # slight arch, ends droop
         t = (u - (cu - half)) / (2 * half)
@@ -195,11 +195,12 @@ def pore_height(u, v, rng: np.random.Generator) -> np.ndarray:
     """Fine skin detail: pores (small pits, larger and denser on nose and cheeks) over a
     faint micro-relief."""
     shape = u.shape
-    density = 0.035 + 0.03 * np.exp(-(((u - 0.5) / 0.15) ** 2 + ((v - 0.55) / 0.1) ** 2))
-    seeds = (rng.random(shape) < density).astype(np.float64) * (0.5 + rng.random(shape))
-    pits = ndimage.gaussian_filter(seeds, 0.9)
-    micro = _band_noise(shape, 0.8, rng)
-    return -3.0 * pits + 0.06 * micro
+    centre = np.exp(-(((u - 0.5) / 0.16) ** 2 + ((v - 0.56) / 0.12) ** 2))  # nose and cheeks
+    density = 0.012 + 0.02 * centre
+    seeds = (rng.random(shape) < density).astype(np.float64) * (0.6 + 0.8 * rng.random(shape))
+    pits = ndimage.gaussian_filter(seeds, 1.0) * (1.0 + 0.6 * centre)
+    micro = _band_noise(shape, 1.2, rng)
+    return -6.0 * pits + 0.12 * micro
 
 
 # ---------------------------------------------------------------------------------------
@@ -239,8 +240,8 @@ def _albedo(u, v, landmark_uvs, layout, rng, eye_iris_theta: dict) -> np.ndarray
     brow_l = [300, 293, 334, 296, 336, 285, 295, 282, 283, 276]
     brows = _fill(size, lm[brow_r], 3.0) + _fill(size, lm[brow_l], 3.0)
     strokes = ndimage.gaussian_filter(rng.standard_normal(u.shape), (0.6, 3.5))  # elongated along u
-    hair = np.clip(brows * (0.75 + 0.5 * strokes / strokes.std()), 0, 1)
-    colour = colour * (1 - 0.8 * hair[..., None]) + BROW_SRGB * 0.8 * hair[..., None]
+    hair = np.clip(brows * (0.9 + 0.35 * strokes / strokes.std()), 0, 1)
+    colour = colour * (1 - 0.85 * hair[..., None]) + BROW_SRGB * 0.85 * hair[..., None]
     # Eyes.
     for side, (ecu, ecv) in EYE_TEXTURE_CENTRES.items():
         r = np.hypot(u - ecu, v - ecv)
@@ -292,7 +293,7 @@ def build_maps(landmark_uvs: np.ndarray, uvs: np.ndarray, triangles: np.ndarray,
     zones = features.zone_fields(u, v, layout) * skin
     return {
         "albedo": _albedo(u, v, landmark_uvs, layout, rng, eye_iris_theta),
-        "normal": encode_normals(height_to_normal(pores, 0.35)),
+        "normal": encode_normals(height_to_normal(pores, 0.6)),
         "stretch": encode_normals(height_to_normal(ndimage.gaussian_filter(stretch, 0.7), 2.2)),
         "compress": encode_normals(height_to_normal(ndimage.gaussian_filter(compress, 0.7), 2.2)),
         "zones": np.clip(np.round(np.moveaxis(zones, 0, -1) * 255), 0, 255).astype(np.uint8),

@@ -1,0 +1,461 @@
+"""The default avatar, its maps, and the CPU reference deformation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from capture2face.retarget.influences import rig_influences
+from capture2face.rig import avatar as avatar_mod
+from capture2face.rig import maps as maps_mod
+from capture2face.rig import mesh_ops
+from capture2face.rig.avatar import BONES, default_avatar
+from capture2face.rig.canonical import load_canonical_mesh
+from capture2face.rig.deform import deform
+from capture2face.rig.face_rig import REGION_NAMES, ZONE_NAMES, FaceRig
+
+REQUIRED_MORPHS = ["jawOpen", "eyeBlinkLeft", "eyeBlinkRight", "mouthSmileLeft", "mouthSmileRight",
+                   "mouthFunnel", "mouthPucker", "browInnerUp", "browDownLeft", "browDownRight", "cheekPuff"]
+
+
+@pytest.fixture(scope="session")
+def rig() -> FaceRig:
+    return default_avatar()
+
+
+@pytest.fixture(scope="session")
+def wide() -> FaceRig:
+    return default_avatar("wide")
+
+
+@pytest.fixture(scope="session")
+def canon():
+    return load_canonical_mesh()
+
+
+def _zero_weights(rig):
+    return np.zeros(rig.n_morphs, np.float32)
+
+
+# ---- canonical mesh -------------------------------------------------------------------
+
+
+def test_canonical_mesh_decodes(canon):
+    assert canon.vertices.shape == (468, 3) and canon.uvs.shape == (468, 2)
+    assert canon.triangles.shape == (898, 3) and canon.triangles.max() == 467
+    v = canon.vertices
+    assert v[263, 0] > 4 and v[33, 0] < -4  # +x is the subject's left
+    assert v[10, 1] > 7 and v[152, 1] < -8  # +y up, cm
+    assert v[1, 2] > 7  # the nose tip points +z
+    assert canon.uvs[10, 1] < 0.12 and canon.uvs[152, 1] > 0.9  # UV origin top-left
+    assert len(canon.procrustes_ids) > 10 and np.all(canon.procrustes_weights > 0)
+
+
+# ---- geometry -------------------------------------------------------------------------
+
+
+def test_geometry(rig, canon):
+    skin_tris = rig.triangles[(rig.material[rig.triangles] == 0).all(1)]
+    assert len(skin_tris) >= 3000
+    np.testing.assert_array_equal(rig.landmark_vertices[:468], np.arange(468))
+    np.testing.assert_allclose(rig.vertices[:468], canon.vertices, atol=1e-6)
+    assert rig.triangles.min() >= 0 and rig.triangles.max() < rig.n_vertices
+    assert set(np.unique(rig.material)) == {0, 1, 2}
+    np.testing.assert_allclose(np.linalg.norm(rig.normals, axis=1), 1.0, atol=1e-5)
+    # Skin normals face the camera on the front of the face.
+    front = (rig.material == 0) & (np.abs(rig.vertices[:, 0]) < 3)
+    assert (rig.normals[front, 2] > 0).mean() > 0.95
+
+
+def test_tangent_frames(rig):
+    t, w, n = rig.tangents[:, :3], rig.tangents[:, 3], rig.normals
+    np.testing.assert_allclose(np.linalg.norm(t, axis=1), 1.0, atol=1e-5)
+    assert np.abs((t * n).sum(1)).max() < 1e-4
+    assert set(np.unique(w)) <= {-1.0, 1.0}
+    skin = rig.material == 0
+    bitangent = w[:, None] * np.cross(n, t)
+    front = skin & (np.abs(rig.vertices[:, 0]) < 3)
+    # Tangent along +u = +x on the face, bitangent along -v = up.
+    # (The nose wings' UVs run partly along the depth, so a few tangents tilt away.)
+    assert (t[front, 0] > 0.2).mean() > 0.95
+    assert (bitangent[front, 1] > 0.2).mean() > 0.95
+
+
+def test_eyes_cover_the_openings(rig):
+    eye = rig.material == 1
+    for side, centre_landmark, rim in (("R", 468, [159, 145, 33, 133]), ("L", 473, [386, 374, 263, 362])):
+        iris_vertices = rig.landmark_vertices[centre_landmark:centre_landmark + 5]
+        assert np.all(iris_vertices >= 0) and np.all(eye[iris_vertices])
+        # The eyeball this iris belongs to: vertices connected to its centre.
+        ball = _component(rig, iris_vertices[0])
+        p = rig.vertices[ball]
+        centre = 0.5 * (p.max(0) + p.min(0))
+        radius = np.linalg.norm(p - centre, axis=1).mean()
+        # Every lid contour vertex is inside the front silhouette and in front of the ball,
+        # open and with the lid closed.
+        loops = mesh_ops.boundary_loops(rig.triangles[(rig.material[rig.triangles] == 0).all(1)])
+        contour = next(loop for loop in loops if rim[0] in loop)
+        for name in (None, "eyeBlinkLeft" if side == "L" else "eyeBlinkRight"):
+            w = _zero_weights(rig)
+            if name:
+                w[rig.morph_index(name)] = 1.0
+            pos, _ = deform(rig, rig.bone_rest, w)
+            q = pos[contour]
+            d = np.linalg.norm(q[:, :2] - centre[:2], axis=1)
+            assert d.max() < radius
+            surface_z = centre[2] + np.sqrt(radius**2 - d**2)
+            assert (q[:, 2] - surface_z).min() > 0.0
+        # The iris centre looks forward from the front pole.
+        assert rig.vertices[iris_vertices[0], 2] == pytest.approx(p[:, 2].max(), abs=1e-5)
+
+
+def _component(rig, vertex):
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    edges, _ = mesh_ops.unique_edges(rig.triangles)
+    g = sp.coo_matrix((np.ones(len(edges)), tuple(edges.T)), shape=(rig.n_vertices,) * 2)
+    _, labels = connected_components(g, directed=False)
+    return np.flatnonzero(labels == labels[vertex])
+
+
+def test_mouth_interior_behind_the_lips(rig):
+    mouth = rig.material == 2
+    assert mouth.sum() > 40
+    lips = rig.vertices[[13, 14, 78, 308]]
+    assert rig.vertices[mouth, 2].max() <= lips[:, 2].max() + 1e-6
+    # Mouth interior triangles face forward-ish (towards the camera through the opening).
+    tris = rig.triangles[mouth[rig.triangles].all(1)]
+    p = rig.vertices[tris]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    assert (n[:, 2] > -1e-9).mean() > 0.5
+
+
+def test_texture_layout_keeps_eyes_and_mouth_off_the_skin(rig):
+    skin_tris = rig.triangles[(rig.material[rig.triangles] == 0).all(1)]
+    covered = maps_mod._coverage(rig.uvs, skin_tris, 1024)
+    for material in (1, 2):
+        uv = rig.uvs[rig.material == material]
+        texels = np.clip((uv * 1024).astype(int), 0, 1023)
+        assert not covered[texels[:, 1], texels[:, 0]].any()
+
+
+# ---- bones and skinning ---------------------------------------------------------------
+
+
+def test_bones(rig):
+    assert 21 <= rig.n_bones <= 31
+    assert rig.bone_names[0] == "head" and rig.bone_parents[0] == -1 and rig.bone_landmarks[0] == -1
+    assert np.all(rig.bone_parents[1:] == 0)
+    lm = rig.bone_landmarks[1:]
+    assert np.all((lm >= 0) & (lm < len(rig.landmark_vertices)))
+    assert np.all(rig.landmark_vertices[lm] >= 0)
+    np.testing.assert_array_equal(rig.bone_rest[1:], rig.vertices[rig.landmark_vertices[lm]])
+    assert len(set(rig.bone_names)) == rig.n_bones
+    for part in ("brow_inner", "brow_mid", "brow_outer", "eyelid_upper", "eyelid_lower", "cheek",
+                 "nose_wing", "lip_upper", "mouth_corner", "lip_lower"):
+        assert f"{part}_L" in rig.bone_names and f"{part}_R" in rig.bone_names
+    for side, sign in (("_L", 1), ("_R", -1)):
+        xs = [rig.bone_rest[i, 0] for i, n in enumerate(rig.bone_names) if n.endswith(side)]
+        assert np.all(np.sign(xs) == sign)
+    # The brows of one side share a group; the lips do not.
+    g = dict(zip(rig.bone_names, rig.bone_groups))
+    assert g["brow_inner_L"] == g["brow_mid_L"] == g["brow_outer_L"] != g["brow_inner_R"]
+    assert g["lip_upper_C"] != g["lip_lower_C"]
+
+
+def test_skin_weights_convex(rig):
+    w, j = rig.skin_weights, rig.skin_joints
+    assert w.shape == (rig.n_vertices, 4) and j.shape == (rig.n_vertices, 4)
+    assert w.dtype == np.float32 and j.dtype == np.int32
+    assert w.min() >= 0.0
+    np.testing.assert_allclose(w.sum(1), 1.0, atol=1e-6)
+    assert j.min() >= 0 and j.max() < rig.n_bones
+    dense = rig.dense_skin_weights()
+    assert ((dense > 0).sum(1) <= 4).all()
+    # Eyes ride the head bone only.
+    assert np.all(dense[rig.material == 1, 0] == 1.0)
+
+
+def test_skin_weights_local_and_smooth(rig):
+    dense = rig.dense_skin_weights()
+    skin = np.flatnonzero(rig.material == 0)
+    for b, spec in enumerate(BONES[1:], start=1):
+        # Geodesic distance >= Euclidean: beyond the radius in space the weight must be 0.
+        far = np.linalg.norm(rig.vertices[skin] - rig.bone_rest[b], axis=1) > spec.radius
+        assert far.any() and np.all(dense[skin[far], b] == 0.0), spec.name
+        # The bone dominates its own landmark.
+        own = rig.landmark_vertices[spec.landmark]
+        assert dense[own, b] >= 0.35 and dense[own, b] == dense[own].max(), spec.name
+    # Smooth: the weights change by less than 2.5 per cm along any skin edge.
+    edges, _ = mesh_ops.unique_edges(rig.triangles[(rig.material[rig.triangles] == 0).all(1)])
+    length = np.linalg.norm(rig.vertices[edges[:, 0]] - rig.vertices[edges[:, 1]], axis=1)
+    slope = np.abs(dense[edges[:, 0]] - dense[edges[:, 1]]).max(1) / length
+    assert slope.max() < 2.5
+    # Upper and lower lips are separated: the lower-lip bone does not move the upper lip.
+    assert dense[13, rig.bone_index("lip_lower_C")] == 0.0
+    assert dense[14, rig.bone_index("lip_upper_C")] == 0.0
+    assert dense[159, rig.bone_index("eyelid_lower_R")] == 0.0
+
+
+# ---- deformation ----------------------------------------------------------------------
+
+
+def test_rest_pose_reproduces_rest_vertices(rig):
+    pos, nrm = deform(rig, rig.bone_rest, _zero_weights(rig))
+    np.testing.assert_array_equal(pos, rig.vertices)
+    np.testing.assert_allclose(nrm, rig.normals, atol=1e-6)
+
+
+def test_morph_at_weight_one_reproduces_target(rig):
+    for m, name in enumerate(rig.morph_names):
+        w = _zero_weights(rig)
+        w[m] = 1.0
+        pos, nrm = deform(rig, rig.bone_rest, w)
+        target = rig.vertices.astype(np.float64) + rig.morph_positions[m]
+        np.testing.assert_allclose(pos, target, atol=1e-5, err_msg=name)
+        # Normal deltas are the normals of the morphed mesh minus the rest normals.
+        expected = mesh_ops.vertex_normals(target, rig.triangles)
+        np.testing.assert_allclose(nrm, expected, atol=2e-4, err_msg=name)
+        assert np.abs(rig.morph_positions[m]).max() > 0.1, name  # it does something
+
+
+def test_required_morphs(rig):
+    assert set(REQUIRED_MORPHS) <= set(rig.morph_names)
+    assert rig.morph_positions.shape == rig.morph_normals.shape == (rig.n_morphs, rig.n_vertices, 3)
+
+
+def test_morphs_move_the_right_features(rig):
+    def moved(name):
+        w = _zero_weights(rig)
+        w[rig.morph_index(name)] = 1.0
+        return deform(rig, rig.bone_rest, w)[0] - rig.vertices
+
+    jaw = moved("jawOpen")
+    assert jaw[152, 1] < -1.0 and np.linalg.norm(jaw[152]) > 2.0  # the chin swings down and back
+    assert jaw[14, 1] < -1.0 and jaw[152, 2] < 0  # and the lower lip drops
+    assert np.abs(jaw[13]).max() < 0.05 and np.abs(jaw[10]).max() < 1e-6  # upper lip, forehead stay
+    blink = moved("eyeBlinkLeft")
+    closed = rig.vertices + blink
+    assert np.linalg.norm(closed[386] - closed[374]) < 0.2 < np.linalg.norm(rig.vertices[386] - rig.vertices[374])
+    assert np.abs(blink[159]).max() < 1e-6  # the other eye stays open
+    smile = moved("mouthSmileLeft")
+    assert smile[291, 1] > 0.3 and smile[291, 0] > 0.3 and np.abs(smile[61]).max() < 0.05
+    inner = moved("browInnerUp")
+    assert inner[107, 1] > 0.5 and inner[336, 1] > 0.5
+    down = moved("browDownLeft")
+    assert down[334, 1] < -0.3 and down[336, 0] < -0.1  # down and towards the middle
+    pucker = moved("mouthPucker")
+    assert pucker[0, 2] > 0.3 and pucker[291, 0] < -0.4 and pucker[61, 0] > 0.4
+    puff = moved("cheekPuff")
+    assert (puff[[205, 425]] * rig.normals[[205, 425]]).sum(1).min() > 0.2
+
+
+def test_translation_only_skinning(rig):
+    b = rig.bone_index("jaw")
+    bones = rig.bone_rest.copy()
+    bones[b] += [0.0, -1.0, 0.5]
+    pos, nrm = deform(rig, bones, _zero_weights(rig))
+    dense = rig.dense_skin_weights()
+    np.testing.assert_allclose(pos - rig.vertices, dense[:, b:b + 1] * np.array([0.0, -1.0, 0.5]), atol=1e-5)
+    np.testing.assert_allclose(nrm, rig.normals, atol=1e-6)  # translations do not rotate normals
+
+
+def test_batched_deform_matches_single_frames(rig):
+    rng = np.random.default_rng(0)
+    bones = rig.bone_rest[None] + rng.normal(0, 0.3, (3, rig.n_bones, 3)).astype(np.float32)
+    weights = rng.uniform(0, 1, (3, rig.n_morphs)).astype(np.float32)
+    pos, nrm = deform(rig, bones, weights)
+    assert pos.shape == nrm.shape == (3, rig.n_vertices, 3)
+    for f in range(3):
+        p1, n1 = deform(rig, bones[f], weights[f])
+        np.testing.assert_allclose(pos[f], p1, atol=1e-6)
+        np.testing.assert_allclose(nrm[f], n1, atol=1e-6)
+    with pytest.raises(ValueError):
+        deform(rig, bones, weights[0])
+
+
+# ---- poses, regions, zones ------------------------------------------------------------
+
+
+def test_reference_poses(rig):
+    assert rig.pose_names == ["stretch", "compress"]
+    assert [rig.wrinkle_map_names[i] for i in rig.pose_maps] == ["stretch", "compress"]
+    travel = np.linalg.norm(rig.pose_bones - rig.bone_rest, axis=2)  # (P, B)
+    assert np.all(travel[:, 0] == 0)
+    assert travel[:, 1:].min() >= 0.2 and travel.max() <= 1.6
+    s, c = rig.pose_bones - rig.bone_rest
+    brows = [rig.bone_index(n) for n in rig.bone_names if n.startswith("brow")]
+    assert np.all(s[brows, 1] > 0.5) and np.all(c[brows, 1] < -0.3)  # raised / lowered
+    inner = rig.bone_index("brow_inner_L"), rig.bone_index("brow_inner_R")
+    assert c[inner[0], 0] < 0 < c[inner[1], 0]  # together
+    corners = rig.bone_index("mouth_corner_L"), rig.bone_index("mouth_corner_R")
+    assert c[corners[0], 0] < -0.4 and c[corners[1], 0] > 0.4  # puckered
+    assert s[rig.bone_index("jaw"), 1] < -0.5  # mouth open
+
+
+def test_pose_influences_are_one_at_each_pose_and_zero_at_rest(rig):
+    frames = np.concatenate([rig.bone_rest[None], rig.pose_bones])  # rest, stretch, compress
+    inf = rig_influences(frames, rig)  # (F, P, B)
+    np.testing.assert_array_equal(inf[0], 0.0)
+    for k in range(len(rig.pose_names)):
+        np.testing.assert_array_equal(inf[1 + k, k, 1:], 1.0)
+        assert inf[1 + k, k, 0] == 0.0
+
+
+def test_regions(rig):
+    assert rig.region_names == REGION_NAMES
+    r = rig.region_weights
+    assert r.shape == (len(REGION_NAMES), rig.n_vertices) and r.min() >= 0 and r.max() <= 1
+    assert np.all(r[:, rig.material != 0] == 0)
+    centre = (r @ rig.vertices) / r.sum(1, keepdims=True)
+    c = dict(zip(REGION_NAMES, centre))
+    brow_y = rig.vertices[[105, 334], 1].mean()
+    assert c["forehead"][1] > brow_y and abs(c["forehead"][0]) < 0.5
+    assert c["glabella"][1] > rig.vertices[168, 1] and abs(c["glabella"][0]) < 0.3
+    assert c["crows_feet_left"][0] > rig.vertices[263, 0] > 0 > rig.vertices[33, 0] > c["crows_feet_right"][0]
+    assert c["nasolabial_left"][0] > 0 > c["nasolabial_right"][0]
+    assert c["chin"][1] < rig.vertices[17, 1]
+    assert (r > 0.5).sum(1).min() >= 10
+
+
+def test_zones(rig):
+    assert rig.zone_names == ZONE_NAMES
+    assert rig.zone_masks.shape == (1024, 1024, 8) and rig.zone_masks.dtype == np.uint8
+    assert (rig.zone_masks == 255).reshape(-1, 8).sum(0).min() > 500
+    t = dict(zip(rig.morph_names, rig.zone_table))
+    z = ZONE_NAMES.index
+    assert t["browInnerUp"][z("forehead_left")] < 0 and t["browInnerUp"][z("forehead_right")] < 0
+    assert t["browDownLeft"][z("glabella")] > 0 and t["browDownRight"][z("glabella")] > 0
+    assert t["eyeSquintLeft"][z("crows_feet_left")] > 0 and t["eyeSquintRight"][z("crows_feet_right")] > 0
+    assert t["mouthSmileLeft"][z("nasolabial_left")] > 0 and t["mouthSmileLeft"][z("nasolabial_right")] == 0
+    assert t["mouthPucker"][z("chin")] > 0 and t["jawOpen"][z("chin")] < 0  # these cancel
+
+
+# ---- maps -----------------------------------------------------------------------------
+
+
+def _gradient_energy(normal_map, mask):
+    """Energy of the normal map's x (d/du) and y (d/dv) components under a mask."""
+    n = maps_mod.decode_normals(normal_map)
+    w = mask.astype(np.float64) / 255.0
+    return (w * n[..., 0] ** 2).sum(), (w * n[..., 1] ** 2).sum()
+
+
+def test_stretch_map_forehead_lines_are_horizontal(rig):
+    stretch = rig.wrinkle_maps[rig.wrinkle_map_names.index("stretch")]
+    forehead = rig.zone_masks[..., 0].astype(np.float64) + rig.zone_masks[..., 1]
+    across_u, across_v = _gradient_energy(stretch, np.clip(forehead, 0, 255))
+    assert across_v > 8 * across_u  # horizontal lines: the height changes along v
+    assert across_v / (forehead > 0).sum() > 1e-3  # and they are there
+
+
+def test_compress_map_glabella_lines_are_vertical(rig):
+    compress = rig.wrinkle_maps[rig.wrinkle_map_names.index("compress")]
+    across_u, across_v = _gradient_energy(compress, rig.zone_masks[..., ZONE_NAMES.index("glabella")])
+    assert across_u > 5 * across_v
+
+
+def test_compress_map_has_all_its_wrinkles(rig):
+    compress = rig.wrinkle_maps[rig.wrinkle_map_names.index("compress")]
+    stretch = rig.wrinkle_maps[rig.wrinkle_map_names.index("stretch")]
+    for zone in ("crows_feet_left", "crows_feet_right", "nasolabial_left", "nasolabial_right", "chin"):
+        mask = rig.zone_masks[..., ZONE_NAMES.index(zone)]
+        ex, ey = _gradient_energy(compress, mask)
+        sx, sy = _gradient_energy(stretch, mask)
+        assert ex + ey > 20 * (sx + sy) + 1e-3, zone  # wrinkled in compress, smooth in stretch
+
+
+def test_base_normal_map_has_pores(rig):
+    n = maps_mod.decode_normals(rig.normal_map)
+    skin = (rig.zone_masks.max(-1) > 0)
+    tilt = np.degrees(np.arccos(np.clip(n[..., 2], -1, 1)))
+    assert 0.5 < np.median(tilt[skin]) < 15  # fine detail, not flat and not wild
+    # High-frequency: neighbouring texels differ (pore scale is a few texels).
+    assert np.abs(np.diff(n[..., 0], axis=1))[skin[:, 1:]].mean() > 0.005
+
+
+def test_albedo_reads_as_skin(rig):
+    a = rig.albedo.astype(np.float64)
+    cheek = a[int(0.6 * 1024), int(0.3 * 1024)]
+    assert cheek[0] > cheek[1] > cheek[2] and 150 < cheek[0] < 250  # warm, light
+    lip = a[int(rig.uvs[0, 1] * 1024) + 6, int(rig.uvs[0, 0] * 1024)]
+    assert lip[0] - lip[1] > cheek[0] - cheek[1] + 20  # lips redder
+    v0, u0 = (rig.uvs[[105, 52]].mean(0)[::-1] * 1024).astype(int)
+    brow = a[v0 - 3:v0 + 4, u0 - 10:u0 + 11].reshape(-1, 3).mean(0)
+    assert brow.mean() < cheek.mean() - 40  # brows darker
+
+
+def test_height_to_normal_convention():
+    # A ramp rising along +u tilts normals towards -u (x < 0); rising along +v (down the
+    # image) tilts them towards +y (the bitangent points along -v).
+    ramp_u = np.tile(np.arange(16, dtype=float), (16, 1))
+    n = maps_mod.height_to_normal(ramp_u)
+    assert n[8, 8, 0] < -0.5 and abs(n[8, 8, 1]) < 1e-9
+    n = maps_mod.height_to_normal(ramp_u.T)
+    assert n[8, 8, 1] > 0.5 and abs(n[8, 8, 0]) < 1e-9
+    flat = maps_mod.encode_normals(maps_mod.height_to_normal(np.zeros((4, 4))))
+    assert tuple(flat[0, 0]) == (128, 128, 255)
+
+
+def test_write_maps_cli(rig, tmp_path):
+    import cv2
+
+    from capture2face.cli import main
+
+    assert main(["avatar", "--maps", str(tmp_path)]) == 0
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert names == ["albedo.png", "normal.png", "wrinkle_compress.png", "wrinkle_stretch.png",
+                     "zones_0.png", "zones_1.png"]
+    albedo = cv2.cvtColor(cv2.imread(str(tmp_path / "albedo.png")), cv2.COLOR_BGR2RGB)
+    np.testing.assert_array_equal(albedo, rig.albedo)
+    zones = cv2.imread(str(tmp_path / "zones_1.png"), cv2.IMREAD_UNCHANGED)
+    np.testing.assert_array_equal(cv2.cvtColor(zones, cv2.COLOR_BGRA2RGBA), rig.zone_masks[..., 4:])
+
+
+# ---- persistence and variants ---------------------------------------------------------
+
+
+def test_save_load_bit_exact(rig, tmp_path):
+    path = tmp_path / "a.rig.npz"
+    rig.save(path)
+    back = FaceRig.load(path)
+    for name, value in vars(rig).items():
+        other = getattr(back, name)
+        if isinstance(value, np.ndarray):
+            assert other.dtype == value.dtype and other.shape == value.shape, name
+            np.testing.assert_array_equal(other, value, err_msg=name)
+        else:
+            assert other == value, name
+
+
+def test_cache_is_reused(tmp_path, monkeypatch, rig):
+    monkeypatch.setenv("CAPTURE2FACE_CACHE", str(tmp_path))
+    avatar_mod._MEMO.clear()
+    try:
+        first = default_avatar()
+        files = list(tmp_path.glob("avatar-default-*.rig.npz"))
+        assert len(files) == 1
+        avatar_mod._MEMO.clear()
+        again = default_avatar()  # from the file this time
+        np.testing.assert_array_equal(again.morph_positions, first.morph_positions)
+        np.testing.assert_array_equal(first.vertices, rig.vertices)
+    finally:
+        avatar_mod._MEMO.clear()
+
+
+def test_wide_variant(rig, wide):
+    assert wide.name != rig.name
+    np.testing.assert_array_equal(wide.triangles, rig.triangles)
+    assert wide.bone_names == rig.bone_names and wide.morph_names == rig.morph_names
+    assert wide.interocular() == pytest.approx(1.15 * rig.interocular(), rel=0.02)
+    lift = wide.vertices[[105, 334], 1] - rig.vertices[[105, 334], 1]
+    assert np.all((lift > 0.35) & (lift < 0.65))
+    np.testing.assert_array_equal(wide.landmark_vertices, rig.landmark_vertices)
+
+
+def test_unknown_variant_is_a_user_error():
+    from capture2face.errors import CaptureError
+
+    with pytest.raises(CaptureError):
+        default_avatar("nonexistent")
