@@ -133,15 +133,17 @@ def retarget_stage(track, rig: FaceRig):
     return retarget(track, rig, RetargetOptions())
 
 
-def export_stage(rig: FaceRig, animation, folder: str | os.PathLike) -> None:
-    """animation.npz, animation.glb and livelink.csv into ``folder``."""
+def export_stage(rig: FaceRig, animation, folder: str | os.PathLike, track=None) -> None:
+    """animation.npz, animation.glb and livelink.csv into ``folder`` (``track``: the
+    clip's Track, whose MediaPipe scores fill Live Link columns the rig has no morph for;
+    None uses the animation's copy of them)."""
     from capture2face.export.livelink import write_livelink_csv
     from capture2face.rig.gltf import export_glb
 
     folder = Path(folder)
     animation.save(folder / "animation.npz")
     export_glb(rig, folder / "animation.glb", animation=animation)
-    write_livelink_csv(animation, folder / "livelink.csv")
+    write_livelink_csv(animation, track, folder / "livelink.csv")
 
 
 def avatar_head_poses(rig: FaceRig, head_pose: np.ndarray, fov_y_degrees: float) -> np.ndarray:
@@ -189,7 +191,7 @@ def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder
     fps = float(track.fps)
     render_opts = RenderOptions(size=size, wrinkles=options.wrinkles, samples=options.samples)
     heat_opts = RenderOptions(size=size, wrinkles=options.wrinkles if options.wrinkles != "off" else "auto",
-                              view="influence", samples=options.samples)
+                              view="influence", samples=1)  # a diagnostic view: no MSAA needed
     poses = avatar_head_poses(rig, animation.head_pose, render_opts.fov_y_degrees).astype(np.float32)
     fitter = SourceFitter(track.width, track.height, size)
     q = max(2, int(options.queue_frames))
@@ -340,7 +342,7 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
         seconds["retarget"] = time.perf_counter() - t
 
         t = time.perf_counter()
-        export_stage(rig, animation, tmp)
+        export_stage(rig, animation, tmp, track)
         seconds["export"] = time.perf_counter() - t
 
         t = time.perf_counter()

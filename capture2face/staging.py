@@ -15,6 +15,7 @@ import tempfile
 from pathlib import Path
 from typing import Iterator
 
+from capture2face.atomic import DIR_MODE
 from capture2face.errors import CaptureError
 
 STAGING_PREFIX = ".tmp-"
@@ -78,6 +79,7 @@ def staged_folder(final: str | os.PathLike) -> Iterator[Path]:
         raise CaptureError(f"cannot write to output folder {final.parent}: {exc.strerror or exc}") from None
     try:
         yield tmp
+        os.chmod(tmp, DIR_MODE)  # mkdtemp made it owner-only
         old = None
         if final.exists():
             old = Path(tempfile.mkdtemp(prefix=f"{STAGING_PREFIX}old-{final.name}-", dir=final.parent))

@@ -1,0 +1,188 @@
+"""``capture2face run`` end to end: every output, frame counts, exports that load back,
+wrinkle influences that follow the real face, determinism."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import shared_clip
+
+LIVELINK_HEADER = (
+    "Timecode,BlendShapeCount,EyeBlinkLeft,EyeLookDownLeft,EyeLookInLeft,EyeLookOutLeft,EyeLookUpLeft,"
+    "EyeSquintLeft,EyeWideLeft,EyeBlinkRight,EyeLookDownRight,EyeLookInRight,EyeLookOutRight,EyeLookUpRight,"
+    "EyeSquintRight,EyeWideRight,JawForward,JawRight,JawLeft,JawOpen,MouthClose,MouthFunnel,MouthPucker,"
+    "MouthRight,MouthLeft,MouthSmileLeft,MouthSmileRight,MouthFrownLeft,MouthFrownRight,MouthDimpleLeft,"
+    "MouthDimpleRight,MouthStretchLeft,MouthStretchRight,MouthRollLower,MouthRollUpper,MouthShrugLower,"
+    "MouthShrugUpper,MouthPressLeft,MouthPressRight,MouthLowerDownLeft,MouthLowerDownRight,MouthUpperUpLeft,"
+    "MouthUpperUpRight,BrowDownLeft,BrowDownRight,BrowInnerUp,BrowOuterUpLeft,BrowOuterUpRight,CheekPuff,"
+    "CheekSquintLeft,CheekSquintRight,NoseSneerLeft,NoseSneerRight,TongueOut,HeadYaw,HeadPitch,HeadRoll,"
+    "LeftEyeYaw,LeftEyePitch,LeftEyeRoll,RightEyeYaw,RightEyePitch,RightEyeRoll"
+)
+OUTPUTS = ["avatar.mp4", "compare.mp4", "track.npz", "animation.npz", "animation.glb", "livelink.csv", "report.json"]
+SIZE = 256
+
+
+def video_stats(path: Path) -> tuple[int, float, int, int]:
+    """(decoded frame count, nominal fps, width, height)."""
+    import av
+
+    with av.open(str(path)) as c:
+        s = c.streams.video[0]
+        n = sum(1 for _ in c.decode(s))
+        return n, float(s.average_rate), s.codec_context.width, s.codec_context.height
+
+
+def check_outputs(folder: Path, clip: Path) -> dict:
+    """Every check of issue 6 on one run's output folder; returns its report."""
+    from capture2face.export.animation_glb import read_animation_keyframe_count, read_glb_animation
+    from capture2face.retarget.animation import Animation
+    from capture2face.rig.gltf import import_glb
+    from capture2face.tracking.track import Track
+
+    assert sorted(p.name for p in folder.iterdir()) == sorted(OUTPUTS)
+    assert not list(folder.parent.glob(".tmp-*")), "staging left behind"
+    n_clip, fps_clip, w_clip, h_clip = video_stats(clip)
+
+    report = json.loads((folder / "report.json").read_text())
+    assert report["frames"] == n_clip
+    assert 0 < report["tracked_frames"] <= n_clip
+    assert report["fps"] == pytest.approx(fps_clip, rel=1e-3)
+    assert set(report["seconds"]) >= {"track", "retarget", "export", "render_encode", "total"}
+    assert report["seconds"]["total"] >= report["seconds"]["track"] > 0
+    assert isinstance(report["warnings"], list)
+    assert sorted(report["outputs"]) == sorted(OUTPUTS)
+
+    n, fps, w, h = video_stats(folder / "avatar.mp4")
+    assert (n, w, h) == (n_clip, SIZE, SIZE)
+    assert fps == pytest.approx(fps_clip, rel=1e-3)
+    n, fps, w, h = video_stats(folder / "compare.mp4")
+    assert (n, w, h) == (n_clip, 3 * SIZE, SIZE)
+
+    track = Track.load(folder / "track.npz")
+    assert track.n_frames == n_clip and (track.width, track.height) == (w_clip, h_clip)
+    animation = Animation.load(folder / "animation.npz")
+    assert animation.n_frames == n_clip
+    np.testing.assert_array_equal(animation.presence, track.presence)
+
+    lines = (folder / "livelink.csv").read_text().splitlines()
+    assert lines[0] == LIVELINK_HEADER
+    assert len(lines) == 1 + n_clip
+    for row in lines[1:]:
+        cells = row.split(",")
+        assert len(cells) == 63 and cells[1] == "61"
+    values = np.array([[float(x) for x in row.split(",")[2:]] for row in lines[1:]])
+    assert np.isfinite(values).all() and values[:, :52].min() >= 0 and values[:, :52].max() <= 1
+
+    rig = import_glb(folder / "animation.glb")
+    assert rig.n_vertices > 0 and rig.n_bones == len(animation.bone_names)
+    assert read_animation_keyframe_count(folder / "animation.glb") == n_clip
+    glb = read_glb_animation(folder / "animation.glb")
+    assert len(glb.times) == n_clip
+    np.testing.assert_allclose(glb.bone_positions, animation.bone_positions, atol=1e-3)
+    return report
+
+
+@pytest.fixture(scope="module")
+def sample_run(sample_clip, tmp_path_factory):
+    from capture2face.pipeline import RunOptions, run
+
+    out = tmp_path_factory.mktemp("run")
+    report = run(sample_clip, out, RunOptions(size=SIZE), progress=False)
+    return out / sample_clip.stem, report
+
+
+@pytest.mark.slow
+def test_run_writes_every_output_for_the_sample_clip(sample_run, sample_clip):
+    folder, report = sample_run
+    assert report == check_outputs(folder, sample_clip)
+    assert report["tracked_frames"] == report["frames"]  # the synthetic face never leaves
+    # The avatar is not a blank frame: the face covers a good part of it and moves.
+    import av
+
+    with av.open(str(folder / "avatar.mp4")) as c:
+        frames = np.stack([f.to_ndarray(format="gray") for f in c.decode(video=0)]).astype(np.float32)
+    background = np.median(frames[:, :4, :4])
+    face = np.abs(frames - background) > 20
+    assert 0.15 < face.mean() < 0.8
+    assert np.abs(np.diff(frames, axis=0)).mean() > 0.2
+
+
+@pytest.mark.slow
+def test_outputs_are_readable_by_others(sample_run):
+    folder, _ = sample_run
+    umask = os.umask(0)
+    os.umask(umask)
+    for p in [folder, *folder.iterdir()]:
+        expected = (0o777 if p.is_dir() else 0o666) & ~umask
+        assert p.stat().st_mode & 0o777 == expected, p
+
+
+@pytest.mark.slow
+def test_same_input_gives_the_same_animation(sample_run, sample_clip):
+    from capture2face.pipeline import RunOptions, load_character, retarget_stage, track_stage
+    from capture2face.retarget.animation import Animation
+
+    folder, _ = sample_run
+    saved = np.load(folder / "animation.npz")
+    again = retarget_stage(track_stage(sample_clip, RunOptions(size=SIZE), progress=False), load_character(None))
+    again_path = folder.parent / "again.animation.npz"
+    again.save(again_path)
+    fresh = np.load(again_path)
+    assert sorted(saved.files) == sorted(fresh.files)
+    for key in saved.files:
+        np.testing.assert_array_equal(saved[key], fresh[key], err_msg=key)
+    assert Animation.load(again_path).n_frames == again.n_frames
+
+
+@pytest.mark.slow
+@pytest.mark.shared_clips
+def test_cli_run_on_a_real_clip(tmp_path):
+    clip = shared_clip("d0.mp4")
+    out = tmp_path / "out"
+    env = dict(os.environ, GLOG_minloglevel="2", TF_CPP_MIN_LOG_LEVEL="2")
+    result = subprocess.run([sys.executable, "-m", "capture2face", "-q", "run", str(clip), "-o", str(out),
+                             "--size", str(SIZE)], capture_output=True, text=True, timeout=900, env=env)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "wrote" in result.stdout
+    report = check_outputs(out / "d0", clip)
+    assert report["tracked_frames"] == 78
+
+
+def _brow_series(clip_name: str):
+    """(forehead stretch influence, glabella compress influence, browInnerUp, browDown)."""
+    from capture2face.pipeline import RunOptions, load_character, retarget_stage, track_stage
+
+    track = track_stage(shared_clip(clip_name), RunOptions(), progress=False)
+    anim = retarget_stage(track, load_character(None))
+    names = track.blendshape_names
+    up = track.blendshapes[:, names.index("browInnerUp")]
+    down = track.blendshapes[:, [names.index("browDownLeft"), names.index("browDownRight")]].mean(1)
+    ri = anim.region_influence
+    stretch = ri[:, anim.region_names.index("forehead"), anim.pose_names.index("stretch")]
+    compress = ri[:, anim.region_names.index("glabella"), anim.pose_names.index("compress")]
+    return stretch, compress, up, down
+
+
+@pytest.mark.slow
+@pytest.mark.shared_clips
+def test_forehead_stretch_follows_raised_brows():
+    """d12 (talking, surprise): MediaPipe's browInnerUp swings 0..1 over the clip."""
+    stretch, _, up, _ = _brow_series("d12.mp4")
+    assert np.ptp(up) > 0.5 and np.ptp(stretch) > 0
+    assert np.corrcoef(stretch, up)[0, 1] > 0.5
+
+
+@pytest.mark.slow
+@pytest.mark.shared_clips
+def test_glabella_compress_follows_frowns():
+    """d3 (frowns): MediaPipe's browDown (mean of left and right) rises to ~0.7."""
+    _, compress, _, down = _brow_series("d3.mp4")
+    assert np.ptp(down) > 0.4 and np.ptp(compress) > 0
+    assert np.corrcoef(compress, down)[0, 1] > 0.5
