@@ -62,11 +62,12 @@ def make_performance(rig, options: SynthOptions) -> Performance:
     )
 
 
-def render_performance(rig, truth: SyntheticTruth, renderer):
-    """Yield the (H, W, 3) uint8 frames of ``truth`` rendered by an open ``Renderer``."""
+def render_performance(truth: SyntheticTruth, renderer, frames=None):
+    """Yield the (H, W, 3) uint8 frames of ``truth`` (all, or the indices ``frames``)
+    rendered by an open ``Renderer`` of the same rig."""
     from capture2face.render import FrameState
 
-    for f in range(truth.n_frames):
+    for f in range(truth.n_frames) if frames is None else frames:
         yield renderer.render(FrameState(
             bone_positions=truth.bone_positions[f],
             blend_weights=truth.blend_weights[f],
@@ -95,10 +96,10 @@ def synthesize(path: str | os.PathLike, options: SynthOptions | None = None, pro
     perf = make_performance(rig, options)
     truth = compute_truth(rig, perf, options.size, options.size, options.variant, options.wrinkles)
     video_path, tpath = os.fspath(path), truth_path(path)
-    render_opts = RenderOptions(size=options.size, wrinkles=options.wrinkles, fov_y=options.fov_y)
+    render_opts = RenderOptions(size=options.size, wrinkles=options.wrinkles, fov_y_degrees=options.fov_y)
     with Renderer.create_from_options(rig, render_opts) as renderer, \
             VideoWriter(video_path, options.fps, (options.size, options.size)) as out:
-        frames = render_performance(rig, truth, renderer)
+        frames = render_performance(truth, renderer)
         for frame in tqdm(frames, total=truth.n_frames, desc="synth", unit="frame", disable=not progress):
             out.write(frame)
         truth.save(tpath)  # inside the block: an interrupted render leaves neither file
