@@ -18,8 +18,8 @@ COLUMNS = (("wrinkles off", "off", "shaded"), ("wrinkles auto", "auto", "shaded"
 # A three-quarter view under a raking key light from the upper side shows normal-map
 # detail (wrinkles) best; the face fills most of the cell.
 YAW, PITCH = 18.0, 4.0
-LIGHT = (0.65, 0.55, 0.52)
-FILL = 0.85
+LIGHT = (0.3, 0.9, 0.3)
+FILL = 0.8
 FOV_Y = 30.0
 
 
