@@ -58,7 +58,12 @@ def test_geometry(rig, canon):
     skin_tris = rig.triangles[(rig.material[rig.triangles] == 0).all(1)]
     assert len(skin_tris) >= 3000
     np.testing.assert_array_equal(rig.landmark_vertices[:468], np.arange(468))
-    np.testing.assert_allclose(rig.vertices[:468], canon.vertices, atol=1e-6)
+    # The canonical vertices, except the lips, which are closed at rest.
+    lips = np.isin(np.arange(468), avatar_mod.LIP_UPPER_LINES + avatar_mod.LIP_LOWER_LINES)
+    np.testing.assert_allclose(rig.vertices[:468][~lips], canon.vertices[~lips], atol=1e-6)
+    for upper, lower in avatar_mod._LIP_PAIRS:
+        assert np.linalg.norm(rig.vertices[upper] - rig.vertices[lower]) < 1e-5
+    assert np.linalg.norm(canon.vertices[13] - canon.vertices[14]) > 0.4
     assert rig.triangles.min() >= 0 and rig.triangles.max() < rig.n_vertices
     assert set(np.unique(rig.material)) == {0, 1, 2}
     np.testing.assert_allclose(np.linalg.norm(rig.normals, axis=1), 1.0, atol=1e-5)
@@ -152,7 +157,7 @@ def test_bones(rig):
     assert np.all(rig.landmark_vertices[lm] >= 0)
     np.testing.assert_array_equal(rig.bone_rest[1:], rig.vertices[rig.landmark_vertices[lm]])
     assert len(set(rig.bone_names)) == rig.n_bones
-    for part in ("brow_inner", "brow_mid", "brow_outer", "eyelid_upper", "eyelid_lower", "cheek",
+    for part in ("brow_inner", "brow_mid", "brow_outer", "eyelid_upper", "eyelid_lower", "cheek", "cheek_upper",
                  "nose_wing", "lip_upper", "mouth_corner", "lip_lower"):
         assert f"{part}_L" in rig.bone_names and f"{part}_R" in rig.bone_names
     for side, sign in (("_L", 1), ("_R", -1)):
@@ -459,3 +464,13 @@ def test_unknown_variant_is_a_user_error():
 
     with pytest.raises(CaptureError):
         default_avatar("nonexistent")
+
+
+def test_iris_landmarks_follow_mediapipe_order(rig):
+    # MediaPipe (checked on a real clip): 468/473 iris centres of the subject's right/left
+    # eye, then rim points towards the subject's left (+x), up, right, down.
+    for centre in (468, 473):
+        c, *rim = rig.vertices[rig.landmark_vertices[centre:centre + 5]]
+        d = np.array(rim) - c
+        assert d[0, 0] > 0.3 and d[1, 1] > 0.3 and d[2, 0] < -0.3 and d[3, 1] < -0.3
+    assert rig.vertices[rig.landmark_vertices[468], 0] < 0 < rig.vertices[rig.landmark_vertices[473], 0]

@@ -59,20 +59,22 @@ class BoneSpec:
 # (name, landmark, skinning radius). "_R" = subject's right (-x).
 BONES = [
     BoneSpec("head", -1, 0.0, "head"),
-    BoneSpec("brow_inner_R", 107, 2.5, "brow_R"), BoneSpec("brow_mid_R", 105, 2.5, "brow_R"),
-    BoneSpec("brow_outer_R", 70, 2.5, "brow_R"),
-    BoneSpec("brow_inner_L", 336, 2.5, "brow_L"), BoneSpec("brow_mid_L", 334, 2.5, "brow_L"),
-    BoneSpec("brow_outer_L", 300, 2.5, "brow_L"),
+    BoneSpec("brow_inner_R", 107, 3.5, "brow_R"), BoneSpec("brow_mid_R", 105, 3.5, "brow_R"),
+    BoneSpec("brow_outer_R", 70, 3.5, "brow_R"),
+    BoneSpec("brow_inner_L", 336, 3.5, "brow_L"), BoneSpec("brow_mid_L", 334, 3.5, "brow_L"),
+    BoneSpec("brow_outer_L", 300, 3.5, "brow_L"),
     BoneSpec("eyelid_upper_R", 159, 1.2, ""), BoneSpec("eyelid_lower_R", 145, 1.2, ""),
     BoneSpec("eyelid_upper_L", 386, 1.2, ""), BoneSpec("eyelid_lower_L", 374, 1.2, ""),
-    BoneSpec("cheek_R", 205, 2.8, ""), BoneSpec("cheek_L", 425, 2.8, ""),
+    BoneSpec("cheek_R", 205, 3.2, ""), BoneSpec("cheek_L", 425, 3.2, ""),
+    # Below the outer lower lid: rises in a squint or a smile; reaches the crow's feet.
+    BoneSpec("cheek_upper_R", 228, 2.6, ""), BoneSpec("cheek_upper_L", 448, 2.6, ""),
     BoneSpec("nose_wing_R", 129, 1.6, ""), BoneSpec("nose_wing_L", 358, 1.6, ""),
     BoneSpec("lip_upper_R", 82, 1.4, ""), BoneSpec("lip_upper_C", 13, 1.4, ""),
     BoneSpec("lip_upper_L", 312, 1.4, ""),
     BoneSpec("mouth_corner_R", 61, 1.6, ""), BoneSpec("mouth_corner_L", 291, 1.6, ""),
     BoneSpec("lip_lower_R", 87, 1.4, ""), BoneSpec("lip_lower_C", 14, 1.4, ""),
     BoneSpec("lip_lower_L", 317, 1.4, ""),
-    BoneSpec("jaw", 152, 6.5, ""),
+    BoneSpec("jaw", 152, 8.5, ""),
 ]
 
 # Reference poses as bone displacements (cm) for the subject's left side and the middle;
@@ -81,16 +83,16 @@ _POSES = {
     "stretch": {  # brows raised, eyes wide, mouth open
         "brow_inner": (0.0, 1.0, 0.1), "brow_mid": (0.0, 1.1, 0.05), "brow_outer": (0.0, 0.9, 0.0),
         "eyelid_upper": (0.0, 0.35, 0.05), "eyelid_lower": (0.0, -0.2, 0.0),
-        "cheek": (0.0, -0.35, -0.05), "nose_wing": (0.0, -0.25, 0.0),
+        "cheek": (0.0, -0.35, -0.05), "cheek_upper": (0.0, -0.25, 0.0), "nose_wing": (0.0, -0.25, 0.0),
         "lip_upper_C": (0.0, 0.3, 0.0), "lip_upper": (0.0, 0.3, 0.0),
         "mouth_corner": (-0.2, -0.6, -0.1),
         "lip_lower_C": (0.0, -1.0, -0.2), "lip_lower": (0.0, -0.9, -0.2),
-        "jaw": (0.0, -1.1, -0.35),
+        "jaw": (0.0, -0.8, -0.25),
     },
     "compress": {  # brows down and together, squint, lips puckered
         "brow_inner": (-0.35, -0.45, 0.1), "brow_mid": (-0.25, -0.5, 0.05), "brow_outer": (-0.1, -0.45, 0.0),
         "eyelid_upper": (0.0, -0.3, 0.0), "eyelid_lower": (0.0, 0.25, 0.05),
-        "cheek": (0.0, 0.4, 0.15), "nose_wing": (0.0, 0.3, 0.1),
+        "cheek": (0.0, 0.4, 0.15), "cheek_upper": (0.0, 0.35, 0.1), "nose_wing": (0.0, 0.3, 0.1),
         "lip_upper_C": (0.0, -0.1, 0.6), "lip_upper": (-0.25, -0.1, 0.55),
         "mouth_corner": (-0.8, 0.0, 0.3),
         "lip_lower_C": (0.0, 0.15, 0.6), "lip_lower": (-0.25, 0.15, 0.55),
@@ -179,6 +181,29 @@ def default_avatar(variant: str | None = None) -> FaceRig:
 
 # ---------------------------------------------------------------------------------------
 # Geometry
+
+
+# Inner-lip vertex pairs (upper, lower) that meet when the lips close.
+_LIP_PAIRS = [(191, 95), (80, 88), (81, 178), (82, 87), (13, 14), (312, 317), (311, 402), (310, 318), (415, 324)]
+
+
+def _close_lips(v: np.ndarray) -> np.ndarray:
+    """The canonical face rests with its lips ~0.5 cm apart; a neutral face has them
+    touching. Move the inner lip lines onto their common midline and let the rest of
+    each lip follow, fading out over 1 cm."""
+    v = v.copy()
+    up, lo = np.array(_LIP_PAIRS).T
+    half_gap = 0.5 * (v[up] - v[lo])  # (9, 3)
+    order = np.argsort(v[up, 0])
+    xs = v[up[order], 0]
+    for ids, sign, line in ((LIP_UPPER_LINES, -1.0, up), (LIP_LOWER_LINES, 1.0, lo)):
+        ids = np.array(ids)
+        inner_y = np.interp(v[ids, 0], np.sort(v[line, 0]), v[line[np.argsort(v[line, 0])], 1])
+        fade = np.clip(1.0 - np.abs(v[ids, 1] - inner_y) / 1.0, 0.0, 1.0) ** 2
+        d = np.stack([np.interp(v[ids, 0], xs, half_gap[order, c]) for c in range(3)], 1)
+        v[ids] += sign * d * fade[:, None]
+    v[up] = v[lo] = 0.5 * (v[up] + v[lo])  # the inner lines meet exactly
+    return v
 
 
 def _variant_shape(v: np.ndarray, variant: str) -> np.ndarray:
@@ -275,18 +300,22 @@ def _eyeball(ring_pos: np.ndarray, side: str):
     return verts, uvs, tris, np.concatenate([[0], rim]), iris_theta
 
 
-def _mouth_interior(lip_loop: np.ndarray, pos: np.ndarray):
+def _mouth_interior(lip_loop: np.ndarray, pos: np.ndarray, upper: np.ndarray):
     """A dark cavity hanging back from the inner lip contour: the contour copied, three
     rings shrinking backwards, and a cap. Returns (vertices, source (N,) contour vertex
     each new vertex copies its skinning from (-1 = cap), depth (N,) in [0, 1], triangles
-    local to the new vertices)."""
+    local to the new vertices). ``upper``: (N,) +1 on the upper lip, -1 on the lower,
+    0 at the corners: the bag bulges up behind the upper lip and down behind the lower
+    one, so it has volume even with the lips closed."""
     ring = pos[lip_loop]
     c = ring.mean(0)
-    steps = [(1.0, 1.0, 0.0), (0.92, 0.9, 0.5), (0.75, 0.8, 1.3), (0.45, 0.55, 2.1)]
+    half_width = np.abs(ring[:, 0] - c[0]).max()
+    across = np.clip(1.0 - ((ring[:, 0] - c[0]) / half_width) ** 2, 0.0, 1.0) ** 0.5
+    steps = [(1.0, 1.0, 0.0, 0.0), (0.92, 0.9, 0.5, 0.35), (0.75, 0.8, 1.3, 0.7), (0.45, 0.55, 2.1, 0.6)]
     verts, source, depth = [], [], []
-    for sx, sy, dz in steps:
-        verts.append(np.stack([c[0] + sx * (ring[:, 0] - c[0]), c[1] + sy * (ring[:, 1] - c[1]),
-                               ring[:, 2] - dz], 1))
+    for sx, sy, dz, bulge in steps:
+        y = c[1] + sy * (ring[:, 1] - c[1]) + bulge * upper * across
+        verts.append(np.stack([c[0] + sx * (ring[:, 0] - c[0]), y, ring[:, 2] - dz], 1))
         source.append(lip_loop)
         depth.append(np.full(len(lip_loop), dz / 2.5))
     cap = np.array([[c[0], c[1], ring[:, 2].min() - 2.5]])
@@ -316,8 +345,10 @@ def _mouth_interior(lip_loop: np.ndarray, pos: np.ndarray):
 # Skinning
 
 
-def _skin_weights(pos: np.ndarray, tris: np.ndarray, n_skin: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Geodesic compact-support falloffs, head takes the remainder, top 4 kept.
+def _skin_weights(pos: np.ndarray, tris: np.ndarray, n_skin: int, lowerness: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Geodesic compact-support falloffs, head takes the remainder, top 4 kept. The jaw's
+    falloff is broad (the whole lower face follows it) and gated by ``lowerness`` (n_skin,)
+    so it never reaches the upper lip.
 
     Returns (joints (n_skin, 4), weights (n_skin, 4), dense (n_skin, B))."""
     sources = np.array([b.landmark for b in BONES[1:]])
@@ -325,6 +356,7 @@ def _skin_weights(pos: np.ndarray, tris: np.ndarray, n_skin: int) -> tuple[np.nd
     radius = np.array([b.radius for b in BONES[1:]])[:, None]
     r = np.clip(dist / radius, 0.0, 1.0)
     k = (1.0 - r**2) ** 3  # smooth, 1 at the bone's landmark, 0 at and beyond the radius
+    k[[b.name for b in BONES[1:]].index("jaw")] *= lowerness
     total = k.sum(0)
     dense = np.zeros((n_skin, len(BONES)))
     dense[:, 1:] = (k / np.maximum(total, 1.0)).T
@@ -502,7 +534,7 @@ def build_avatar(variant: str = "default") -> FaceRig:
     from capture2face.rig import maps
 
     mesh = canonical.load_canonical_mesh()
-    base = _variant_shape(mesh.vertices.astype(np.float64), variant)
+    base = _variant_shape(_close_lips(mesh.vertices.astype(np.float64)), variant)
     mirror = _mirror_map(mesh.vertices.astype(np.float64))
 
     # Open the eyes and the mouth, then subdivide once (original vertices keep their ids).
@@ -558,7 +590,7 @@ def build_avatar(variant: str = "default") -> FaceRig:
         val[ids] = value
     sets["lowerness"] = np.clip(mb.harmonic(fixed, val), 0.0, 1.0)
 
-    joints, weights, _ = _skin_weights(pos, tris, n_skin)
+    joints, weights, _ = _skin_weights(pos, tris, n_skin, sets["lowerness"])
     skin_morphs = _build_morphs(mb, sets, mirror)
 
     # Eyes and mouth interior.
@@ -576,7 +608,8 @@ def build_avatar(variant: str = "default") -> FaceRig:
         parts_mat.append(np.ones(len(ev), np.uint8))
         landmark_vertices[first_landmark:first_landmark + 5] = offset + iris
         offset += len(ev)
-    mv, msource, mdepth, mtri = _mouth_interior(lip_loop, pos)
+    upperness = np.where(np.isin(lip_loop, inner_upper), 1.0, np.where(np.isin(lip_loop, inner_lower), -1.0, 0.0))
+    mv, msource, mdepth, mtri = _mouth_interior(lip_loop, pos, upperness)
     mouth_start = offset
     parts_pos.append(mv)
     # Mouth UVs: angle around the mouth -> angle in the disc, depth -> radius.
@@ -671,7 +704,7 @@ def _pose_displacements(pose: str) -> np.ndarray:
     table = _POSES[pose]
     out = np.zeros((len(BONES), 3))
     for i, b in enumerate(BONES[1:], start=1):
-        key = b.name if b.name in table else b.name.rsplit("_", 1)[0]
+        key = b.name if b.name in table else b.name.rsplit("_", 1)[0]  # "lip_upper_C" or "lip_upper"
         d = np.array(table[key], float)
         if b.name.endswith("_R"):
             d = d * np.array([-1.0, 1.0, 1.0])

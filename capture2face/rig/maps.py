@@ -26,6 +26,7 @@ from scipy import ndimage
 from capture2face.rig import features
 
 SIZE = 1024
+WRINKLE_STRENGTH = 6.0  # texels of height per unit of the wrinkle height fields
 
 EYE_TEXTURE_CENTRES = {"R": (0.085, 0.085), "L": (0.915, 0.085)}
 EYE_TEXTURE_RADIUS = 0.08
@@ -135,7 +136,7 @@ def stretch_height(u, v, layout: features.FeatureLayout, rng: np.random.Generato
         # Real furrows break near the midline on some lines.
         gap = 1.0 - (0.8 * np.exp(-(((u - cu - 0.02 * rng.standard_normal()) / 0.02) ** 2)) if k % 2 else 0.0)
         depth = 1.0 - 0.3 * abs(k - 2) / 2
-        h -= depth * _groove(v - line_v, 0.0042) * _window(t, 0.25) * gap
+        h -= depth * _groove(v - line_v, 0.006) * _window(t, 0.25) * gap
     return h
 
 
@@ -154,7 +155,7 @@ def compress_height(u, v, layout: features.FeatureLayout, rng: np.random.Generat
         top_v, bot_v = gv - 0.9 * gav * length, gv + 0.75 * gav * length
         t = (v - top_v) / (bot_v - top_v)
         line_u = gu + offset * gau * (1.0 + 0.25 * (1.0 - t))
-        h -= depth * 1.3 * _groove(u - line_u, 0.0045) * _window(t, 0.25)
+        h -= depth * 1.3 * _groove(u - line_u, 0.0055) * _window(t, 0.25)
 
     # Crow's feet: lines fanning out from the outer eye corner.
     def crows(uu, vv):
@@ -165,7 +166,7 @@ def compress_height(u, v, layout: features.FeatureLayout, rng: np.random.Generat
             start = corner + 0.014 * np.array([np.cos(a), np.sin(a)])
             end = corner + (0.014 + length) * np.array([np.cos(a), np.sin(a)])
             d, t = _segment_param(uu, vv, start, end)
-            out -= depth * _groove(d, 0.0032) * _window(t, 0.3)
+            out -= depth * _groove(d, 0.0045) * _window(t, 0.3)
         return out
 
     h += _mirror_u(lambda uu, vv: crows(uu, vv))(u, v)
@@ -178,7 +179,7 @@ def compress_height(u, v, layout: features.FeatureLayout, rng: np.random.Generat
         # Positive d is on the left of a->b, the cheek side for the subject's left fold.
         side = np.sign(((b - a)[1]) * 1.0) or 1.0
         dist = d - side * bow
-        fold = -1.6 * np.exp(-(dist / 0.006) ** 2) + 0.9 * np.exp(-((dist * side - 0.012) / 0.01) ** 2)
+        fold = -1.6 * np.exp(-(dist / 0.0075) ** 2) + 0.9 * np.exp(-((dist * side - 0.015) / 0.012) ** 2)
         return fold * _window(t, 0.25)
 
     h += _mirror_u(naso)(u, v)
@@ -187,7 +188,7 @@ def compress_height(u, v, layout: features.FeatureLayout, rng: np.random.Generat
     (ccu, ccv), (cau, cav) = layout.chin
     mask = features.ellipse_mask(u, v, (ccu, ccv), (cau, cav), soft=0.6)
     bumps = _band_noise(u.shape, 3.0, rng) - 0.5 * _band_noise(u.shape, 7.0, rng)
-    h += 0.5 * bumps * mask
+    h += 0.3 * bumps * mask
     return h
 
 
@@ -294,8 +295,8 @@ def build_maps(landmark_uvs: np.ndarray, uvs: np.ndarray, triangles: np.ndarray,
     return {
         "albedo": _albedo(u, v, landmark_uvs, layout, rng, eye_iris_theta),
         "normal": encode_normals(height_to_normal(pores, 0.6)),
-        "stretch": encode_normals(height_to_normal(ndimage.gaussian_filter(stretch, 0.7), 2.2)),
-        "compress": encode_normals(height_to_normal(ndimage.gaussian_filter(compress, 0.7), 2.2)),
+        "stretch": encode_normals(height_to_normal(ndimage.gaussian_filter(stretch, 0.7), WRINKLE_STRENGTH)),
+        "compress": encode_normals(height_to_normal(ndimage.gaussian_filter(compress, 0.7), WRINKLE_STRENGTH)),
         "zones": np.clip(np.round(np.moveaxis(zones, 0, -1) * 255), 0, 255).astype(np.uint8),
     }
 
