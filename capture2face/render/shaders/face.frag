@@ -38,6 +38,9 @@ const float PI = 3.14159265;
 vec4 map_weights() {
 #ifdef DRIVER_ZONES
     // Oat: dot the mask vector with the weight vector; +1 compress map, -1 stretch map.
+    // Frames without zone weights skip the two mask fetches.
+    if (all(equal(u_zone_weight[0], vec4(0.0))) && all(equal(u_zone_weight[1], vec4(0.0))))
+        return vec4(0.0);
     float s = dot(texture(u_zone_mask0, v_uv), u_zone_weight[0]) + dot(texture(u_zone_mask1, v_uv), u_zone_weight[1]);
     s = clamp(s, -1.0, 1.0);
     return max(-s, 0.0) * u_stretch_slot + max(s, 0.0) * u_compress_slot;
