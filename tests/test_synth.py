@@ -181,8 +181,9 @@ def test_same_seed_same_first_frame(rig, synthetic_clip):
     assert np.abs(decoded.astype(int) - firsts[0].astype(int)).mean() < 3.0
 
 
-def _mediapipe_landmarks(video_path):
-    """(F, 478, 2) pixel landmarks from MediaPipe's Face Landmarker (NaN where none)."""
+def _mediapipe_landmarks(video_path, times):
+    """(F, 478, 2) pixel landmarks from MediaPipe's Face Landmarker in VIDEO mode at the
+    frame times ``times`` (F,) seconds (NaN where it finds no face)."""
     import av
     import mediapipe as mp
     from mediapipe.tasks.python import BaseOptions, vision
@@ -197,7 +198,7 @@ def _mediapipe_landmarks(video_path):
     with vision.FaceLandmarker.create_from_options(options) as lm, av.open(str(video_path)) as container:
         for i, frame in enumerate(container.decode(video=0)):
             rgb = frame.to_ndarray(format="rgb24")
-            res = lm.detect_for_video(mp.Image(image_format=mp.ImageFormat.SRGB, data=rgb), int(i * 1000 / 30))
+            res = lm.detect_for_video(mp.Image(image_format=mp.ImageFormat.SRGB, data=rgb), int(round(times[i] * 1000)))
             h, w = rgb.shape[:2]
             if res.face_landmarks:
                 out.append([(p.x * w, p.y * h) for p in res.face_landmarks[0]])
@@ -208,7 +209,7 @@ def _mediapipe_landmarks(video_path):
 
 def test_mediapipe_tracks_the_synthetic_clip(synthetic_clip):
     t = synthetic_clip.truth
-    found = _mediapipe_landmarks(synthetic_clip.video_path)
+    found = _mediapipe_landmarks(synthetic_clip.video_path, t.times)
     assert len(found) == t.n_frames
     tracked = np.isfinite(found[:, 0, 0])
     assert tracked.mean() >= 0.95, tracked.mean()

@@ -214,7 +214,7 @@ def random_performance(
         rep = np.where(label != KEY_FREE, 2, 1)
         end_keys = keys + dup
         keys = np.stack([keys, end_keys], 1)[np.arange(2)[None] < rep[:, None]]
-        bones, weights, ab = (np.repeat(x, rep, 0) for x in (bones, weights, ab))
+        bones, weights = (np.repeat(x, rep, 0) for x in (bones, weights))
         angles, offset, light, label = (np.repeat(x, rep, 0) for x in (angles, offset, light, label))
         keys[-1] = frames - 1  # absorb rounding
 
