@@ -123,7 +123,12 @@ def _cmd_batch(args: argparse.Namespace) -> int:
 def _cmd_bench(args: argparse.Namespace) -> int:
     from capture2face.bench import run_bench
 
-    result = run_bench(size=args.size, frames=args.frames, progress=not args.quiet)
+    if args.memory_seconds:
+        from capture2face.bench import memory_check
+
+        result = memory_check(long_seconds=args.memory_seconds, size=args.size, progress=not args.quiet)
+    else:
+        result = run_bench(size=args.size, frames=args.frames, progress=not args.quiet)
     text = json.dumps(result, indent=2)
     if args.json:
         from capture2face.atomic import write_text_atomic
@@ -210,6 +215,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--size", type=int, default=512)
     p.add_argument("--frames", type=int, default=300)
     p.add_argument("--json", metavar="PATH")
+    p.add_argument("--memory-seconds", type=float, default=0, metavar="S",
+                   help="instead: peak memory of a run on an S-second clip vs a 10-second one")
     p.set_defaults(func=_cmd_bench)
     return parser
 

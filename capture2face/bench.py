@@ -1,0 +1,234 @@
+"""``capture2face bench``: every stage alone and the whole pipeline, in one run, on a
+synthetic clip; and a memory check (peak RSS of a long clip against a short one).
+
+Figures (all frames per second of wall time unless named otherwise):
+
+* ``decode_fps``: :func:`~capture2face.tracking.video.iter_frames` alone.
+* ``track_fps``: :func:`~capture2face.tracking.track_clip` (decode + MediaPipe + filters).
+* ``retarget_ms_per_frame``: :func:`~capture2face.retarget.retarget` without its wrinkle
+  part (RBF fit and mapping, bone/morph solve, zone weights), best of 3.
+* ``wrinkle_ms_per_frame``: the wrinkle influences alone (Dutreve §5.1 pose evaluation,
+  grouping, rest influence, region means), best of 3. The two add up to ``retarget()``.
+* ``render_fps_wrinkles_{off,auto,dynamic}``: the GL renderer at ``size``, read-back
+  included, on the clip's retargeted performance.
+* ``encode_fps``: H.264 encoding of rendered frames at ``size``.
+* ``end_to_end_fps``: :func:`capture2face.pipeline.run` with default options (avatar.mp4,
+  compare.mp4 and every export), clip frames / total seconds.
+* ``peak_rss_mb``: this process's peak resident memory.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from capture2face.errors import CaptureError
+
+RENDER_FRAMES_MAX = 120  # enough for a stable figure; the renderer's speed is per frame
+
+
+def _best_of(fn, repeats: int = 3) -> float:
+    best = np.inf
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t)
+    return best
+
+
+def _wrinkle_part(animation, rig):
+    """What retarget() computes for wrinkles from the solved bones (Dutreve §5.1-5.2)."""
+    from capture2face.retarget import influences as inf
+
+    influences = inf.rig_influences(animation.bone_positions, rig)
+    inf.rest_influence(influences)
+    inf.region_influence(influences, rig)
+
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process so far, MiB (Linux reports KiB, macOS bytes)."""
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return rss / (1024.0 * 1024.0) if sys.platform == "darwin" else rss / 1024.0
+
+
+def run_bench(size: int = 512, frames: int = 300, progress: bool = True, seed: int = 0) -> dict:
+    """Measure each stage and the whole pipeline on a synthetic clip of ``frames`` frames
+    at ``size`` x ``size``. Returns a dict of figures (see the module doc)."""
+    from tqdm import tqdm
+
+    from capture2face.pipeline import RunOptions, avatar_head_poses, run, track_stage
+    from capture2face.render import FrameState, Renderer, RenderOptions
+    from capture2face.render.video import VideoWriter
+    from capture2face.retarget import RetargetOptions, retarget
+    from capture2face.rig.avatar import default_avatar
+    from capture2face.synth import SynthOptions, synthesize
+    from capture2face.tracking.video import iter_frames
+
+    if frames < 10:
+        raise CaptureError(f"--frames must be at least 10 (got {frames})")
+    result: dict = {"size": int(size), "frames": int(frames)}
+    rig = default_avatar()
+    with tempfile.TemporaryDirectory(prefix="capture2face-bench-") as tmp:
+        tmp = Path(tmp)
+        clip = tmp / "bench.mp4"
+        t = time.perf_counter()
+        synthesize(clip, SynthOptions(frames=frames, size=size, seed=seed), progress=progress)
+        result["synth_seconds"] = round(time.perf_counter() - t, 2)
+
+        t = time.perf_counter()
+        n = sum(1 for _ in iter_frames(clip))
+        result["decode_fps"] = n / (time.perf_counter() - t)
+
+        options = RunOptions(size=size)
+        t = time.perf_counter()
+        track = track_stage(clip, options, progress=progress)
+        result["track_fps"] = track.n_frames / (time.perf_counter() - t)
+
+        animation = retarget(track, rig, RetargetOptions())
+        total_s = _best_of(lambda: retarget(track, rig, RetargetOptions()))
+        wrinkle_s = _best_of(lambda: _wrinkle_part(animation, rig))
+        result["retarget_ms_per_frame"] = 1000.0 * max(total_s - wrinkle_s, 0.0) / track.n_frames
+        result["wrinkle_ms_per_frame"] = 1000.0 * wrinkle_s / track.n_frames
+
+        n_render = min(track.n_frames, RENDER_FRAMES_MAX)
+        poses = avatar_head_poses(rig, animation.head_pose, RenderOptions().fov_y_degrees)
+        states = [FrameState(bone_positions=animation.bone_positions[i], blend_weights=animation.blend_weights[i],
+                             head_pose=poses[i], influences=animation.influences[i],
+                             zone_weights=animation.zone_weights[i]) for i in range(n_render)]
+        rendered: list[np.ndarray] = []
+        for driver in ("off", "auto", "dynamic"):
+            with Renderer.create_from_options(rig, RenderOptions(size=size, wrinkles=driver)) as renderer:
+                result["gl_renderer"] = renderer.gl_renderer
+                renderer.render(states[0])  # compile + first-use costs out of the timing
+                t = time.perf_counter()
+                for state in tqdm(states, desc=f"render {driver}", disable=not progress, leave=False):
+                    image = renderer.render(state)
+                    if driver == "auto" and len(rendered) < 30:
+                        rendered.append(image)
+                result[f"render_fps_wrinkles_{driver}"] = n_render / (time.perf_counter() - t)
+
+        t = time.perf_counter()
+        with VideoWriter(tmp / "encode.mp4", track.fps, (size, size)) as out:
+            for i in range(n_render):
+                out.write(rendered[i % len(rendered)])
+        result["encode_fps"] = n_render / (time.perf_counter() - t)
+
+        t = time.perf_counter()
+        report = run(clip, tmp / "out", options, progress=progress)
+        result["end_to_end_fps"] = report["frames"] / (time.perf_counter() - t)
+        result["end_to_end_seconds"] = report["seconds"]
+    result["peak_rss_mb"] = peak_rss_mb()
+    result["goals"] = {
+        "end_to_end_fps >= 60": result["end_to_end_fps"] >= 60,
+        "end_to_end_fps >= 0.6 x track_fps": result["end_to_end_fps"] >= 0.6 * result["track_fps"],
+        "render auto >= 0.9 x off": result["render_fps_wrinkles_auto"] >= 0.9 * result["render_fps_wrinkles_off"],
+        "retarget + wrinkle <= 1 ms": result["retarget_ms_per_frame"] + result["wrinkle_ms_per_frame"] <= 1.0,
+    }
+    result["machine"] = machine_description()
+    return {k: (round(v, 3) if isinstance(v, float) else v) for k, v in result.items()}
+
+
+def machine_description() -> str:
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{cpu}, {os.cpu_count()} logical CPUs, {platform.system()} {platform.release()}"
+
+
+# ---- memory: peak RSS against clip length ------------------------------------------------
+def loop_clip(source: str | os.PathLike, dest: str | os.PathLike, seconds: float) -> int:
+    """Write ``dest`` by repeating ``source``'s compressed packets until it lasts at least
+    ``seconds`` (a remux: no decoding or encoding, so a 10-minute clip takes seconds).
+
+    ``source`` must start with a keyframe (every clip this project writes does).
+    Returns the number of frames written.
+    """
+    import av
+
+    from capture2face.atomic import atomic_path
+
+    with av.open(str(source)) as inp:
+        stream = inp.streams.video[0]
+        packets = [(bytes(p), p.pts, p.dts, p.duration, p.is_keyframe) for p in inp.demux(stream) if p.size]
+        if not packets or not packets[0][4]:
+            raise CaptureError(f"{source}: cannot loop a clip that does not start with a keyframe")
+        tb = stream.time_base
+        first = min(p[1] for p in packets)
+        span = max(p[1] + (p[3] or 0) for p in packets) - first
+        loops = max(1, int(np.ceil(seconds / float(span * tb))))
+        with atomic_path(dest) as tmp, av.open(str(tmp), "w") as out:
+            ostream = out.add_stream_from_template(stream)
+            for k in range(loops):
+                for data, pts, dts, duration, key in packets:
+                    packet = av.Packet(data)
+                    packet.stream = ostream
+                    packet.time_base = tb
+                    packet.pts, packet.dts = pts + k * span, dts + k * span
+                    packet.duration, packet.is_keyframe = duration, key
+                    out.mux(packet)
+    return loops * len(packets)
+
+
+def run_peak_rss(clip: str | os.PathLike, out_dir: str | os.PathLike, size: int) -> tuple[float, float]:
+    """Run ``capture2face run`` on ``clip`` in a child process; returns its peak RSS (MiB,
+    from ``wait4``: that child alone) and its wall time (s)."""
+    env = dict(os.environ, GLOG_minloglevel="2", TF_CPP_MIN_LOG_LEVEL="2")
+    cmd = [sys.executable, "-m", "capture2face", "-q", "run", os.fspath(clip), "-o", os.fspath(out_dir),
+           "--size", str(size)]
+    t = time.perf_counter()
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+    try:
+        _, status, usage = os.wait4(proc.pid, 0)
+    except BaseException:
+        proc.kill()
+        raise
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
+    if proc.returncode != 0:
+        raise CaptureError(f"run on {clip} failed ({proc.returncode}): {err.strip()[-300:]}")
+    return usage.ru_maxrss / 1024.0, time.perf_counter() - t
+
+
+def memory_check(long_seconds: float = 600.0, short_seconds: float = 10.0, size: int = 512,
+                 progress: bool = True) -> dict:
+    """Peak RSS of ``capture2face run`` on a ``long_seconds`` clip vs a ``short_seconds``
+    one at the same size (both loops of one synthetic clip). The pipeline streams frames
+    through bounded queues, so only per-frame arrays (the track, ~100 bytes a landmark)
+    grow with length.
+
+    Returns:
+        ``short_peak_rss_mb``, ``long_peak_rss_mb``, ``ratio`` (long / short), the clip
+        lengths in frames and the wall time of each run.
+    """
+    from capture2face.synth import SynthOptions, synthesize
+
+    fps = 30.0
+    with tempfile.TemporaryDirectory(prefix="capture2face-memory-") as tmp:
+        tmp = Path(tmp)
+        base = tmp / "base.mp4"
+        synthesize(base, SynthOptions(frames=int(round(short_seconds * fps)), size=size, fps=fps, seed=1),
+                   progress=progress)
+        long_clip = tmp / "long.mp4"
+        long_frames = loop_clip(base, long_clip, long_seconds)
+        short_rss, short_s = run_peak_rss(base, tmp / "out", size)
+        long_rss, long_s = run_peak_rss(long_clip, tmp / "out", size)
+    return {
+        "size": int(size),
+        "short_frames": int(round(short_seconds * fps)), "long_frames": int(long_frames),
+        "short_peak_rss_mb": round(short_rss, 1), "long_peak_rss_mb": round(long_rss, 1),
+        "ratio": round(long_rss / short_rss, 3),
+        "short_run_seconds": round(short_s, 1), "long_run_seconds": round(long_s, 1),
+    }

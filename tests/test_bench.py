@@ -1,0 +1,56 @@
+"""``capture2face bench`` reports every figure; the memory check's looped clip is exact."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+KEYS = ["decode_fps", "track_fps", "retarget_ms_per_frame", "wrinkle_ms_per_frame", "render_fps_wrinkles_off",
+        "render_fps_wrinkles_auto", "render_fps_wrinkles_dynamic", "encode_fps", "end_to_end_fps", "peak_rss_mb",
+        "gl_renderer"]
+
+
+@pytest.mark.slow
+def test_bench_cli_reports_every_figure(tmp_path):
+    out = tmp_path / "bench.json"
+    env = dict(os.environ, GLOG_minloglevel="2", TF_CPP_MIN_LOG_LEVEL="2")
+    result = subprocess.run([sys.executable, "-m", "capture2face", "-q", "bench", "--size", "128", "--frames", "24",
+                             "--json", str(out)], capture_output=True, text=True, timeout=900, env=env)
+    assert result.returncode == 0, result.stderr[-3000:]
+    figures = json.loads(out.read_text())
+    assert figures == json.loads(result.stdout)
+    for key in KEYS[:-1]:
+        assert isinstance(figures[key], (int, float)) and np.isfinite(figures[key]) and figures[key] > 0, key
+    assert isinstance(figures["gl_renderer"], str) and figures["gl_renderer"]
+    # Stages alone are faster than the whole pipeline, which runs all of them.
+    assert figures["end_to_end_fps"] < figures["decode_fps"]
+    assert figures["end_to_end_fps"] < figures["track_fps"] * 1.05
+    assert figures["peak_rss_mb"] > 50  # MediaPipe + GL + NumPy are loaded: not a bogus figure
+    assert (figures["size"], figures["frames"]) == (128, 24)
+    assert set(figures["goals"]) and all(isinstance(v, bool) for v in figures["goals"].values())
+
+
+def test_looped_clip_repeats_the_source_exactly(tmp_path):
+    from capture2face.bench import loop_clip
+    from capture2face.tracking.video import iter_frames, open_video
+
+    sys.path.insert(0, os.path.dirname(__file__))
+    from test_bad_input import write_video
+
+    src = write_video(tmp_path / "src.mp4", 25, size=64, seed=3)  # 1 s at 25 fps
+    n = loop_clip(src, tmp_path / "long.mp4", seconds=3.5)
+    assert n == 100  # whole loops: 4 x 25 frames
+    info = open_video(tmp_path / "long.mp4")
+    assert info.fps == pytest.approx(25.0) and info.duration == pytest.approx(4.0, abs=0.05)
+    source = [f for _, f in iter_frames(src)]
+    looped = list(iter_frames(tmp_path / "long.mp4"))
+    assert len(looped) == 100
+    times = np.array([t for t, _ in looped])
+    np.testing.assert_allclose(np.diff(times), 1 / 25, atol=1e-6)  # no timestamp jump at the seams
+    for k in (0, 24, 25, 26, 99):
+        np.testing.assert_array_equal(looped[k][1], source[k % 25])  # decoded identically
