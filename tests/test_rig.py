@@ -186,8 +186,8 @@ def test_skin_weights_local_and_smooth(rig):
     dense = rig.dense_skin_weights()
     skin = np.flatnonzero(rig.material == 0)
     for b, spec in enumerate(BONES[1:], start=1):
-        # Geodesic distance >= Euclidean: beyond the radius in space the weight must be 0.
-        far = np.linalg.norm(rig.vertices[skin] - rig.bone_rest[b], axis=1) > spec.radius
+        # Geodesic distance >= Euclidean: beyond the support in space the weight must be 0.
+        far = np.linalg.norm(rig.vertices[skin] - rig.bone_rest[b], axis=1) > spec.support
         assert far.any() and np.all(dense[skin[far], b] == 0.0), spec.name
         # The bone dominates its own landmark.
         own = rig.landmark_vertices[spec.landmark]

@@ -27,7 +27,7 @@ VIEWS = ("shaded", "influence")
 MAX_MAPS = 4  # wrinkle maps travel as a vec4 per vertex
 MORPH_TEX_WIDTH = 4096
 
-DEFAULT_LIGHT_DIRECTION = (0.45, 0.5, 0.75)  # camera space, towards the key light (upper right, front)
+DEFAULT_LIGHT_DIRECTION = (0.44, 0.64, 0.63)  # camera space, towards the key light: raking from above right (elevation 40 deg, 35 deg to the side) so wrinkles read
 DEFAULT_LIGHT_COLOR = (1.15, 1.1, 1.05)
 DEFAULT_FILL_COLOR = (0.16, 0.18, 0.22)
 DEFAULT_AMBIENT = (0.10, 0.10, 0.12)

@@ -52,17 +52,37 @@ BROW_OUTER_R = [70, 63, 46, 53]
 class BoneSpec:
     name: str
     landmark: int
-    radius: float  # cm of geodesic distance beyond which the bone's weight is 0
+    radius: float  # cm of geodesic distance from the bone's source beyond which its weight is 0
     group: str
+    # The bone's source (weight 1 before normalization): its landmark, plus the skin along
+    # segments from it to these (medial, up) offsets in cm (medial = towards the midline).
+    # The brows' frontalis sheet carries the forehead above them, and the inner brows
+    # pull the glabella between them, so that skin (and its wrinkles' influence) follows
+    # the brow bones rather than the head.
+    reach: tuple = ()
 
+    @property
+    def support(self) -> float:
+        """Distance (cm) from the landmark beyond which the bone's weight is 0."""
+        return self.radius + max((float(np.hypot(*r)) for r in self.reach), default=0.0)
+
+
+# Brows: full weight up a 2.2 cm column above each brow bone (and from the inner ones
+# down to the glabella's midline), falling off over 3.5 cm around it; the skin within
+# FOREHEAD_PIN_CM of the hairline is pinned partly to the head.
+_BROW_UP = (0.0, 2.2)
+_GLABELLA = (1.05, -0.7)
+FOREHEAD_PIN_CM, FOREHEAD_PIN_HEAD = 1.6, 0.5
 
 # (name, landmark, skinning radius). "_R" = subject's right (-x).
 BONES = [
     BoneSpec("head", -1, 0.0, "head"),
-    BoneSpec("brow_inner_R", 107, 3.5, "brow_R"), BoneSpec("brow_mid_R", 105, 3.5, "brow_R"),
-    BoneSpec("brow_outer_R", 70, 3.5, "brow_R"),
-    BoneSpec("brow_inner_L", 336, 3.5, "brow_L"), BoneSpec("brow_mid_L", 334, 3.5, "brow_L"),
-    BoneSpec("brow_outer_L", 300, 3.5, "brow_L"),
+    BoneSpec("brow_inner_R", 107, 3.5, "brow_R", (_BROW_UP, _GLABELLA)),
+    BoneSpec("brow_mid_R", 105, 3.5, "brow_R", (_BROW_UP,)),
+    BoneSpec("brow_outer_R", 70, 3.5, "brow_R", (_BROW_UP,)),
+    BoneSpec("brow_inner_L", 336, 3.5, "brow_L", (_BROW_UP, _GLABELLA)),
+    BoneSpec("brow_mid_L", 334, 3.5, "brow_L", (_BROW_UP,)),
+    BoneSpec("brow_outer_L", 300, 3.5, "brow_L", (_BROW_UP,)),
     BoneSpec("eyelid_upper_R", 159, 1.2, ""), BoneSpec("eyelid_lower_R", 145, 1.2, ""),
     BoneSpec("eyelid_upper_L", 386, 1.2, ""), BoneSpec("eyelid_lower_L", 374, 1.2, ""),
     BoneSpec("cheek_R", 205, 3.2, ""), BoneSpec("cheek_L", 425, 3.2, ""),
@@ -351,17 +371,43 @@ def _skin_weights(pos: np.ndarray, tris: np.ndarray, n_skin: int, lowerness: np.
     so it never reaches the upper lip.
 
     Returns (joints (n_skin, 4), weights (n_skin, 4), dense (n_skin, B))."""
-    sources = np.array([b.landmark for b in BONES[1:]])
-    dist = mesh_ops.geodesic_distances(pos[:n_skin], tris, sources)  # (B-1, n_skin)
+    from scipy.sparse.csgraph import dijkstra
+
+    skin = pos[:n_skin]
+    graph = mesh_ops.edge_graph(skin, tris)
+    dist = np.empty((len(BONES) - 1, n_skin))
+    for i, b in enumerate(BONES[1:]):
+        dist[i] = dijkstra(graph, indices=_bone_source(skin, b), directed=False, min_only=True)
     radius = np.array([b.radius for b in BONES[1:]])[:, None]
     r = np.clip(dist / radius, 0.0, 1.0)
-    k = (1.0 - r**2) ** 3  # smooth, 1 at the bone's landmark, 0 at and beyond the radius
+    k = (1.0 - r**2) ** 3  # smooth, 1 on the bone's source, 0 at and beyond the radius
     k[[b.name for b in BONES[1:]].index("jaw")] *= lowerness
+    # The hairline stays partly with the head, so a brow raise bunches the forehead's
+    # skin below it instead of lifting the face's whole top edge.
+    outer = max(mesh_ops.boundary_loops(tris), key=len)
+    top = outer[skin[outer, 1] > skin[list(BROW_R), 1].max()]
+    to_top = dijkstra(graph, indices=top, directed=False, min_only=True)
+    pin = 1.0 - FOREHEAD_PIN_HEAD * (1.0 - features.smoothstep(to_top / FOREHEAD_PIN_CM))
+    k[[i for i, b in enumerate(BONES[1:]) if b.name.startswith("brow")]] *= pin
     total = k.sum(0)
     dense = np.zeros((n_skin, len(BONES)))
     dense[:, 1:] = (k / np.maximum(total, 1.0)).T
     dense[:, 0] = np.maximum(0.0, 1.0 - total)
     return (*_top4(dense), dense)
+
+
+def _bone_source(skin: np.ndarray, bone: BoneSpec) -> np.ndarray:
+    """Vertices at full weight: the landmark, plus the skin within 0.4 cm (seen from the
+    front) of each ``reach`` segment and no farther from the landmark than its end."""
+    d = skin - skin[bone.landmark]
+    medial = -np.sign(skin[bone.landmark, 0])  # +x for the subject's right side
+    source = {bone.landmark}
+    for along_x, along_y in bone.reach:
+        end = np.array([medial * along_x, along_y])
+        t = np.clip(d[:, :2] @ end / (end @ end), 0.0, 1.0)
+        near = np.linalg.norm(d[:, :2] - t[:, None] * end, axis=1) < 0.4
+        source |= set(np.flatnonzero(near & (np.linalg.norm(d, axis=1) <= np.hypot(*end))).tolist())
+    return np.array(sorted(source))
 
 
 def _top4(dense: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

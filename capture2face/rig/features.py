@@ -32,6 +32,8 @@ class FeatureLayout:
     chin: tuple
     eye_corner_left: np.ndarray  # outer eye corners
     eye_corner_right: np.ndarray
+    brow_top: np.ndarray  # (N, 2) upper edges of both brows, sorted by u
+    hairline: np.ndarray  # (2,) top of the forehead on the midline
 
 
 def feature_layout(landmark_uvs: np.ndarray) -> FeatureLayout:
@@ -48,12 +50,15 @@ def feature_layout(landmark_uvs: np.ndarray) -> FeatureLayout:
     crows = lambda c, s: ((c[0] + s * 0.042, c[1] + 0.004), (0.036, 0.058))
     # The fold runs from just above-lateral of the nose wing to below-lateral of the mouth corner.
     naso = lambda w, m, s: ((w[0] + s * 0.022, w[1] - 0.004), (m[0] + s * 0.036, m[1] + 0.04))
+    # Upper brow edges, outer to inner: right brow, then the left's mirror landmarks.
+    brow_top = uv[[70, 63, 105, 66, 107, 336, 296, 334, 293, 300]]
     chin = ((0.5, lip_low[1] + 0.47 * (chin_low[1] - lip_low[1])), (0.07, 0.36 * (chin_low[1] - lip_low[1])))
     return FeatureLayout(
         forehead=forehead, glabella=glabella,
         crows_left=crows(corner_l, 1), crows_right=crows(corner_r, -1),
         nasolabial_left=naso(wing_l, mouth_l, 1), nasolabial_right=naso(wing_r, mouth_r, -1),
         chin=chin, eye_corner_left=corner_l, eye_corner_right=corner_r,
+        brow_top=brow_top[np.argsort(brow_top[:, 0])], hairline=top,
     )
 
 

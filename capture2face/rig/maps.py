@@ -121,22 +121,38 @@ def _window(t: np.ndarray, fade: float = 0.2) -> np.ndarray:
     return features.smoothstep(t / fade) * features.smoothstep((1.0 - t) / fade)
 
 
+def _brow_curve(layout: features.FeatureLayout) -> np.ndarray:
+    """Coefficients (c0, c2, c4) of ``v = c0 + c2 x^2 + c4 x^4``, ``x = u - 0.5``: a smooth,
+    symmetric least-squares fit to the upper edges of both brows (their arch)."""
+    x, v = layout.brow_top[:, 0] - 0.5, layout.brow_top[:, 1]
+    return np.linalg.lstsq(np.stack([np.ones_like(x), x**2, x**4], 1), v, rcond=None)[0]
+
+
+# Forehead furrows, bottom to top: (height above the brows as a fraction of the brow ->
+# hairline distance on the midline, how much of the brow's arch the line keeps, half
+# length in u, depth). Widely spaced and broad, so they survive the texture's
+# minification at video sizes; lower lines follow the brows, upper ones flatten out.
+_FURROWS = ((0.18, 0.85, 0.235, 0.9), (0.36, 0.65, 0.235, 1.0), (0.54, 0.45, 0.215, 0.95), (0.71, 0.3, 0.18, 0.8))
+FURROW_WIDTH = 0.0105  # UV; ~0.22 cm on the face
+FURROW_DEPTH = 2.2  # texels of height per unit of depth, before WRINKLE_STRENGTH
+
+
 def stretch_height(u, v, layout: features.FeatureLayout, rng: np.random.Generator) -> np.ndarray:
-    """Horizontal forehead furrows (brows raised)."""
-    (cu, cv), (au, av) = layout.forehead
+    """Long horizontal forehead furrows (brows raised) that follow the brows' arch."""
+    c0, c2, c4 = _brow_curve(layout)
+    x = u - 0.5
+    arch = c2 * x**2 + c4 * x**4  # the brow curve's shape, 0 on the midline
+    span = c0 - layout.hairline[1]  # brow top to hairline on the midline (UV)
     h = np.zeros_like(u)
-    n_lines = 5
-    top, bottom = cv - 0.75 * av, cv + 0.85 * av
-    for k in range(n_lines):
-        base_v = top + (bottom - top) * k / (n_lines - 1)
-        half = au * (0.8 + 0.15 * rng.random()) * (1.0 - 0.2 * abs(k - 2) / 2)
-        wobble = 0.0025 * np.sin(2 * np.pi * (u * (5 + 2 * rng.random())) + rng.random() * 6.3)
-        line_v = base_v + 0.12 * (u - cu) ** 2 + wobble  # slight arch, ends droop
-        t = (u - (cu - half)) / (2 * half)
-        # Real furrows break near the midline on some lines.
-        gap = 1.0 - (0.8 * np.exp(-(((u - cu - 0.02 * rng.standard_normal()) / 0.02) ** 2)) if k % 2 else 0.0)
-        depth = 1.0 - 0.3 * abs(k - 2) / 2
-        h -= depth * _groove(v - line_v, 0.006) * _window(t, 0.25) * gap
+    for k, (rise, keep, half, depth) in enumerate(_FURROWS):
+        half *= 0.95 + 0.1 * rng.random()
+        wobble = 0.002 * np.sin(2 * np.pi * u * (4 + 3 * rng.random()) + rng.random() * 6.3)
+        line_v = c0 - rise * span + keep * arch + wobble
+        t = (u - (0.5 - half)) / (2 * half)
+        # Depth varies along the line, and real furrows break near the midline on some lines.
+        along = 0.8 + 0.2 * np.sin(2 * np.pi * u * (3 + 2 * rng.random()) + rng.random() * 6.3)
+        gap = 1.0 - (0.7 * np.exp(-(((u - 0.5 - 0.02 * rng.standard_normal()) / 0.025) ** 2)) if k % 2 else 0.0)
+        h -= FURROW_DEPTH * depth * along * _groove(v - line_v, FURROW_WIDTH) * _window(t, 0.22) * gap
     return h
 
 
@@ -155,18 +171,18 @@ def compress_height(u, v, layout: features.FeatureLayout, rng: np.random.Generat
         top_v, bot_v = gv - 0.9 * gav * length, gv + 0.75 * gav * length
         t = (v - top_v) / (bot_v - top_v)
         line_u = gu + offset * gau * (1.0 + 0.25 * (1.0 - t))
-        h -= depth * 1.3 * _groove(u - line_u, 0.0055) * _window(t, 0.25)
+        h -= depth * 1.6 * _groove(u - line_u, 0.0065) * _window(t, 0.25)
 
     # Crow's feet: lines fanning out from the outer eye corner.
     def crows(uu, vv):
         out = np.zeros_like(uu)
         corner = layout.eye_corner_left
-        for angle, length, depth in ((-38, 0.045, 0.6), (-15, 0.055, 0.9), (8, 0.06, 1.0), (30, 0.05, 0.8)):
+        for angle, length, depth in ((-38, 0.045, 0.75), (-15, 0.055, 1.1), (8, 0.06, 1.25), (30, 0.05, 1.0)):
             a = np.deg2rad(angle)
             start = corner + 0.014 * np.array([np.cos(a), np.sin(a)])
             end = corner + (0.014 + length) * np.array([np.cos(a), np.sin(a)])
             d, t = _segment_param(uu, vv, start, end)
-            out -= depth * _groove(d, 0.0045) * _window(t, 0.3)
+            out -= depth * _groove(d, 0.0052) * _window(t, 0.3)
         return out
 
     h += _mirror_u(lambda uu, vv: crows(uu, vv))(u, v)
