@@ -67,12 +67,12 @@ class BoneSpec:
         return self.radius + max((float(np.hypot(*r)) for r in self.reach), default=0.0)
 
 
-# Brows: full weight up a 2.2 cm column above each brow bone (and from the inner ones
+# Brows: full weight up a 2.5 cm column above each brow bone (and from the inner ones
 # down to the glabella's midline), falling off over 3.5 cm around it; the skin within
 # FOREHEAD_PIN_CM of the hairline is pinned partly to the head.
-_BROW_UP = (0.0, 2.2)
+_BROW_UP = (0.0, 2.5)
 _GLABELLA = (1.05, -0.7)
-FOREHEAD_PIN_CM, FOREHEAD_PIN_HEAD = 1.6, 0.5
+FOREHEAD_PIN_CM, FOREHEAD_PIN_HEAD = 1.4, 0.5
 
 # (name, landmark, skinning radius). "_R" = subject's right (-x).
 BONES = [

@@ -132,9 +132,9 @@ def _brow_curve(layout: features.FeatureLayout) -> np.ndarray:
 # hairline distance on the midline, how much of the brow's arch the line keeps, half
 # length in u, depth). Widely spaced and broad, so they survive the texture's
 # minification at video sizes; lower lines follow the brows, upper ones flatten out.
-_FURROWS = ((0.18, 0.85, 0.235, 0.9), (0.36, 0.65, 0.235, 1.0), (0.54, 0.45, 0.215, 0.95), (0.71, 0.3, 0.18, 0.8))
+_FURROWS = ((0.16, 0.85, 0.235, 0.9), (0.33, 0.65, 0.235, 1.0), (0.5, 0.45, 0.22, 0.95), (0.67, 0.3, 0.19, 0.8))
 FURROW_WIDTH = 0.0105  # UV; ~0.22 cm on the face
-FURROW_DEPTH = 2.2  # texels of height per unit of depth, before WRINKLE_STRENGTH
+FURROW_DEPTH = 2.6  # texels of height per unit of depth, before WRINKLE_STRENGTH
 
 
 def stretch_height(u, v, layout: features.FeatureLayout, rng: np.random.Generator) -> np.ndarray:
