@@ -336,9 +336,9 @@ def test_stretch_wrinkles_inside_forehead_only(rendered, blend):
     for dy in range(-2, 3):  # a 5 x 5 neighbourhood of each core vertex
         for dx in range(-2, 3):
             inside[np.clip(y + dy, 0, SIZE - 1), np.clip(x + dx, 0, SIZE - 1)] = True
-    # The default avatar's forehead lines are faint at 256 px (about 27% of these pixels
-    # change, by a few levels); the test patch's ridges change almost all of them.
-    assert (diff[inside] > 0).mean() > 0.2 and diff[inside].max() >= 2
+    # The default avatar's forehead furrows change ~84% of these pixels at 256 px (up to
+    # ~135 levels summed over RGB); the test patch's ridges change almost all of them.
+    assert (diff[inside] > 0).mean() > 0.6 and diff[inside].max() >= 30
 
 
 

@@ -308,6 +308,24 @@ def test_pose_influences_are_one_at_each_pose_and_zero_at_rest(rig):
         assert inf[1 + k, k, 0] == 0.0
 
 
+
+def test_forehead_and_glabella_follow_the_brows(rig):
+    """Their skin is weighted to the brow bones (Dutreve bone masks), so at the reference
+    poses their per-vertex wrinkle influence is close to 1; the hairline stays partly
+    with the head."""
+    from capture2face.retarget.influences import vertex_influences
+
+    dense = rig.dense_skin_weights()
+    for pose, region, at_least in (("stretch", "forehead", 0.88), ("compress", "glabella", 0.95)):
+        k = rig.pose_index(pose)
+        inf = vertex_influences(rig_influences(rig.pose_bones[k][None], rig), dense)[0, k]
+        core = rig.region_weights[rig.region_names.index(region)] > 0.5
+        assert inf[core].mean() >= at_least, region
+    skin_tris = rig.triangles[(rig.material[rig.triangles] == 0).all(1)]
+    outer = max(mesh_ops.boundary_loops(skin_tris), key=len)
+    hairline = outer[rig.vertices[outer, 1] > rig.vertices[[105, 334], 1].max() + 1.0]
+    assert len(hairline) >= 5 and dense[hairline, 0].min() >= 0.3
+
 def test_regions(rig):
     assert rig.region_names == REGION_NAMES
     r = rig.region_weights
