@@ -52,9 +52,8 @@ def draw_points(image: np.ndarray, points: np.ndarray, color: np.ndarray, radius
     """Paint (N, 2) pixel positions as (2r+1)^2 squares into ``image`` in place
     (vectorized: one fancy-index write, no per-point calls)."""
     h, w = image.shape[:2]
-    centre = np.floor(points).astype(np.int64)  # pixel centres at +0.5
-    keep = np.isfinite(points).all(1)
-    centre = centre[keep]
+    points = np.asarray(points, np.float64)
+    centre = np.floor(points[np.isfinite(points).all(1)]).astype(np.int64)  # pixel centres at +0.5
     d = np.arange(-radius, radius + 1)
     dx, dy = np.meshgrid(d, d)
     xs = (centre[:, 0:1] + dx.ravel()).ravel()
@@ -64,12 +63,15 @@ def draw_points(image: np.ndarray, points: np.ndarray, color: np.ndarray, radius
 
 
 def label(image: np.ndarray, text: str, x: int = 0) -> None:
-    """Small caption at the top-left corner of the panel starting at column ``x``, in place."""
-    scale = max(0.35, image.shape[0] / 1100.0)
+    """Small caption on a darkened strip at the top-left of the panel starting at
+    column ``x``, in place."""
+    scale = max(0.4, image.shape[0] / 1000.0)
     thick = 1 if image.shape[0] < 700 else 2
-    org = (x + 8, int(12 + 18 * scale))
-    cv2.putText(image, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), thick + 2, cv2.LINE_AA)
-    cv2.putText(image, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, LABEL_COLOR, thick, cv2.LINE_AA)
+    (w, h), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thick)
+    pad = max(3, h // 3)
+    box = image[0:h + base + 2 * pad, x:x + w + 2 * pad]
+    box //= 2
+    cv2.putText(image, text, (x + pad, h + pad), cv2.FONT_HERSHEY_SIMPLEX, scale, LABEL_COLOR, thick, cv2.LINE_AA)
 
 
 def compare_frame(fitter: SourceFitter, source: np.ndarray | None, landmarks_px: np.ndarray | None,
@@ -82,7 +84,8 @@ def compare_frame(fitter: SourceFitter, source: np.ndarray | None, landmarks_px:
         landmarks_px: (L, 2) the track's landmarks in source pixels (None: none drawn).
         tracked: the face was detected in this frame (else the landmarks are the track's
             interpolated or held values, drawn in another colour).
-        avatar, influence: (S, S, 3) rendered panels.
+        avatar: (S, S, 3) rendered character.
+        influence: (s, s, 3) rendered influence view, resized to S x S if smaller.
     Returns:
         (S, 3 S, 3) uint8.
     """
@@ -91,6 +94,8 @@ def compare_frame(fitter: SourceFitter, source: np.ndarray | None, landmarks_px:
     if landmarks_px is not None:
         draw_points(panel, fitter.to_panel(landmarks_px), LANDMARK_COLOR if tracked else INTERPOLATED_COLOR,
                     radius=1 if s >= 384 else 0)
+    if influence.shape[:2] != (s, s):
+        influence = cv2.resize(influence, (s, s), interpolation=cv2.INTER_LINEAR)
     out = np.concatenate([panel, avatar, influence], axis=1)
     for k, text in enumerate(LABELS):
         label(out, text, k * s)

@@ -56,6 +56,8 @@ class RunOptions:
         compare: also write compare.mp4.
         samples: MSAA samples of the renders.
         crf: H.264 quality of the videos (lower = better, larger).
+        preset: x264 preset of the videos ("veryfast" encodes ~3x faster than "medium"
+            at about the same size for rendered faces).
         queue_frames: frames buffered between overlapped stages.
     """
 
@@ -67,6 +69,7 @@ class RunOptions:
     compare: bool = True
     samples: int = 4
     crf: int = 20
+    preset: str = "veryfast"
     queue_frames: int = 8
 
     def validate(self) -> None:
@@ -190,14 +193,17 @@ def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder
     size = int(options.size)
     fps = float(track.fps)
     render_opts = RenderOptions(size=size, wrinkles=options.wrinkles, samples=options.samples)
-    heat_opts = RenderOptions(size=size, wrinkles=options.wrinkles if options.wrinkles != "off" else "auto",
-                              view="influence", samples=1)  # a diagnostic view: no MSAA needed
+    # The influence view is a diagnostic: half resolution without MSAA, upscaled when
+    # composed, costs a sixth of the full view on a software rasterizer.
+    heat_size = max(64, size // 4 * 2)
+    heat_opts = RenderOptions(size=heat_size, wrinkles=options.wrinkles if options.wrinkles != "off" else "auto",
+                              view="influence", samples=1)
     poses = avatar_head_poses(rig, animation.head_pose, render_opts.fov_y_degrees).astype(np.float32)
     fitter = SourceFitter(track.width, track.height, size)
     q = max(2, int(options.queue_frames))
 
     def encode_avatar(frames) -> None:
-        with VideoWriter(folder / "avatar.mp4", fps, (size, size), crf=options.crf) as out:
+        with VideoWriter(folder / "avatar.mp4", fps, (size, size), crf=options.crf, preset=options.preset) as out:
             for frame in frames:
                 out.write(frame)
 
@@ -208,7 +214,8 @@ def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder
 
     def encode_compare(panels, sources) -> None:
         src = iter(sources)
-        with VideoWriter(folder / "compare.mp4", fps, (3 * size, size), crf=options.crf) as out:
+        with VideoWriter(folder / "compare.mp4", fps, (3 * size, size), crf=options.crf,
+                         preset=options.preset) as out:
             for i, (avatar, heat) in enumerate(panels):
                 out.write(compare_frame(fitter, next(src, None), track.landmarks_px[i],
                                         bool(track.presence[i]), avatar, heat))

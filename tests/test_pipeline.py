@@ -186,3 +186,21 @@ def test_glabella_compress_follows_frowns():
     _, compress, _, down = _brow_series("d3.mp4")
     assert np.ptp(down) > 0.4 and np.ptp(compress) > 0
     assert np.corrcoef(compress, down)[0, 1] > 0.5
+
+
+def test_compare_frame_puts_landmarks_on_the_source_pixels():
+    from capture2face.compose import SourceFitter, compare_frame
+
+    source = np.zeros((480, 640, 3), np.uint8)
+    source[300:310, 100:110] = 255  # a white square centred on (105, 305)
+    fitter = SourceFitter(640, 480, 256)  # letterboxed: scale 0.4, bars above and below
+    avatar = np.full((256, 256, 3), 7, np.uint8)
+    out = compare_frame(fitter, source, np.array([[105.0, 305.0]]), True, avatar, np.zeros((128, 128, 3), np.uint8))
+    assert out.shape == (256, 768, 3)
+    np.testing.assert_array_equal(out[40:, 256:512], avatar[40:])  # middle panel untouched below its label
+    assert out[:32, 200:256].max() == 0 and out[-32:, :256].max() == 0  # black bars
+    bright = np.argwhere(fitter.fit(source)[..., 0] > 128).mean(0)  # (row, col) of the square
+    green = np.argwhere((out[:, :256, 1] > 200) & (out[:, :256, 0] < 100))
+    assert len(green) >= 1
+    np.testing.assert_allclose(green.mean(0), bright, atol=1.0)
+    np.testing.assert_allclose(fitter.to_panel([[105.0, 305.0]])[0], [105 * 0.4, 305 * 0.4 + 32])

@@ -32,7 +32,8 @@ class VideoWriter:
     without an exception; otherwise the temporary file is deleted.
     """
 
-    def __init__(self, path: str | os.PathLike, fps: float | Fraction, size: tuple[int, int], crf: int = 20):
+    def __init__(self, path: str | os.PathLike, fps: float | Fraction, size: tuple[int, int], crf: int = 20,
+                 preset: str = "medium"):
         width, height = int(size[0]), int(size[1])
         if width <= 0 or height <= 0 or width % 2 or height % 2:
             raise CaptureError(f"H.264 yuv420p needs an even, positive frame size; got {width}x{height}")
@@ -40,6 +41,7 @@ class VideoWriter:
         self.rate = frame_rate(fps)
         self.size = (width, height)
         self.crf = int(crf)
+        self.preset = str(preset)  # x264 speed/size trade-off: ultrafast ... veryslow
         self.frames_written = 0
         self._stack: contextlib.ExitStack | None = None
         self._container = None
@@ -54,7 +56,7 @@ class VideoWriter:
             stream = self._container.add_stream("libx264", rate=self.rate)
             stream.width, stream.height = self.size
             stream.pix_fmt = "yuv420p"
-            stream.options = {"crf": str(self.crf), "preset": "medium"}
+            stream.options = {"crf": str(self.crf), "preset": self.preset}
             self._stream = stream
         except BaseException:
             self._stack.__exit__(*sys.exc_info())
