@@ -15,25 +15,43 @@ import numpy as np
 from scipy.interpolate import RBFInterpolator
 
 
-def farthest_point_subset(points: np.ndarray, count: int, keep: np.ndarray | None = None) -> np.ndarray:
-    """Indices of ``count`` well-spread points (greedy farthest-point sampling).
+def farthest_point_subset(points: np.ndarray, count: int | None, keep: np.ndarray | None = None,
+                          min_spacing: float = 0.05) -> np.ndarray:
+    """Indices of up to ``count`` well-spread points (greedy farthest-point sampling).
+
+    No two picked points lie closer than ``min_spacing``: coincident feature points (a
+    closed mouth puts upper- and lower-lip landmarks on one spot) would make the RBF
+    system singular, and near-coincident ones ill-conditioned.
 
     Args:
         points: (N, 3).
-        count: how many to pick (all when >= N).
-        keep: indices that must be in the subset (picked first).
+        count: how many to pick at most (None = as many as the spacing allows).
+        keep: indices to pick first (where the spacing allows).
     Returns:
         (K,) int64 sorted indices.
     """
+    points = np.asarray(points, np.float64)
     n = len(points)
-    if count >= n:
-        return np.arange(n)
-    chosen = list(np.unique(keep)) if keep is not None and len(keep) else [int(np.argmin(points[:, 1]))]
-    dist = np.min(np.linalg.norm(points[:, None] - points[chosen][None], axis=2), axis=1)
+    count = n if count is None else min(count, n)
+    order = list(np.unique(keep)) if keep is not None and len(keep) else []
+    chosen: list[int] = []
+    dist = np.full(n, np.inf)
+
+    def take(i: int) -> None:
+        nonlocal dist
+        chosen.append(int(i))
+        dist = np.minimum(dist, np.linalg.norm(points - points[i], axis=1))
+
+    for i in order:
+        if len(chosen) < count and dist[i] >= min_spacing:
+            take(i)
+    if not chosen:
+        take(int(np.argmin(points[:, 1])))
     while len(chosen) < count:
         nxt = int(np.argmax(dist))
-        chosen.append(nxt)
-        dist = np.minimum(dist, np.linalg.norm(points - points[nxt], axis=1))
+        if dist[nxt] < min_spacing:
+            break
+        take(nxt)
     return np.sort(np.asarray(chosen, np.int64))
 
 
@@ -89,14 +107,15 @@ def fit_feature_map(
         kernel, smoothing, epsilon: passed to ``scipy.interpolate.RBFInterpolator``
             (a degree-1 polynomial tail carries the global affine part).
         n_centers: number of RBF centres (a well-spread subset of the feature points;
-            None = all). Fewer centres make the per-frame evaluation cheaper.
+            None = all but coincident ones). Fewer centres make the per-frame
+            evaluation cheaper.
         keep_centers: indices that must be centres (e.g. the bones' landmarks).
     Returns:
         The :class:`FeatureMap`.
     """
     src = np.asarray(source_neutral, np.float64)
     tgt = np.asarray(target_neutral, np.float64)
-    centers = farthest_point_subset(src, n_centers or len(src), keep_centers)
+    centers = farthest_point_subset(src, n_centers, keep_centers)
     kwargs = {"epsilon": epsilon} if epsilon is not None else {}
     network = RBFInterpolator(
         src[centers], tgt[centers], kernel=kernel, smoothing=smoothing, degree=1, **kwargs

@@ -89,18 +89,26 @@ class LinearSolver:
     model: LinearRigModel
     ridge: float
     temporal: float
+    morph_ridge: float | None = None
+    sparsity: float = 0.0
+    axis_weights: tuple[float, float, float] = (1.0, 1.0, 1.0)
     rho: float = 1.0
     iterations: int = 200
     tolerance: float = 1e-4
 
     def __post_init__(self) -> None:
-        a = self.model.matrix
+        # Per-axis weights of the feature-point residual (a tracker's depth is its
+        # weakest coordinate).
+        self.row_weights = np.tile(np.asarray(self.axis_weights, np.float64), len(self.model.rest))
+        a = self.model.matrix * self.row_weights[:, None]
         self.scale = np.maximum(np.linalg.norm(a, axis=0), 1e-12)  # (n,)
         self.a = a / self.scale
         n = a.shape[1]
         self.bounded = np.zeros(n, bool)
         self.bounded[self.model.n_bone_vars:] = True
-        gram = self.a.T @ self.a + self.ridge * np.eye(n)
+        ridge = np.full(n, self.ridge)
+        ridge[self.bounded] = self.ridge if self.morph_ridge is None else self.morph_ridge
+        gram = self.a.T @ self.a + np.diag(ridge)
         # Unconstrained factorisation and the ADMM one (rho only on bounded unknowns).
         self.eig_free = np.linalg.eigh(gram)
         self.eig_admm = np.linalg.eigh(gram + self.rho * np.diag(self.bounded.astype(float)))
@@ -139,8 +147,10 @@ class LinearSolver:
             (F, n) x = bone translations (cm) then morph weights in [0, 1].
         """
         frames = points.shape[0]
-        b = (points - self.model.rest).reshape(frames, -1).T  # (3N, F)
+        b = (points - self.model.rest).reshape(frames, -1).T * self.row_weights[:, None]  # (3N, F)
         rhs = self.a.T @ b  # (n, F)
+        # L1 prior on the (non-negative) morph weights: a constant pull towards 0.
+        rhs[self.bounded] -= self.sparsity
         z = self._solve(self.eig_free, rhs, pin)
         if self.bounded.any() and self._violates(z):
             z = self._admm(rhs, z, pin)
