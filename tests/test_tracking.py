@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from fractions import Fraction
 from pathlib import Path
 
 import av
@@ -30,7 +31,7 @@ needs_clips = pytest.mark.skipif(not (CLIPS / "d0.mp4").exists(), reason="../sha
 
 def write_clip(path, frames, fps=25, rotation=None):
     with av.open(str(path), "w") as c:
-        s = c.add_stream("libx264", rate=fps)
+        s = c.add_stream("libx264", rate=Fraction(fps).limit_denominator(1001))
         s.height, s.width = frames[0].shape[:2]
         s.pix_fmt = "yuv420p"
         s.options = {"crf": "16"}
@@ -44,16 +45,32 @@ def write_clip(path, frames, fps=25, rotation=None):
     return Path(path)
 
 
-@pytest.fixture(scope="session")
-def d0_frames():
-    if not (CLIPS / "d0.mp4").exists():
-        pytest.skip("../shared/clips absent")
-    return [rgb for _, rgb in iter_frames(CLIPS / "d0.mp4", max_frames=40)]
+class Frames(list):
+    """Decoded frames with their frame rate."""
+
+    fps: float = 25.0
+
+
+N_FACE = 48
 
 
 @pytest.fixture(scope="session")
-def d0_track(d0_frames, tmp_path_factory):
-    clip = write_clip(tmp_path_factory.mktemp("d0") / "d0_40.mp4", d0_frames)
+def face_frames(request):
+    """48 frames of a real face (../shared/clips/d0.mp4, 25 fps), or of conftest's synthetic
+    performance (30 fps) where the real clips are absent."""
+    if (CLIPS / "d0.mp4").exists():
+        clip, fps = CLIPS / "d0.mp4", 25.0
+    else:
+        clip = request.getfixturevalue("synthetic_clip").video_path
+        fps = open_video(clip).fps
+    frames = Frames(rgb for _, rgb in iter_frames(clip, max_frames=N_FACE))
+    frames.fps = fps
+    return frames
+
+
+@pytest.fixture(scope="session")
+def face_track(face_frames, tmp_path_factory):
+    clip = write_clip(tmp_path_factory.mktemp("face") / "face.mp4", face_frames, fps=face_frames.fps)
     return clip, track_clip(clip, TrackOptions(), progress=False)
 
 
@@ -100,15 +117,15 @@ def test_metric_landmarks_reproject_to_the_image():
     np.testing.assert_allclose(back, metric, atol=1e-9)
 
 
-def test_pose_reproduces_mediapipe_matrix(d0_frames):
+def test_pose_reproduces_mediapipe_matrix(face_frames):
     norms, mats = [], []
     with FaceLandmarker.create_from_options(LandmarkerOptions()) as lm:
-        for i, rgb in enumerate(d0_frames[:15]):
-            obs = lm.detect(rgb, i / 25.0)
+        for i, rgb in enumerate(face_frames[:15]):
+            obs = lm.detect(rgb, i / face_frames.fps)
             norms.append(obs.landmarks_norm)
             mats.append(obs.matrix)
             assert obs.landmarks_norm.shape == (478, 3) and obs.blendshapes.shape == (52,)
-    h, w = d0_frames[0].shape[:2]
+    h, w = face_frames[0].shape[:2]
     _, pose = head_landmarks(np.array(norms), w, h)
     mats = np.array(mats)
     assert np.abs(pose - mats).max() < 1e-3 * np.abs(mats).max()
@@ -245,14 +262,15 @@ def test_track_save_load_bit_exact(tmp_path):
 
 # ---------------------------------------------------------------- real video
 
-def test_tracked_clip_fields(d0_track, tmp_path):
-    clip, track = d0_track
-    n = 40
+def test_tracked_clip_fields(face_frames, face_track, tmp_path):
+    clip, track = face_track
+    n = N_FACE
     assert track.n_frames == n and track.tracked_frames == n
     assert track.landmarks_px.shape == (n, 478, 2) and track.landmarks_head.shape == (n, 478, 3)
     assert track.blendshapes.shape == (n, 52) and track.blendshape_names[25] == "jawOpen"
-    assert (track.width, track.height, track.fps) == (512, 512, 25.0)
-    np.testing.assert_allclose(track.times, np.arange(n) / 25.0, atol=1e-9)
+    h, w = face_frames[0].shape[:2]
+    assert (track.width, track.height, track.fps) == (w, h, face_frames.fps)
+    np.testing.assert_allclose(track.times, np.arange(n) / face_frames.fps, atol=1e-9)
     # head coordinates: the face is canonical-sized, eyes level, ~9 cm apart
     iod = np.linalg.norm(track.landmarks_head[:, EYES[0]] - track.landmarks_head[:, EYES[1]], axis=-1)
     assert np.all((iod > 7.5) & (iod < 10.5))
@@ -286,41 +304,42 @@ def test_bad_inputs(tmp_path, kind):
         track_clip(p, progress=False)
 
 
-def test_neutral_frame_option(d0_track):
-    clip, _ = d0_track
+def test_neutral_frame_option(face_track):
+    clip, _ = face_track
     track = track_clip(clip, TrackOptions(neutral_frame=5, max_frames=10), progress=False)
     assert track.neutral_frame == 5 and track.n_frames == 10
     with pytest.raises(CaptureError, match="outside the clip"):
         track_clip(clip, TrackOptions(neutral_frame=99, max_frames=10), progress=False)
 
 
-def test_rotation_metadata_respected(d0_frames, d0_track, tmp_path):
-    _, upright = d0_track
-    coded = [np.ascontiguousarray(np.rot90(f, -1)) for f in d0_frames[:12]]  # stored sideways
-    clip = write_clip(tmp_path / "phone.mp4", coded, rotation=90)
+def test_rotation_metadata_respected(face_frames, face_track, tmp_path):
+    _, upright = face_track
+    coded = [np.ascontiguousarray(np.rot90(f, -1)) for f in face_frames[:12]]  # stored sideways
+    clip = write_clip(tmp_path / "phone.mp4", coded, fps=face_frames.fps, rotation=90)
     assert open_video(clip).rotation == 90
     track = track_clip(clip, progress=False)
     err = np.linalg.norm(track.landmarks_px - upright.landmarks_px[:12], axis=-1)
     assert np.median(err) < 1.5  # pixels, same orientation as the upright clip
 
 
-def test_face_leaving_the_frame_is_flagged_and_the_track_resumes(d0_frames, tmp_path):
-    frames = [f.copy() for f in d0_frames]
-    for f in frames[10:35]:  # 1 s at 25 fps: the face is gone
+def test_face_leaving_the_frame_is_flagged_and_the_track_resumes(face_frames, tmp_path):
+    frames = [f.copy() for f in face_frames]
+    a, b = 10, 10 + int(round(face_frames.fps))  # 1 s without the face
+    for f in frames[a:b]:
         f[:] = 0
-    clip = write_clip(tmp_path / "exit.mp4", frames)
+    clip = write_clip(tmp_path / "exit.mp4", frames, fps=face_frames.fps)
     track = track_clip(clip, progress=False)
     assert track.n_long_gaps == 1 and track.n_gaps == 1
-    assert not track.presence[10:35].any()
-    assert track.held[10:35].all() and not track.interpolated.any()
-    assert track.presence[:10].all() and track.presence[36:].all()  # resumes
+    assert not track.presence[a:b].any()
+    assert track.held[a:b].all() and not track.interpolated.any()
+    assert track.presence[:a].all() and track.presence[b + 1:].all()  # resumes
     np.testing.assert_array_equal(track.landmarks_px[20], track.landmarks_px[9])  # holds
 
 
-def test_several_faces_keeps_the_one_that_continues_the_track(d0_frames, tmp_path):
+def test_several_faces_keeps_the_one_that_continues_the_track(face_frames, tmp_path):
     import cv2
 
-    small = [cv2.resize(f, (256, 256), interpolation=cv2.INTER_AREA) for f in d0_frames[:16]]
+    small = [cv2.resize(f, (256, 256), interpolation=cv2.INTER_AREA) for f in face_frames[:16]]
     frames = []
     for i, face in enumerate(small):
         canvas = np.full((256, 512, 3), 90, np.uint8)
@@ -328,15 +347,15 @@ def test_several_faces_keeps_the_one_that_continues_the_track(d0_frames, tmp_pat
         if i >= 6:  # a bigger second face appears on the left
             canvas[:, :256] = cv2.resize(face[24:232, 24:232], (256, 256))
         frames.append(canvas)
-    clip = write_clip(tmp_path / "two.mp4", frames)
+    clip = write_clip(tmp_path / "two.mp4", frames, fps=face_frames.fps)
     track = track_clip(clip, TrackOptions(num_faces=2), progress=False)
     assert track.n_faces_max == 2
     assert track.presence.all()
     assert (track.landmarks_px[:, :, 0].mean(1) > 256).all()
 
 
-def test_tracker_streaming_matches_track_clip(d0_frames, d0_track):
-    clip, track = d0_track
+def test_tracker_streaming_matches_track_clip(face_frames, face_track):
+    clip, track = face_track
     info = open_video(clip)
     with Tracker(info, TrackOptions()) as tracker:
         for t, rgb in iter_frames(clip):
@@ -345,15 +364,15 @@ def test_tracker_streaming_matches_track_clip(d0_frames, d0_track):
     np.testing.assert_allclose(streamed.landmarks_head, track.landmarks_head, atol=1e-5)
 
 
-def test_cli_track_with_overlay(d0_track, tmp_path):
+def test_cli_track_with_overlay(face_track, tmp_path):
     from capture2face.cli import main
 
-    clip, _ = d0_track
+    clip, _ = face_track
     out, overlay = tmp_path / "track.npz", tmp_path / "overlay.mp4"
     assert main(["-q", "track", str(clip), "-o", str(out), "--overlay", str(overlay)]) == 0
     track = Track.load(out)
     info = open_video(overlay)
-    assert (info.width, info.height, info.n_frames) == (512, 512, track.n_frames)
+    assert (info.width, info.height, info.n_frames) == (track.width, track.height, track.n_frames)
     # the overlay differs from the source where landmarks are drawn
     _, src = next(iter(iter_frames(clip)))
     _, drawn = next(iter(iter_frames(overlay)))
@@ -373,24 +392,19 @@ def test_every_shared_clip_tracked(name):
 
 # ---------------------------------------------------------------- synthetic ground truth
 
-def _synth_clip(tmp_path_factory, name, **kw):
-    try:
-        from capture2face.synth import SynthOptions, synthesize
-    except ImportError as exc:  # pragma: no cover - until capture2face.synth lands
-        pytest.skip(f"capture2face.synth unavailable: {exc}")
-    path = tmp_path_factory.mktemp("synth") / f"{name}.mp4"
-    return synthesize(path, SynthOptions(**kw), progress=False)
-
-
 @pytest.fixture(scope="session")
-def synth_expression(tmp_path_factory):
-    clip = _synth_clip(tmp_path_factory, "expr", frames=60, seed=1)
-    return clip, track_clip(clip.video_path, progress=False)
+def synth_expression(synthetic_clip):
+    """conftest's shared synthetic performance (expressions and head motion), tracked."""
+    return synthetic_clip, track_clip(synthetic_clip.video_path, progress=False)
 
 
 @pytest.fixture(scope="session")
 def synth_head_only(tmp_path_factory):
-    clip = _synth_clip(tmp_path_factory, "head", frames=60, seed=2, expression=False)
+    """A synthetic clip with head motion only (one fixed mild expression), tracked."""
+    from capture2face.synth import SynthOptions, synthesize
+
+    path = tmp_path_factory.mktemp("synth_head") / "head.mp4"
+    clip = synthesize(path, SynthOptions(frames=60, seed=2, expression=False), progress=False)
     return clip, track_clip(clip.video_path, progress=False)
 
 

@@ -10,6 +10,10 @@ inter-ocular distance, outer eye corners 33-263):
 * **lag**: the time shift (ms) of the truth that best matches the estimate;
 * **rms**: the error left after removing each landmark's constant offset (shape bias).
 
+The head pose is measured the same way on the canonical face carried by the estimated and
+by the true pose (camera space), which turns rotation and translation errors into surface
+motion in the same units.
+
 The TrackOptions defaults were chosen from this table.
 """
 
@@ -73,8 +77,18 @@ def observe(clip: str | Path, options: TrackOptions | None = None):
         return tracker._times, tracker._obs, tracker._size, info
 
 
-def sweep(observations, truths, grid: dict) -> list[dict]:
-    """Mean figures over clips for every combination in ``grid`` (TrackOptions fields)."""
+def posed_face(pose: np.ndarray) -> np.ndarray:
+    """(F, 468, 3) the canonical face carried into camera space by ``pose`` (F, 4, 4)."""
+    from capture2face.tracking.head_pose import canonical_mesh
+
+    verts = canonical_mesh().vertices.astype(np.float64)
+    pose = np.asarray(pose, np.float64)
+    return np.einsum("fij,nj->fni", pose[:, :3, :3], verts) + pose[:, None, :3, 3]
+
+
+def sweep(observations, truths, grid: dict, target: str = "landmarks") -> list[dict]:
+    """Mean figures over clips for every combination in ``grid`` (TrackOptions fields);
+    ``target`` "landmarks" (head coordinates) or "pose"."""
     rows = []
     keys = list(grid)
     for values in itertools.product(*(grid[k] for k in keys)):
@@ -82,7 +96,10 @@ def sweep(observations, truths, grid: dict) -> list[dict]:
         figs = []
         for (times, obs, size, info), truth in zip(observations, truths):
             track = build_track(times, obs, size, info, opts)
-            figs.append(jitter_lag(track.landmarks_head, truth.landmarks_head, track.times))
+            if target == "pose":
+                figs.append(jitter_lag(posed_face(track.head_pose), posed_face(truth.head_pose), track.times))
+            else:
+                figs.append(jitter_lag(track.landmarks_head, truth.landmarks_head, track.times))
         row = dict(zip(keys, values))
         row.update({k: float(np.mean([f[k] for f in figs])) for k in figs[0]})
         rows.append(row)
@@ -105,17 +122,24 @@ def main(argv=None) -> None:
             synthesize(clip, SynthOptions(frames=args.frames, seed=seed))
         truths.append(SyntheticTruth.load(truth_path(clip)))
         observations.append(observe(clip))
+        print(f"tracked {clip}", flush=True)
     inf = float("inf")
     rows = sweep(observations, truths, {"min_cutoff": [inf]})  # unfiltered reference
     rows += sweep(observations, truths, {
         "zero_phase": [False, True], "min_cutoff": [0.5, 1.0, 2.0, 4.0], "beta": [0.0, 0.2, 0.5, 2.0],
     })
-    print(f"{'zero_phase':>10} {'min_cutoff':>10} {'beta':>6} {'jitter%':>8} {'lag_ms':>7} {'rms%':>6}")
-    for r in rows:
-        print(f"{str(r.get('zero_phase', '-')):>10} {r['min_cutoff']:>10.2f} {r.get('beta', 0):>6.2f} "
-              f"{r['jitter']:>8.3f} {r['lag_ms']:>7.0f} {r['rms']:>6.3f}")
+    pose_rows = sweep(observations, truths, {"pose_min_cutoff": [inf]}, "pose")
+    pose_rows += sweep(observations, truths, {
+        "zero_phase": [False, True], "pose_min_cutoff": [0.5, 1.0, 2.0, 4.0], "pose_beta": [0.0, 0.2, 0.5, 2.0],
+    }, "pose")
+    for title, table, mc, b in (("head-coordinate landmarks", rows, "min_cutoff", "beta"),
+                                ("head pose", pose_rows, "pose_min_cutoff", "pose_beta")):
+        print(f"\n{title}\n{'zero_phase':>10} {'min_cutoff':>10} {'beta':>6} {'jitter%':>8} {'lag_ms':>7} {'rms%':>6}")
+        for r in table:
+            print(f"{str(r.get('zero_phase', '-')):>10} {r[mc]:>10.2f} {r.get(b, 0):>6.2f} "
+                  f"{r['jitter']:>8.3f} {r['lag_ms']:>7.0f} {r['rms']:>6.3f}")
     if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=1))
+        Path(args.json).write_text(json.dumps({"landmarks": rows, "pose": pose_rows}, indent=1))
 
 
 if __name__ == "__main__":
