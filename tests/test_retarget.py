@@ -256,9 +256,11 @@ def test_animation_save_load_bit_exact(rig, performance, tmp_path):
 def test_default_priors_stay_close_on_a_perfect_track(rig, performance):
     anim = retarget(perfect_track(rig, performance), rig)
     err = _bone_error_iod(anim, performance.bone_positions, rig)
-    assert np.percentile(err, 95) < 0.05  # the morph priors cost some accuracy here
+    assert np.percentile(err, 95) < 0.03  # the morph priors cost some accuracy here
     zero = np.abs(performance.blend_weights).mean()
-    assert np.abs(anim.blend_weights - performance.blend_weights).mean() < 0.5 * zero
+    assert np.abs(anim.blend_weights - performance.blend_weights).mean() < 0.85 * zero
+    # Shrunk, but following the true weights (all-zero weights would not correlate).
+    assert np.corrcoef(anim.blend_weights.ravel(), performance.blend_weights.ravel())[0, 1] > 0.7
 
 
 def test_retarget_timing_is_measurable(rig, performance):
