@@ -94,9 +94,10 @@ class LinearSolver:
     axis_weights: tuple[float, float, float] = (1.0, 1.0, 1.0)
     rho: float = 1.0
     iterations: int = 200
-    tolerance: float = 1e-4
+    tolerance: float = 1e-3
 
     def __post_init__(self) -> None:
+        self._cache: dict = {}
         # Per-axis weights of the feature-point residual (a tracker's depth is its
         # weakest coordinate).
         self.row_weights = np.tile(np.asarray(self.axis_weights, np.float64), len(self.model.rest))
@@ -127,12 +128,19 @@ class LinearSolver:
         """
         s, u = eig
         frames = rhs.shape[1]
-        denom = s[:, None] + self.temporal * _path_laplacian_eigenvalues(frames)[None, :]
+        key = (id(eig), frames, pin)
+        if key not in self._cache:  # per factorisation: DCT-domain divisors, Green's function
+            denom = s[:, None] + self.temporal * _path_laplacian_eigenvalues(frames)[None, :]
+            green = None
+            if pin is not None:
+                basis_at_pin = dct(np.eye(frames)[pin], type=2, norm="ortho")  # (F,) Q[pin, :]
+                green = idct(basis_at_pin[None, :] / denom, type=2, norm="ortho", axis=1)  # (n, F)
+                green /= green[:, pin:pin + 1]
+            self._cache[key] = (denom, green)
+        denom, green = self._cache[key]
         y = idct(dct(u.T @ rhs, type=2, norm="ortho", axis=1) / denom, type=2, norm="ortho", axis=1)
-        if pin is not None:
-            basis_at_pin = dct(np.eye(frames)[pin], type=2, norm="ortho")  # (F,) Q[pin, :]
-            green = idct(basis_at_pin[None, :] / denom, type=2, norm="ortho", axis=1)  # (n, F)
-            y -= (y[:, pin] / green[:, pin])[:, None] * green
+        if green is not None:
+            y -= y[:, pin:pin + 1] * green
             y[:, pin] = 0.0
         return u @ y
 
