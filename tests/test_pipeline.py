@@ -204,3 +204,39 @@ def test_compare_frame_puts_landmarks_on_the_source_pixels():
     assert len(green) >= 1
     np.testing.assert_allclose(green.mean(0), bright, atol=1.0)
     np.testing.assert_allclose(fitter.to_panel([[105.0, 305.0]])[0], [105 * 0.4, 305 * 0.4 + 32])
+
+
+def test_characters_load_from_npz_glb_and_builtin_names(tmp_path):
+    from capture2face.pipeline import load_character
+    from capture2face.rig.avatar import default_avatar
+    from capture2face.rig.gltf import export_glb
+
+    wide = default_avatar(variant="wide")
+    wide.save(tmp_path / "wide.npz")
+    export_glb(wide, tmp_path / "wide.glb")
+    for rig in (load_character(tmp_path / "wide.npz"), load_character(str(tmp_path / "wide.glb")),
+                load_character("wide")):
+        assert rig.n_vertices == wide.n_vertices and rig.bone_names == wide.bone_names
+        np.testing.assert_allclose(rig.bone_rest, wide.bone_rest, atol=1e-5)
+    assert load_character(None).n_vertices == default_avatar().n_vertices
+    assert load_character(wide) is wide
+
+
+@pytest.mark.slow
+def test_run_with_a_glb_character(sample_clip, tmp_path):
+    from capture2face.pipeline import RunOptions, run
+    from capture2face.retarget.animation import Animation
+    from capture2face.rig.avatar import default_avatar
+    from capture2face.rig.gltf import export_glb
+
+    wide = default_avatar(variant="wide")
+    export_glb(wide, tmp_path / "hero.glb")
+    report = run(sample_clip, tmp_path / "out", RunOptions(size=128, character=tmp_path / "hero.glb", compare=False),
+                 progress=False, name="hero_take")
+    folder = tmp_path / "out" / "hero_take"
+    assert report["character"] == wide.name and report["output_dir"] == str(folder)
+    assert "compare.mp4" not in report["outputs"] and not (folder / "compare.mp4").exists()
+    anim = Animation.load(folder / "animation.npz")
+    assert anim.character == wide.name and anim.n_frames == report["frames"]
+    n, _, w, h = video_stats(folder / "avatar.mp4")
+    assert (n, w, h) == (report["frames"], 128, 128)
