@@ -87,6 +87,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         neutral_frame=args.neutral_frame, face_model=args.face_model,
     )
     report = run(args.clip, args.output, opts, progress=not args.quiet)
+    for warning in report["warnings"]:  # also in report.json
+        print(f"capture2face: warning: {warning}", file=sys.stderr)
     print(f"wrote {report['output_dir']} ({report['frames']} frames, {report['fps_processing']:.1f} fps)")
     return 0
 
