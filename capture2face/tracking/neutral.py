@@ -2,15 +2,18 @@
 
 Expression energy is the sum of squared blendshape scores, leaving out ``_neutral`` (a bias
 term, not an expression) and the ``eyeLook*`` gaze scores (looking around is not an
-expression and does not deform the face). Among tracked frames whose head speed is at
-most the median head speed, the frame with the lowest energy wins; a still head keeps
-motion blur and pose-dependent landmark bias out of the reference.
+expression and does not deform the face). A moving head raises a frame's cost:
+``energy * (1 + (speed / 10 cm/s)^2)``, so a still head (no motion blur, no lag) wins among
+equally calm faces, but a merely slow head never makes an expressive frame the neutral
+one (a hard speed gate did that on real clips). Only tracked frames are candidates.
 """
 
 from __future__ import annotations
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+
+STEADY_SPEED = 10.0  # cm/s of surface motion (head speed) that doubles a frame's cost
 
 
 def expression_energy(blendshapes: np.ndarray, names: list[str]) -> np.ndarray:
@@ -39,8 +42,6 @@ def pick_neutral(blendshapes: np.ndarray, names: list[str], pose: np.ndarray,
     valid = np.asarray(valid, bool)
     if not valid.any():
         valid = np.ones_like(valid)
-    energy = expression_energy(blendshapes, names)
-    speed = head_speed(pose, times)
-    steady = valid & (speed <= np.median(speed[valid]) + 1e-9)
-    pool = steady if steady.any() else valid
-    return int(np.flatnonzero(pool)[np.argmin(energy[pool])])
+    cost = expression_energy(blendshapes, names) * (1.0 + (head_speed(pose, times) / STEADY_SPEED) ** 2)
+    pool = np.flatnonzero(valid)
+    return int(pool[np.argmin(cost[pool])])
