@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import os
 from dataclasses import replace
 from pathlib import Path
 
@@ -110,7 +111,8 @@ def main(argv=None) -> None:
     from capture2face.synth import SynthOptions, SyntheticTruth, synthesize, truth_path
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--dir", default="synth_tuning", help="where the synthetic clips live")
+    cache = Path(os.environ.get("CAPTURE2FACE_CACHE", Path.home() / ".cache" / "capture2face"))
+    ap.add_argument("--dir", default=str(cache / "synth_tuning"), help="where the synthetic clips live")
     ap.add_argument("--frames", type=int, default=150)
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--json", help="write the table here")
