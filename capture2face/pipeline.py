@@ -59,6 +59,8 @@ class RunOptions:
         preset: x264 preset of the videos ("veryfast" encodes ~3x faster than "medium"
             at about the same size for rendered faces).
         queue_frames: frames buffered between overlapped stages.
+        allow_truncated: process the frames before the damage of a truncated or
+            corrupt clip (with a warning) instead of failing.
     """
 
     character: Any = None
@@ -71,6 +73,7 @@ class RunOptions:
     crf: int = 20
     preset: str = "veryfast"
     queue_frames: int = 8
+    allow_truncated: bool = False
 
     def validate(self) -> None:
         if self.wrinkles not in WRINKLE_DRIVERS:
@@ -340,7 +343,15 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
     seconds: dict[str, float] = {}
     with _collect_warnings() as warnings, staged_folder(final) as tmp:
         t = time.perf_counter()
-        track = track_stage(clip, options, progress)
+        try:
+            track = track_stage(clip, options, progress)
+        finally:
+            # The decoder keeps the frames before any damage; a run would silently lose
+            # the clip's tail, so that takes an explicit opt-in. (Checked even when
+            # tracking failed: a damaged file is the cause to report.)
+            damaged = [w for w in warnings if "truncated" in w]
+            if damaged and not options.allow_truncated:
+                raise CaptureError(damaged[0])
         track.save(tmp / "track.npz")
         seconds["track"] = time.perf_counter() - t
 

@@ -79,25 +79,30 @@ def inputs(tmp_path_factory) -> dict[str, Path]:
     truncated = d / "truncated.mp4"
     data = write_video(d / "full.mp4", 40, seed=1).read_bytes()
     truncated.write_bytes(data[: len(data) // 2])  # moov sits at the end: the index is gone
+    # With the index up front ("faststart"), the first frames decode and the rest is gone.
+    data = write_video(d / "faststart.mp4", 40, seed=1, movflags="faststart").read_bytes()
+    (d / "truncated_tail.mp4").write_bytes(data[: len(data) * 6 // 10])
     (d / "empty.mp4").write_bytes(b"")
     (d / "text.mp4").write_text("this is not a video\n" * 20)
     (d / "folder.mp4").mkdir()
     (d / "corrupt.npz").write_bytes(os.urandom(2048))
     (d / "corrupt.glb").write_bytes(b"glTF" + os.urandom(400))
     return {
-        "noface": faceless, "truncated": truncated, "empty": d / "empty.mp4", "text": d / "text.mp4",
+        "noface": faceless, "truncated": truncated, "truncated_tail": d / "truncated_tail.mp4", "empty": d / "empty.mp4", "text": d / "text.mp4",
         "folder": d / "folder.mp4", "audio": write_audio_only(d / "audio.mp4"),
         "zero": write_zero_frames(d / "zero.mp4"), "missing": d / "missing.mp4",
         "corrupt_npz": d / "corrupt.npz", "corrupt_glb": d / "corrupt.glb",
     }
 
 
-def assert_clean_failure(result: subprocess.CompletedProcess, out: Path, must_mention: str) -> None:
+def assert_clean_failure(result: subprocess.CompletedProcess, out: Path, must_mention: str,
+                         path: Path | None = None) -> None:
     assert result.returncode == 2, (result.returncode, result.stderr[-2000:])
     lines = [ln for ln in result.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1, result.stderr[-2000:]
     assert lines[0].startswith("capture2face: error: "), lines[0]
-    assert must_mention.lower() in lines[0].lower(), lines[0]
+    reason = lines[0].replace(str(path), "<path>") if path is not None else lines[0]
+    assert must_mention.lower() in reason.lower(), lines[0]
     assert "Traceback" not in result.stderr
     assert not out.exists() or not any(out.iterdir()), sorted(p.name for p in out.rglob("*"))
 
@@ -107,13 +112,14 @@ def assert_clean_failure(result: subprocess.CompletedProcess, out: Path, must_me
     ("folder", "directory"),
     ("empty", "empty"),
     ("text", "not a video"),
-    ("truncated", "truncated"),
+    ("truncated", "not a video"),  # the index (moov, at the end) is cut off
+    ("truncated_tail", "truncated"),
     ("audio", "no video stream"),
     ("zero", "no frames"),
 ])
 def test_unreadable_clip_fails_cleanly(inputs, tmp_path, case, mention):
     out = tmp_path / "out"
-    assert_clean_failure(cli("-q", "run", str(inputs[case]), "-o", str(out)), out, mention)
+    assert_clean_failure(cli("-q", "run", str(inputs[case]), "-o", str(out)), out, mention, inputs[case])
 
 
 @pytest.mark.slow
@@ -215,3 +221,27 @@ def test_interrupted_run_leaves_nothing(sample_clip, tmp_path, sig, when):
     assert "interrupted" in err and "Traceback" not in err
     left = sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*"))
     assert left == [], left
+
+
+@pytest.mark.slow
+def test_truncated_clip_can_be_salvaged_on_request(sample_clip, tmp_path):
+    """``allow_truncated``: the frames before the damage are processed, with a warning."""
+    import av
+
+    from capture2face.pipeline import RunOptions, run
+
+    faststart = tmp_path / "faststart.mp4"
+    with av.open(str(sample_clip)) as src, av.open(str(faststart), "w", options={"movflags": "faststart"}) as dst:
+        stream = dst.add_stream_from_template(src.streams.video[0])
+        for packet in src.demux(src.streams.video[0]):
+            if packet.size:
+                packet.stream = stream
+                dst.mux(packet)
+    data = faststart.read_bytes()
+    cut = tmp_path / "cut.mp4"
+    cut.write_bytes(data[: len(data) * 6 // 10])
+    report = run(cut, tmp_path / "out", RunOptions(size=128, compare=False, allow_truncated=True), progress=False)
+    assert 10 < report["frames"] < 90
+    assert any("truncated" in w for w in report["warnings"])
+    with av.open(str(tmp_path / "out" / "cut" / "avatar.mp4")) as c:
+        assert sum(1 for _ in c.decode(video=0)) == report["frames"]

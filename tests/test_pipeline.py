@@ -240,3 +240,23 @@ def test_run_with_a_glb_character(sample_clip, tmp_path):
     assert anim.character == wide.name and anim.n_frames == report["frames"]
     n, _, w, h = video_stats(folder / "avatar.mp4")
     assert (n, w, h) == (report["frames"], 128, 128)
+
+
+@pytest.mark.slow
+def test_a_face_that_leaves_the_frame_keeps_every_frame(tmp_path):
+    """Frames without a face still get an avatar frame, a Live Link row and a keyframe;
+    the report says how many frames had no face."""
+    from capture2face.pipeline import RunOptions, run
+    from capture2face.synth import SynthOptions, synthesize
+
+    clip = tmp_path / "exit.mp4"
+    synthesize(clip, SynthOptions(frames=75, size=256, seed=4, face_exit=True), progress=False)
+    report = run(clip, tmp_path / "out", RunOptions(size=128, compare=False), progress=False)
+    folder = tmp_path / "out" / "exit"
+    assert report["frames"] == 75 and report["tracked_frames"] < 75
+    assert any("no face in" in w for w in report["warnings"])
+    assert video_stats(folder / "avatar.mp4")[0] == 75
+    assert len((folder / "livelink.csv").read_text().splitlines()) == 76
+    from capture2face.export.animation_glb import read_animation_keyframe_count
+
+    assert read_animation_keyframe_count(folder / "animation.glb") == 75
