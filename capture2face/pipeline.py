@@ -159,21 +159,17 @@ def avatar_head_poses(rig: FaceRig, head_pose: np.ndarray, fov_y_degrees: float)
     Args:
         head_pose: (F, 4, 4) tracked head -> camera transforms.
     """
-    from capture2face.render.camera import framing_pose
+    from capture2face.render.camera import face_centre_and_height, framing_pose
 
-    base = framing_pose(rig, fov_y_degrees=fov_y_degrees)  # rotation-free framing
-    centre_cam = base[:3, 3] + rig_centre(rig)  # where the face centre sits: (0, 0, -distance)
+    centre = face_centre_and_height(rig)[0]
+    # framing_pose without rotation puts the face centre at (0, 0, -distance); keep it
+    # there whatever the rotation.
+    target = framing_pose(rig, fov_y_degrees=fov_y_degrees)[:3, 3] + centre
     rot = np.asarray(head_pose, np.float64)[:, :3, :3]
     poses = np.tile(np.eye(4), (len(rot), 1, 1))
     poses[:, :3, :3] = rot
-    poses[:, :3, 3] = centre_cam - rot @ rig_centre(rig)
+    poses[:, :3, 3] = target - rot @ centre
     return poses
-
-
-def rig_centre(rig: FaceRig) -> np.ndarray:
-    from capture2face.render.camera import face_centre_and_height
-
-    return face_centre_and_height(rig)[0]
 
 
 def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder: str | os.PathLike,

@@ -260,3 +260,17 @@ def test_a_face_that_leaves_the_frame_keeps_every_frame(tmp_path):
     from capture2face.export.animation_glb import read_animation_keyframe_count
 
     assert read_animation_keyframe_count(folder / "animation.glb") == 75
+
+
+def test_avatar_follows_the_tracked_head_rotation_centred():
+    from capture2face.pipeline import avatar_head_poses, load_character
+    from capture2face.render.camera import framing_pose, rotation_matrix
+
+    rig = load_character(None)
+    tracked = np.tile(np.eye(4), (3, 1, 1))
+    tracked[:, :3, 3] = [[0, 0, -40], [5, -3, -60], [-2, 1, -35]]  # the source camera's distance is ignored
+    tracked[1, :3, :3] = rotation_matrix(20, 5, -3)
+    tracked[2, :3, :3] = rotation_matrix(-15, -8, 6)
+    poses = avatar_head_poses(rig, tracked, 30.0)
+    for pose, angles in zip(poses, [(0, 0, 0), (20, 5, -3), (-15, -8, 6)]):
+        np.testing.assert_allclose(pose, framing_pose(rig, *angles, fov_y_degrees=30.0), atol=1e-9)
