@@ -10,8 +10,11 @@ dimensionless) and how each is measured:
 * ``blendweight_mae``: mean |retargeted - true| morph weight over all morphs;
   ``mediapipe_blendshape_mae``: MediaPipe's own scores against the true weights of the
   morphs that share a name (``blendweight_mae_shared``: ours on that same subset).
-* ``wrinkle_influence_mae``: mean |retargeted - true| per-bone pose influence (F x P x B),
-  over the bones that move in some reference pose.
+* ``wrinkle_influence_mae``: mean |retargeted - true| per-vertex pose influence
+  ``Inf(v, P)`` (Dutreve §5.2, what the renderer blends the wrinkle maps with), over
+  F x P x the skin vertices that some moving bone skins. ``wrinkle_influence_mae_bone``:
+  the same over per-bone influences (F x P x B, bones that move in some pose), which
+  weighs a lid bone skinning a sliver of skin like a brow bone carrying the forehead.
 * ``baseline_*``: the same figures for trivial predictions (rest bones, zero weights,
   zero influences): a figure is only worth as much as its distance to these.
 * Retargeting starts from a frame the truth holds at neutral (the tracker's own pick is
@@ -38,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from capture2face.retarget import RetargetOptions, retarget
-from capture2face.retarget.influences import region_influence, rig_influences
+from capture2face.retarget.influences import region_influence, rig_influences, vertex_influences
 
 
 def local_rest_maps(source, target) -> np.ndarray:
@@ -125,10 +128,17 @@ def score(track, animation, truth, source, target) -> dict:
         }
 
     # Per-bone influences, bones that move in some reference pose.
-    inf_true = rig_influences(true_bones, target) if target is not source else truth.influences
+    # Recomputed (not the truth file's copy) so truth and prediction share the rig's
+    # current bone groups.
+    inf_true = rig_influences(true_bones, target)
     moving = np.linalg.norm(target.pose_bones - target.bone_rest, axis=2).max(0) > 1e-4
     inf_err = np.abs(animation.influences[use][:, :, moving] - inf_true[use][:, :, moving])
-    region_true = truth.region_influence if target is source else region_influence(inf_true, target)
+    # Per-vertex influences Inf(v, P) (what the renderer blends wrinkle maps with), over
+    # the skin vertices some moving bone skins (the others are 0 in truth and prediction).
+    skin = target.dense_skin_weights()[np.asarray(target.material) == 0].astype(np.float64)
+    skin = skin[skin[:, moving].sum(1) > 1e-3]
+    vertex_err = np.abs(vertex_influences(animation.influences[use] - inf_true[use], skin))
+    region_true = region_influence(inf_true, target)
 
     neutral = track.neutral_frame
     rest_err = np.linalg.norm(true_bones[use][:, bones] - target.bone_rest[bones], axis=2) / target.interocular()
@@ -141,13 +151,18 @@ def score(track, animation, truth, source, target) -> dict:
         "bone_error_iod_mean": float(np.mean(err_iod)),
         "blendweight_mae": float(np.abs(w_pred - w_true).mean()),
         **result_mp,
-        "wrinkle_influence_mae": float(inf_err.mean()),
+        # Per vertex: what the renderer shows (a bone skinning a large patch of
+        # forehead matters more than a lid bone skinning a sliver); per bone alongside.
+        "wrinkle_influence_mae": float(vertex_err.mean()),
+        "wrinkle_influence_mae_bone": float(inf_err.mean()),
+        "wrinkle_influence_mae_vertex": float(vertex_err.mean()),
         "region_influence_mae": float(np.abs(animation.region_influence[use] - region_true[use]).mean()),
         # Trivial predictors, for scale: rest bones, zero weights, zero influences.
         "baseline_rest_bone_error_iod_median": float(np.median(rest_err)),
         "baseline_rest_bone_error_iod_p95": float(np.percentile(rest_err, 95)),
         "baseline_zero_blendweight_mae": float(np.abs(w_true).mean()),
-        "baseline_zero_influence_mae": float(np.abs(inf_true[use][:, :, moving]).mean()),
+        "baseline_zero_influence_mae": float(np.abs(vertex_influences(inf_true[use], skin)).mean()),
+        "baseline_zero_influence_mae_bone": float(np.abs(inf_true[use][:, :, moving]).mean()),
         "neutral_frame": int(neutral),
         "neutral_bone_offset_cm": float(np.abs(animation.bone_positions[neutral] - target.bone_rest).max()),
         "target": target.name,

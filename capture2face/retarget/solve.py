@@ -7,9 +7,9 @@ With bones that translate only and convex skinning weights, a landmark vertex v 
 so the retargeted feature points are *linear* in the unknowns x = (t_1..t_{B-1}, w_1..w_M)
 (bone 0, the head, stays fixed). Each frame solves
 
-    min_x |A x - b_f|^2 + ridge |x|^2 + temporal |x_f - x_{f-1}|^2,   0 <= w <= 1
+    min_x |A x - b_f|^2_W + ridge |x|^2 + temporal |x_f - x_{f-1}|^2,   0 <= w <= 1
 
-over all frames at once. Why jointly rather than "bone = its mapped landmark": a bone's
+over all frames at once (W: per-feature-point reliability weights). Why jointly rather than "bone = its mapped landmark": a bone's
 landmark vertex moves by sum_i W_vi t_i, not by its own t_i, so copying landmark motion
 into bones leaves a systematic error wherever skinning blends neighbouring bones, and the
 morph motion at that vertex would be counted twice.
@@ -92,6 +92,7 @@ class LinearSolver:
     morph_ridge: float | None = None
     sparsity: float = 0.0
     axis_weights: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    landmark_weights: np.ndarray | None = None
     rho: float = 1.0
     iterations: int = 200
     tolerance: float = 1e-3
@@ -99,8 +100,11 @@ class LinearSolver:
     def __post_init__(self) -> None:
         self._cache: dict = {}
         # Per-axis weights of the feature-point residual (a tracker's depth is its
-        # weakest coordinate).
-        self.row_weights = np.tile(np.asarray(self.axis_weights, np.float64), len(self.model.rest))
+        # weakest coordinate) times per-landmark reliability (weights of the squared
+        # residual, so the rows take their square roots).
+        n_points = len(self.model.rest)
+        lw = np.ones(n_points) if self.landmark_weights is None else np.asarray(self.landmark_weights, np.float64)
+        self.row_weights = (np.sqrt(lw)[:, None] * np.asarray(self.axis_weights, np.float64)).ravel()
         a = self.model.matrix * self.row_weights[:, None]
         self.scale = np.maximum(np.linalg.norm(a, axis=0), 1e-12)  # (n,)
         self.a = a / self.scale
