@@ -35,13 +35,14 @@ def cross(case):
 def test_same_character_figures(same):
     assert same["frames"] == 60 and same["frames_scored"] >= 55
     assert same["landmark_nme_iod"] < 0.08
-    assert same["bone_error_iod_median"] < 0.05
-    assert same["bone_error_iod_p95"] < 0.12
+    assert same["bone_error_iod_median"] < 0.04
+    assert same["bone_error_iod_p95"] < 0.10
     # Better than predicting the rest pose where it matters (large motions) ...
     assert same["bone_error_iod_p95"] < same["baseline_rest_bone_error_iod_p95"]
-    # ... and than all-zero influences.
-    assert same["wrinkle_influence_mae"] < 0.85 * same["baseline_zero_influence_mae"]
-    assert same["blendweight_mae"] < 0.2
+    # ... and than all-zero influences, per vertex (what is rendered) and per bone.
+    assert same["wrinkle_influence_mae"] < 0.6 * same["baseline_zero_influence_mae"]
+    assert same["wrinkle_influence_mae_bone"] < 0.7 * same["baseline_zero_influence_mae_bone"]
+    assert same["blendweight_mae"] < 0.1
     assert same["neutral_bone_offset_cm"] == 0.0
     json.dumps(same)  # plain JSON types only
 
@@ -49,7 +50,7 @@ def test_same_character_figures(same):
 def test_cross_character_neutral_and_scale(cross, same):
     assert cross["target"] == "default_wide"
     assert cross["neutral_bone_offset_cm"] == 0.0
-    assert cross["bone_error_iod_median"] < 0.05
+    assert cross["bone_error_iod_median"] < 0.04
     assert cross["bone_error_iod_p95"] < cross["baseline_rest_bone_error_iod_p95"]
     # Motion on the larger face is not smaller than on the source.
     assert cross["motion_scale_ratio"] > 0.8

@@ -7,6 +7,8 @@ way a tracker's head-coordinate landmarks differ from the rig's.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.optimize import minimize
@@ -251,6 +253,24 @@ def test_animation_save_load_bit_exact(rig, performance, tmp_path):
             assert a.tobytes() == b.tobytes(), field
         else:
             assert a == b, field
+
+
+def test_reliability_weights_discount_wandering_points(rig, performance):
+    # 40 landmarks wander 0.3 cm (a tracker's slow, view-dependent error): reweighting by
+    # their residual over the clip discounts them.
+    track = perfect_track(rig, performance)
+    rng = np.random.default_rng(0)
+    bad = rng.choice(468, 40, replace=False)
+    t = np.linspace(0.0, 2.0 * np.pi, performance.n_frames)[:, None]
+    wander = 0.3 * np.stack([np.sin(t + bad), np.cos(1.3 * t + bad), np.sin(0.7 * t - bad)], -1)
+    lm = track.landmarks_head.copy()
+    lm[:, bad] += wander - wander[track.neutral_frame]
+    track = dataclasses.replace(track, landmarks_head=lm.astype(np.float32))
+    plain = _bone_error_iod(retarget(track, rig, RetargetOptions(reweight_iterations=0, oval_weight=1.0)),
+                            performance.bone_positions, rig)
+    irls = _bone_error_iod(retarget(track, rig, RetargetOptions(reweight_iterations=2, oval_weight=1.0)),
+                           performance.bone_positions, rig)
+    assert np.percentile(irls, 95) < 0.7 * np.percentile(plain, 95)
 
 
 def test_default_priors_stay_close_on_a_perfect_track(rig, performance):
