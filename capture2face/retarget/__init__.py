@@ -134,6 +134,9 @@ FACE_OVAL = np.array([10, 21, 54, 58, 67, 93, 103, 109, 127, 132, 136, 148, 149,
                       234, 251, 284, 288, 297, 323, 332, 338, 356, 361, 365, 377, 378, 379, 389, 397, 400, 454])
 
 
+RELIABILITY_ADMM_ITERATIONS = 20
+
+
 def landmark_prior_weights(landmarks: np.ndarray, options: RetargetOptions) -> np.ndarray:
     """(N,) a-priori reliability of each feature point (silhouette points down-weighted)."""
     w = np.ones(len(landmarks))
@@ -195,9 +198,12 @@ def solve_bones_weights(mapped: np.ndarray, rig, landmarks: np.ndarray, per_vert
         lw = prior_w
         # Reliability passes fit with weak morph priors: their residual is what the rig
         # cannot explain (tracker error), not motion the priors hold back, so a
-        # perfect track keeps uniform weights.
+        # perfect track keeps uniform weights. A short ADMM is enough for residuals (the
+        # unbounded fit is worse: negative morphs soak up the tracker's error).
         for _ in range(options.reweight_iterations):
-            x = _joint_solver(model, options, lw, morph_ridge=1e-4, sparsity=0.0).solve(mapped, pin=neutral)
+            solver = _joint_solver(model, options, lw, morph_ridge=1e-4, sparsity=0.0)
+            solver.iterations = RELIABILITY_ADMM_ITERATIONS
+            x = solver.solve(mapped, pin=neutral)
             lw = prior_w * _reliability(model, x, mapped, options.reweight_floor)
         x = _joint_solver(model, options, lw, options.morph_ridge, options.sparsity).solve(mapped, pin=neutral)
         nb = model.n_bone_vars
