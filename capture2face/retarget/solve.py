@@ -148,15 +148,13 @@ class LinearSolver:
             y[:, pin] = 0.0
         return u @ y
 
-    def solve(self, points: np.ndarray, pin: int | None = None, bounds: bool = True) -> np.ndarray:
+    def solve(self, points: np.ndarray, pin: int | None = None) -> np.ndarray:
         """Unknowns for every frame.
 
         Args:
             points: (F, N, 3) target feature points.
             pin: a frame whose unknowns are held at exactly 0 (the neutral frame: rest
                 bones, no morphs), whatever the smoothness term says.
-            bounds: keep morph weights in [0, 1] (False: the unconstrained solution,
-                one factorised solve, no ADMM).
         Returns:
             (F, n) x = bone translations (cm) then morph weights in [0, 1].
         """
@@ -166,8 +164,6 @@ class LinearSolver:
         # L1 prior on the (non-negative) morph weights: a constant pull towards 0.
         rhs[self.bounded] -= self.sparsity
         z = self._solve(self.eig_free, rhs, pin)
-        if not bounds:
-            return (z / self.scale[:, None]).T
         if self.bounded.any() and self._violates(z):
             z = self._admm(rhs, z, pin)
         z = np.clip(z, self.lower[:, None], self.upper[:, None])
