@@ -40,22 +40,49 @@ def _alpha(cutoff: np.ndarray | float, dt: float) -> np.ndarray | float:
     return 1.0 / (1.0 + tau / dt)
 
 
+class CausalOneEuro:
+    """The causal filter as a stream: call it on consecutive blocks of frames; its state
+    (last value, smoothed speed, last time) carries over, so blocks give exactly what one
+    call on the whole sequence gives."""
+
+    def __init__(self, params: OneEuro, speed_axis: int | None = None):
+        self.params = params
+        self.speed_axis = speed_axis
+        self.prev: np.ndarray | None = None
+        self.dprev: np.ndarray | None = None
+        self.t_prev = 0.0
+
+    def __call__(self, x: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Filter the next block ``x`` (k, ...) at times ``t`` (k,); returns (k, ...)."""
+        p, speed_axis = self.params, self.speed_axis
+        out = np.empty_like(x)
+        if x.shape[0] == 0:
+            return out
+        first = 0
+        if self.prev is None:
+            self.prev, self.dprev = x[0].copy(), np.zeros_like(x[0])
+            self.t_prev = float(t[0])
+            out[0] = self.prev
+            first = 1
+        prev, dprev, t_prev = self.prev, self.dprev, self.t_prev
+        for i in range(first, x.shape[0]):
+            ti = float(t[i])
+            dt = max(ti - t_prev, 1e-6)
+            dx = (x[i] - prev) / dt
+            dprev = dprev + _alpha(p.d_cutoff, dt) * (dx - dprev)
+            speed = np.abs(dprev)
+            if speed_axis is not None:  # one speed per point: isotropic smoothing of a 3D point
+                speed = np.linalg.norm(dprev, axis=speed_axis, keepdims=True)
+            a = _alpha(p.min_cutoff + p.beta * speed, dt)
+            prev = prev + a * (x[i] - prev)
+            out[i] = prev
+            t_prev = ti
+        self.prev, self.dprev, self.t_prev = prev, dprev, t_prev
+        return out
+
+
 def _causal(x: np.ndarray, t: np.ndarray, p: OneEuro, speed_axis: int | None) -> np.ndarray:
-    out = np.empty_like(x)
-    prev = x[0].copy()
-    dprev = np.zeros_like(prev)
-    out[0] = prev
-    for i in range(1, x.shape[0]):
-        dt = max(float(t[i] - t[i - 1]), 1e-6)
-        dx = (x[i] - prev) / dt
-        dprev = dprev + _alpha(p.d_cutoff, dt) * (dx - dprev)
-        speed = np.abs(dprev)
-        if speed_axis is not None:  # one speed per point: isotropic smoothing of a 3D point
-            speed = np.linalg.norm(dprev, axis=speed_axis, keepdims=True)
-        a = _alpha(p.min_cutoff + p.beta * speed, dt)
-        prev = prev + a * (x[i] - prev)
-        out[i] = prev
-    return out
+    return CausalOneEuro(p, speed_axis)(x, t)
 
 
 def one_euro(x: np.ndarray, t: np.ndarray, params: OneEuro, speed_axis: int | None = None) -> np.ndarray:

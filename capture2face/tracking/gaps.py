@@ -7,6 +7,10 @@ slerp for the head rotation). Any other gap - longer, or at the start or end of 
 where there is nothing on one side - holds the nearest tracked values (the last before it,
 or for leading frames the first detected one) and its frames are flagged ``held``.
 ``n_long_gaps`` counts gaps longer than the limit.
+
+:func:`plan_gaps` says, per frame, where its values come from (``(1 - w) x[lo] + w x[hi]``),
+so arrays too big for RAM can be filled window by window (:meth:`GapFill.fill_window`);
+:func:`fill_gaps` applies the plan to in-memory arrays and the head pose.
 """
 
 from __future__ import annotations
@@ -26,12 +30,44 @@ class GapFill:
         held: (F,) bool frames holding the nearest tracked values.
         n_gaps: runs of frames without a face.
         n_long_gaps: runs longer than the interpolation limit.
+        lo, hi: (F,) int64 source frames of each frame's values (both the frame itself
+            where a face was found).
+        w: (F,) float64 interpolation weight: ``value = (1 - w) x[lo] + w x[hi]``.
     """
 
     interpolated: np.ndarray
     held: np.ndarray
     n_gaps: int
     n_long_gaps: int
+    lo: np.ndarray | None = None
+    hi: np.ndarray | None = None
+    w: np.ndarray | None = None
+
+    def fill(self, arr: np.ndarray) -> None:
+        """Fill ``arr`` (F, ...) in place (its gap frames' rows are ignored)."""
+        self._blend(arr, np.arange(len(arr)), arr[self.lo], arr[self.hi])
+
+    def fill_window(self, read, start: int, stop: int) -> np.ndarray:
+        """Frames ``start .. stop`` of an array, gaps filled.
+
+        Args:
+            read: ``read(frames (k,) int64) -> (k, ...)`` rows of the unfilled array.
+        Returns:
+            (stop - start, ...) float64.
+        """
+        lo, hi = self.lo[start:stop], self.hi[start:stop]
+        need = np.unique(np.concatenate([np.arange(start, stop), lo, hi]))
+        rows = np.asarray(read(need), np.float64)
+        out = rows[np.searchsorted(need, np.arange(start, stop))]
+        self._blend(out, np.arange(start, stop), rows[np.searchsorted(need, lo)], rows[np.searchsorted(need, hi)])
+        return out
+
+    def _blend(self, out: np.ndarray, frames: np.ndarray, a: np.ndarray, b: np.ndarray) -> None:
+        gap = np.flatnonzero(self.interpolated[frames] | self.held[frames])
+        if not gap.size:
+            return
+        w = self.w[frames[gap]].reshape((-1,) + (1,) * (out.ndim - 1))
+        out[gap] = (1.0 - w) * a[gap] + w * b[gap]
 
 
 def gap_runs(presence: np.ndarray) -> list[tuple[int, int]]:
@@ -47,14 +83,16 @@ def _split_pose(pose: np.ndarray) -> tuple[np.ndarray, Rotation, np.ndarray]:
     return pose[:, :3, 3], Rotation.from_matrix(m3 / scale[:, None, None]), scale
 
 
-def fill_gaps(times: np.ndarray, presence: np.ndarray, arrays: dict[str, np.ndarray],
-              pose: np.ndarray, max_gap_seconds: float) -> GapFill:
-    """Fill, in place, the frames of ``arrays`` (each (F, ...)) and ``pose`` (F, 4, 4) where
-    ``presence`` (F,) is False. At least one frame must be present."""
+def plan_gaps(times: np.ndarray, presence: np.ndarray, max_gap_seconds: float) -> GapFill:
+    """Where each frame's values come from (see :class:`GapFill`). At least one frame of
+    ``presence`` (F,) must be True."""
     presence = np.asarray(presence, bool)
     n = presence.shape[0]
     interpolated = np.zeros(n, bool)
     held = np.zeros(n, bool)
+    lo = np.arange(n, dtype=np.int64)
+    hi = lo.copy()
+    w = np.zeros(n)
     runs = gap_runs(presence)
     dts = np.diff(times)
     period = float(np.median(dts)) if dts.size else 0.0
@@ -65,21 +103,37 @@ def fill_gaps(times: np.ndarray, presence: np.ndarray, arrays: dict[str, np.ndar
         n_long += int(long_gap)
         if a > 0 and b < n and not long_gap:
             t0, t1 = times[a - 1], times[b]
-            w = (times[a:b] - t0) / (t1 - t0)
-            for arr in arrays.values():
-                shape = (-1,) + (1,) * (arr.ndim - 1)
-                arr[a:b] = (1.0 - w.reshape(shape)) * arr[a - 1] + w.reshape(shape) * arr[b]
+            w[a:b] = (times[a:b] - t0) / (t1 - t0)
+            lo[a:b], hi[a:b] = a - 1, b
+            interpolated[a:b] = True
+        else:
+            lo[a:b] = hi[a:b] = a - 1 if a > 0 else b  # leading gap: the first detected frame
+            held[a:b] = True
+    return GapFill(interpolated, held, len(runs), n_long, lo, hi, w)
+
+
+def fill_pose(gaps: GapFill, pose: np.ndarray) -> None:
+    """Fill the gap frames of ``pose`` (F, 4, 4) in place: slerp over short gaps, hold
+    over long ones."""
+    for a, b in gap_runs(~(gaps.interpolated | gaps.held)):
+        if gaps.interpolated[a]:
             trans, rot, scale = _split_pose(pose[[a - 1, b]])
+            w = gaps.w[a:b]
             r = Slerp([0.0, 1.0], rot)(w)
             s = (1.0 - w) * scale[0] + w * scale[1]
             pose[a:b, :3, :3] = r.as_matrix() * s[:, None, None]
             pose[a:b, :3, 3] = (1.0 - w)[:, None] * trans[0] + w[:, None] * trans[1]
             pose[a:b, 3] = (0.0, 0.0, 0.0, 1.0)
-            interpolated[a:b] = True
         else:
-            src = a - 1 if a > 0 else b  # leading gap: the first detected frame
-            for arr in arrays.values():
-                arr[a:b] = arr[src]
-            pose[a:b] = pose[src]
-            held[a:b] = True
-    return GapFill(interpolated, held, len(runs), n_long)
+            pose[a:b] = pose[gaps.lo[a]]
+
+
+def fill_gaps(times: np.ndarray, presence: np.ndarray, arrays: dict[str, np.ndarray],
+              pose: np.ndarray, max_gap_seconds: float) -> GapFill:
+    """Fill, in place, the frames of ``arrays`` (each (F, ...)) and ``pose`` (F, 4, 4) where
+    ``presence`` (F,) is False. At least one frame must be present."""
+    gaps = plan_gaps(times, presence, max_gap_seconds)
+    for arr in arrays.values():
+        gaps.fill(arr)
+    fill_pose(gaps, pose)
+    return gaps

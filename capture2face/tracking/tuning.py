@@ -72,10 +72,13 @@ def jitter_lag(estimate: np.ndarray, truth: np.ndarray, times: np.ndarray,
 def observe(clip: str | Path, options: TrackOptions | None = None):
     """Track ``clip`` once; returns what :func:`build_track` needs to rebuild it cheaply."""
     info = open_video(clip)
+    times, obs, size = [], [], (info.width, info.height)
     with Tracker(info, options or TrackOptions()) as tracker:
         for t, rgb in iter_frames(clip):
-            tracker.process(t, rgb)
-        return tracker._times, tracker._obs, tracker._size, info
+            times.append(t)
+            obs.append(tracker.process(t, rgb))
+            size = (rgb.shape[1], rgb.shape[0])
+    return times, obs, size, info
 
 
 def posed_face(pose: np.ndarray) -> np.ndarray:
