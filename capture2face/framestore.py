@@ -74,17 +74,16 @@ class FrameArray:
             i = int(key) + (self._frames if key < 0 else 0)
             if not 0 <= i < self._frames:
                 raise IndexError(f"frame {key} out of range for {self._frames} frames")
-            out = self.read(i, i + 1)[0]
-        elif isinstance(key, slice):
+            return self.read(i, i + 1)[0][rest] if rest else self.read(i, i + 1)[0]
+        if isinstance(key, slice):
             start, stop, step = key.indices(self._frames)
             if step == 1:
                 out = self.read(start, max(start, stop))
             else:
                 lo, hi = (start, stop) if step > 0 else (stop + 1, start + 1)
                 out = self.read(lo, max(lo, hi))[start - lo::step] if hi > lo else self.read(0, 0)
-        else:  # masks, index lists: read everything (short clips only)
-            out = np.asarray(self)[key]
-        return out[rest] if rest else out
+            return out[(slice(None),) + rest] if rest else out
+        return np.asarray(self)[(key,) + rest]  # masks, index lists: reads everything (short clips)
 
     # ---- file I/O -------------------------------------------------------------------------
     def _check_open(self) -> None:
@@ -102,6 +101,8 @@ class FrameArray:
         if not self.writable:
             raise ValueError(f"{self.path}: FrameArray is read-only")
         rows = np.ascontiguousarray(rows, self.dtype).reshape((-1,) + self.row_shape)
+        if rows.size == 0:
+            return
         if start > self._frames:
             raise IndexError(f"write at frame {start} leaves a hole after {self._frames} frames")
         view = memoryview(rows).cast("B")
@@ -115,6 +116,8 @@ class FrameArray:
         self._check_open()
         start, stop = max(0, int(start)), min(self._frames, int(stop))
         out = np.empty((max(0, stop - start),) + self.row_shape, self.dtype)
+        if out.size == 0:
+            return out
         view = memoryview(out).cast("B")
         offset, done = start * self.row_bytes, 0
         while done < len(view):

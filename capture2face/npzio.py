@@ -32,10 +32,28 @@ def save_dataclass(obj: Any, path: str | os.PathLike, format_name: str, compress
             continue
         if isinstance(value, (list, tuple)):
             value = np.array(list(value), dtype=str) if len(value) else np.zeros(0, dtype="<U1")
-        arrays[field.name] = np.asarray(value)
+        # Disk-backed arrays (FrameArray: a long clip's landmarks) stream chunk by chunk.
+        arrays[field.name] = value if hasattr(value, "iter_chunks") else np.asarray(value)
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:
-            (np.savez_compressed if compress else np.savez)(fh, **arrays)
+            _write_npz(fh, arrays, compress)
+
+
+def _write_npz(fh, arrays: dict, compress: bool) -> None:
+    """What ``np.savez[_compressed]`` writes, but arrays with ``iter_chunks()`` (and
+    ``shape``, ``dtype``) are written a chunk at a time instead of read whole."""
+    mode = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
+    with zipfile.ZipFile(fh, "w", compression=mode, allowZip64=True) as zf:
+        for name, value in arrays.items():
+            with zf.open(name + ".npy", "w", force_zip64=True) as out:
+                if isinstance(value, np.ndarray):
+                    np.lib.format.write_array(out, value, allow_pickle=False)
+                    continue
+                header = {"descr": np.lib.format.dtype_to_descr(np.dtype(value.dtype)),
+                          "fortran_order": False, "shape": tuple(value.shape)}
+                np.lib.format.write_array_header_1_0(out, header)
+                for chunk in value.iter_chunks():
+                    out.write(np.ascontiguousarray(chunk, value.dtype).tobytes())
 
 
 def load_dataclass(cls: type[T], path: str | os.PathLike, format_name: str) -> T:

@@ -124,12 +124,15 @@ def load_character(character: Any = None) -> FaceRig:
 
 
 # ---- stages (each callable on its own) ------------------------------------------------
-def track_stage(clip: str | os.PathLike, options: RunOptions, progress: bool = True):
-    """Pass 1: the clip's :class:`~capture2face.tracking.track.Track`."""
+def track_stage(clip: str | os.PathLike, options: RunOptions, progress: bool = True,
+                workdir: str | os.PathLike | None = None):
+    """Pass 1: the clip's :class:`~capture2face.tracking.track.Track` (with ``workdir``,
+    its landmarks stay in files there: memory does not grow with the clip's length)."""
     from capture2face.tracking import TrackOptions, track_clip
 
     return track_clip(clip, TrackOptions(face_model=options.face_model,
-                                         neutral_frame=options.neutral_frame), progress=progress)
+                                         neutral_frame=options.neutral_frame), progress=progress,
+                      workdir=workdir)
 
 
 def retarget_stage(track, rig: FaceRig):
@@ -309,6 +312,27 @@ def _options_json(options: RunOptions) -> dict:
     return out
 
 
+@contextlib.contextmanager
+def _work_folder(staging: Path):
+    """Scratch files of a run (the track's landmarks) in the staging folder, deleted
+    before the folder becomes the output (and with it on failure)."""
+    import shutil
+
+    work = staging / ".work"
+    work.mkdir()
+    try:
+        yield work
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def _close_track_files(track) -> None:
+    for name in ("landmarks_px", "landmarks_depth", "landmarks_head"):
+        close = getattr(getattr(track, name), "close", None)
+        if close is not None:
+            close()
+
+
 def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions | None = None,
         progress: bool = True, name: str | None = None) -> dict:
     """Clip -> ``out_dir/<clip stem>/`` with avatar.mp4, compare.mp4, track.npz,
@@ -337,10 +361,10 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
     rig = load_character(options.character)
     final = Path(out_dir) / (name or Path(clip).stem)
     seconds: dict[str, float] = {}
-    with _collect_warnings() as warnings, staged_folder(final) as tmp:
+    with _collect_warnings() as warnings, staged_folder(final) as tmp, _work_folder(tmp) as work:
         t = time.perf_counter()
         try:
-            track = track_stage(clip, options, progress)
+            track = track_stage(clip, options, progress, workdir=work)
         finally:
             # The decoder keeps the frames before any damage; a run would silently lose
             # the clip's tail, so that takes an explicit opt-in. (Checked even when
@@ -363,6 +387,7 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
         rendered = render_stage(clip, track, animation, rig, tmp, options, progress)
         seconds["render_encode"] = time.perf_counter() - t
         seconds["render_gl"] = rendered["render_s"]
+        _close_track_files(track)
 
         seconds["total"] = time.perf_counter() - t_start
         n = track.n_frames

@@ -25,6 +25,7 @@ from capture2face.retarget import influences as inf
 from capture2face.retarget.animation import Animation
 from capture2face.retarget.rbf import FeatureMap, fit_feature_map
 from capture2face.retarget.solve import LinearSolver, linear_rig_model
+from capture2face.retarget.windows import MappedPoints, SpilledMedian, frame_windows
 
 __all__ = ["Animation", "RetargetOptions", "retarget", "retarget_ms_per_frame", "feature_correspondence"]
 
@@ -58,6 +59,8 @@ class RetargetOptions:
             clip (0 = one plain solve).
         reweight_floor: residual (cm) added in quadrature before inverting, so that
             points the rig fits perfectly do not take all the weight.
+        window_frames, window_overlap: the solve runs over windows of this many frames
+            sharing this many with the next (:mod:`capture2face.retarget.windows`).
     """
 
     # Chosen on 300 synthetic frames (``capture2face eval synthetic``): thin-plate,
@@ -96,6 +99,10 @@ class RetargetOptions:
     oval_weight: float = 0.1
     reweight_iterations: int = 2
     reweight_floor: float = 0.01
+    # Windows: memory stays flat whatever the clip's length; the overlap is many times
+    # the temporal term's reach, so the result matches one whole-clip solve (tests).
+    window_frames: int = 1000
+    window_overlap: int = 100
 
 
 def feature_correspondence(rig) -> tuple[np.ndarray, np.ndarray, bool]:
@@ -144,14 +151,17 @@ def landmark_prior_weights(landmarks: np.ndarray, options: RetargetOptions) -> n
     return w
 
 
-def _reliability(model, x: np.ndarray, mapped: np.ndarray, floor: float) -> np.ndarray:
-    """(N,) inverse robust residual variance per feature point over the clip (IRLS),
-    normalised to mean 1; ``floor`` (cm) bounds the weight of well-fitted points."""
-    frames = len(x)
-    fit = (x @ model.matrix.T).reshape(frames, -1, 3) + model.rest
-    r2 = np.sum((mapped - fit) ** 2, axis=2)  # (F, N)
-    var = np.median(r2, axis=0)  # robust to the frames a point is briefly lost on
-    w = 1.0 / (var + floor**2)
+def _residual2(model, x: np.ndarray, mapped: np.ndarray) -> np.ndarray:
+    """(F, N) squared feature-point residual of the solution ``x`` (F, n)."""
+    fit = (x @ model.matrix.T).reshape(len(x), -1, 3) + model.rest
+    return np.sum((mapped - fit) ** 2, axis=2)
+
+
+def _reliability(median_r2: np.ndarray, floor: float) -> np.ndarray:
+    """(N,) inverse robust residual variance per feature point over the clip (IRLS) from
+    the per-point median squared residual (robust to the frames a point is briefly lost
+    on), normalised to mean 1; ``floor`` (cm) bounds the weight of well-fitted points."""
+    w = 1.0 / (median_r2 + floor**2)
     return w / w.mean()
 
 
@@ -171,27 +181,46 @@ def _joint_solver(model, options: RetargetOptions, landmark_weights, morph_ridge
                         axis_weights=(1.0, 1.0, options.depth_weight), landmark_weights=landmark_weights)
 
 
-def solve_bones_weights(mapped: np.ndarray, rig, landmarks: np.ndarray, per_vertex: bool,
+class _Blend:
+    """Bones (F, B, 3) and weights (F, M) float32 assembled from cross-faded windows."""
+
+    def __init__(self, frames: int, rig, weights: bool):
+        self.bones = np.zeros((frames, rig.n_bones, 3), np.float32)
+        self.weights = np.zeros((frames, rig.n_morphs), np.float32) if weights else None
+
+    def add(self, w, bones: np.ndarray, weights: np.ndarray | None) -> None:
+        fade = w.fade[:, None]
+        self.bones[w.start:w.stop] += fade[:, :, None] * bones
+        if self.weights is not None:
+            self.weights[w.start:w.stop] += fade * weights
+
+
+def solve_bones_weights(mapped: MappedPoints, rig, landmarks: np.ndarray, per_vertex: bool,
                         options: RetargetOptions, neutral: int | None = None
                         ) -> tuple[np.ndarray, np.ndarray | None]:
-    """Bones (F, B, 3) and morph weights (F, M) (None = not solved) from mapped points.
+    """Bones (F, B, 3) and morph weights (F, M) float32 (None = not solved) from the
+    mapped points, window by window.
 
     Args:
-        mapped: (F, N, 3) the network's output (target feature points per frame).
+        mapped: the network's output (target feature points per frame), by window.
         landmarks: (N,) the tracker landmarks they belong to.
         neutral: the neutral frame, pinned to rest bones and zero weights.
     """
-    frames = mapped.shape[0]
-    bones = np.repeat(rig.bone_rest[None].astype(np.float64), frames, 0)
+    rest = rig.bone_rest.astype(np.float64)
     bone_lm = np.asarray(rig.bone_landmarks)
     slot = {int(l): i for i, l in enumerate(landmarks)}
     direct = [(b, slot[int(l)]) for b, l in enumerate(bone_lm) if b > 0 and int(l) in slot]
+    solve_w = options.solve_blend_weights and per_vertex
+    out = _Blend(mapped.frames, rig, solve_w)
     if not per_vertex:  # imported character: bone = its mapped feature point
-        for b, i in direct:
-            bones[:, b] = mapped[:, i]
-        return bones, None
+        for w in mapped.windows:
+            pts = mapped.read(w)
+            bones = np.repeat(rest[None], len(pts), 0)
+            for b, i in direct:
+                bones[:, b] = pts[:, i]
+            out.add(w, bones, None)
+        return out.bones, None
     vertices = np.asarray(rig.landmark_vertices)[landmarks]
-    solve_w = options.solve_blend_weights
     if options.joint_solve:
         model = linear_rig_model(rig, vertices, solve_morphs=solve_w)
         prior_w = landmark_prior_weights(landmarks, options)
@@ -203,32 +232,57 @@ def solve_bones_weights(mapped: np.ndarray, rig, landmarks: np.ndarray, per_vert
         for _ in range(options.reweight_iterations):
             solver = _joint_solver(model, options, lw, morph_ridge=1e-4, sparsity=0.0)
             solver.iterations = RELIABILITY_ADMM_ITERATIONS
-            x = solver.solve(mapped, pin=neutral)
-            lw = prior_w * _reliability(model, x, mapped, options.reweight_floor)
-        x = _joint_solver(model, options, lw, options.morph_ridge, options.sparsity).solve(mapped, pin=neutral)
+            with SpilledMedian(len(landmarks)) as r2:
+                for w in mapped.windows:
+                    pts = mapped.read(w)
+                    r2.add(_residual2(model, solver.solve(pts, pin=w.pin(neutral))[w.own], pts[w.own]))
+                lw = prior_w * _reliability(r2.median(), options.reweight_floor)
+        solver = _joint_solver(model, options, lw, options.morph_ridge, options.sparsity)
         nb = model.n_bone_vars
-        bones[:, model.free_bones] += x[:, :nb].reshape(frames, -1, 3)
-        if not solve_w:
-            return bones, None
-        weights = np.zeros((frames, rig.n_morphs))
-        weights[:, model.morphs] = x[:, nb:]
-        return bones, weights
+        for w in mapped.windows:
+            x = solver.solve(mapped.read(w), pin=w.pin(neutral))
+            bones = np.repeat(rest[None], len(x), 0)
+            bones[:, model.free_bones] += x[:, :nb].reshape(len(x), -1, 3)
+            weights = None
+            if solve_w:
+                weights = np.zeros((len(x), rig.n_morphs))
+                weights[:, model.morphs] = x[:, nb:]
+            out.add(w, bones, weights)
+        return out.bones, out.weights
     # Direct: each bone copies its landmark's motion; morphs explain what is left.
     rest_pts = rig.vertices[vertices].astype(np.float64)
-    for b, i in direct:
-        bones[:, b] += mapped[:, i] - rest_pts[i]
-    if not solve_w:
-        return bones, None
     skin = rig.dense_skin_weights()[vertices].astype(np.float64)
-    skinned = np.einsum("nb,fbc->fnc", skin, bones - rig.bone_rest)
-    residual = mapped - skinned
     model = linear_rig_model(rig.replace(skin_joints=np.zeros_like(rig.skin_joints)), vertices, True)
-    x = LinearSolver(model, ridge=options.ridge, temporal=options.temporal_smoothness,
-                         morph_ridge=options.morph_ridge, sparsity=options.sparsity,
-                         axis_weights=(1.0, 1.0, options.depth_weight)).solve(residual, pin=neutral)
-    weights = np.zeros((frames, rig.n_morphs))
-    weights[:, model.morphs] = x[:, model.n_bone_vars:]
-    return bones, weights
+    solver = LinearSolver(model, ridge=options.ridge, temporal=options.temporal_smoothness,
+                          morph_ridge=options.morph_ridge, sparsity=options.sparsity,
+                          axis_weights=(1.0, 1.0, options.depth_weight))
+    for w in mapped.windows:
+        pts = mapped.read(w)
+        bones = np.repeat(rest[None], len(pts), 0)
+        for b, i in direct:
+            bones[:, b] += pts[:, i] - rest_pts[i]
+        weights = None
+        if solve_w:
+            residual = pts - np.einsum("nb,fbc->fnc", skin, bones - rest)
+            x = solver.solve(residual, pin=w.pin(neutral))
+            weights = np.zeros((len(pts), rig.n_morphs))
+            weights[:, model.morphs] = x[:, model.n_bone_vars:]
+        out.add(w, bones, weights)
+    return out.bones, out.weights
+
+
+def _per_frame(fn, *arrays, chunk: int = 2048) -> np.ndarray:
+    """``fn(*arrays)`` for a per-frame function, evaluated ``chunk`` frames at a time
+    (its float64 temporaries stay bounded on long clips)."""
+    frames = len(arrays[0])
+    first = fn(*(a[:chunk] for a in arrays))
+    if frames <= chunk:
+        return first
+    out = np.empty((frames,) + first.shape[1:], first.dtype)
+    out[:chunk] = first
+    for s in range(chunk, frames, chunk):
+        out[s:s + chunk] = fn(*(a[s:s + chunk] for a in arrays))
+    return out
 
 
 def retarget(track, rig, options: RetargetOptions | None = None) -> Animation:
@@ -249,14 +303,15 @@ def retarget(track, rig, options: RetargetOptions | None = None) -> Animation:
         raise CaptureError(f"neutral frame {track.neutral_frame} is outside the track's {track.n_frames} frames")
     landmarks, target, per_vertex = feature_correspondence(rig)
     network = _fit_network(track, rig, landmarks, target, options)
-    mapped = network(track.landmarks_head[:, landmarks])  # (F, N, 3)
-    bones, weights = solve_bones_weights(mapped, rig, landmarks, per_vertex, options, track.neutral_frame)
+    windows = frame_windows(track.n_frames, options.window_frames, options.window_overlap)
+    reads = 1 + (options.reweight_iterations if per_vertex and options.joint_solve else 0)
+    with MappedPoints(track.landmarks_head, network, landmarks, windows, reads) as mapped:
+        bones, weights = solve_bones_weights(mapped, rig, landmarks, per_vertex, options, track.neutral_frame)
     if weights is None:
         weights = _mediapipe_weights(track, rig)
-    bones = bones.astype(np.float32)
     bones[:, 0] = rig.bone_rest[0]
-    weights = np.clip(weights, 0.0, 1.0).astype(np.float32)
-    influences = inf.rig_influences(bones, rig)
+    weights = np.clip(weights, 0.0, 1.0).astype(np.float32, copy=False)
+    influences = _per_frame(lambda b: inf.rig_influences(b, rig), bones)
     return Animation(
         times=np.asarray(track.times, np.float64),
         fps=float(track.fps),
@@ -267,11 +322,11 @@ def retarget(track, rig, options: RetargetOptions | None = None) -> Animation:
         blend_weights=weights,
         pose_names=list(rig.pose_names),
         influences=influences,
-        rest_influence=inf.rest_influence(influences),
+        rest_influence=_per_frame(inf.rest_influence, influences),
         region_names=list(rig.region_names),
-        region_influence=inf.region_influence(influences, rig),
+        region_influence=_per_frame(lambda i: inf.region_influence(i, rig), influences),
         zone_names=list(rig.zone_names),
-        zone_weights=inf.zone_weights(weights, rig.zone_table),
+        zone_weights=_per_frame(lambda w: inf.zone_weights(w, rig.zone_table), weights),
         mediapipe_blendshapes=np.asarray(track.blendshapes, np.float32),
         mediapipe_blendshape_names=list(track.blendshape_names),
         presence=np.asarray(track.presence, bool),
