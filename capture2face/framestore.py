@@ -96,15 +96,14 @@ class FrameArray:
         self.write(self._frames, rows)
 
     def write(self, start: int, rows: np.ndarray) -> None:
-        """Overwrite (or extend) frames ``start .. start + k`` with ``rows`` (k, *row_shape)."""
+        """Overwrite (or extend) frames ``start .. start + k`` with ``rows`` (k, *row_shape);
+        frames skipped over when writing past the end read as zeros until written."""
         self._check_open()
         if not self.writable:
             raise ValueError(f"{self.path}: FrameArray is read-only")
         rows = np.ascontiguousarray(rows, self.dtype).reshape((-1,) + self.row_shape)
         if rows.size == 0:
             return
-        if start > self._frames:
-            raise IndexError(f"write at frame {start} leaves a hole after {self._frames} frames")
         view = memoryview(rows).cast("B")
         offset, done = start * self.row_bytes, 0
         while done < len(view):
