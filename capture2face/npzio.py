@@ -52,8 +52,8 @@ def _write_npz(fh, arrays: dict, compress: bool) -> None:
                 header = {"descr": np.lib.format.dtype_to_descr(np.dtype(value.dtype)),
                           "fortran_order": False, "shape": tuple(value.shape)}
                 np.lib.format.write_array_header_1_0(out, header)
-                for chunk in value.iter_chunks():
-                    out.write(np.ascontiguousarray(chunk, value.dtype).tobytes())
+                for chunk in value.iter_chunks(1 << 20):  # small blocks: zlib streams them
+                    out.write(memoryview(np.ascontiguousarray(chunk, value.dtype)).cast("B"))
 
 
 def load_dataclass(cls: type[T], path: str | os.PathLike, format_name: str) -> T:

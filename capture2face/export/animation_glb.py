@@ -118,12 +118,14 @@ def add_animation(builder: GlbBuilder, rig, animation, nodes: dict, fps: float |
 
     # Bone translations, parent-relative, metres.
     src = {n: i for i, n in enumerate(animation.bone_names)}
-    pos = np.repeat(rig.bone_rest.astype(np.float64)[None], F, axis=0)
     have = [i for i, n in enumerate(rig.bone_names) if n in src]
-    pos[:, have] = np.asarray(animation.bone_positions, np.float64)[:, [src[rig.bone_names[i]] for i in have]]
     parents = rig.bone_parents.astype(np.int64)
-    rel = pos - np.where(parents[None, :, None] >= 0, pos[:, np.maximum(parents, 0)], 0.0)
-    rel32 = (rel * METRES_PER_CM).astype(np.float32)
+    rel32 = np.empty((F, rig.n_bones, 3), np.float32)
+    for s in range(0, F, 4096):  # float64 temporaries a block of frames at a time
+        pos = np.repeat(rig.bone_rest.astype(np.float64)[None], min(F - s, 4096), axis=0)
+        pos[:, have] = np.asarray(animation.bone_positions[s:s + 4096], np.float64)[:, [src[rig.bone_names[i]] for i in have]]
+        rel = pos - np.where(parents[None, :, None] >= 0, pos[:, np.maximum(parents, 0)], 0.0)
+        rel32[s:s + 4096] = rel * METRES_PER_CM
     for i, node in enumerate(nodes["joints"]):
         channel(builder.accessor(np.ascontiguousarray(rel32[:, i])), node, "translation")
 

@@ -29,7 +29,7 @@ import os
 
 import numpy as np
 
-from capture2face.atomic import write_text_atomic
+from capture2face.atomic import atomic_path
 from capture2face.errors import CaptureError
 
 HEADER = (
@@ -131,8 +131,11 @@ def write_livelink_csv(animation, track_or_blendshapes, path: str | os.PathLike)
     or None to use the animation's copy of MediaPipe's scores."""
     values = livelink_values(animation, track_or_blendshapes)
     codes = timecodes(animation.times, animation.fps)
-    buf = io.StringIO()
-    np.savetxt(buf, values.reshape(len(codes), len(COLUMNS)), fmt="%.6f", delimiter=",")
-    rows = buf.getvalue().splitlines()
     prefix = f",{len(COLUMNS)},"
-    write_text_atomic(path, "\n".join([HEADER] + [c + prefix + r for c, r in zip(codes, rows)]) + "\n")
+    # Formatted a block of rows at a time: the text of a long clip never sits in RAM whole.
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="\n") as fh:
+        fh.write(HEADER + "\n")
+        for s in range(0, len(codes), 2048):
+            buf = io.StringIO()
+            np.savetxt(buf, values[s:s + 2048].reshape(-1, len(COLUMNS)), fmt="%.6f", delimiter=",")
+            fh.write("".join(c + prefix + r + "\n" for c, r in zip(codes[s:s + 2048], buf.getvalue().splitlines())))

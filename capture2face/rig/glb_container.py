@@ -133,13 +133,11 @@ class GlbBuilder:
             self.gltf["buffers"] = [{"byteLength": len(self.bin)}]
         text = json.dumps(self.gltf, separators=(",", ":"), allow_nan=False).encode("utf-8")
         text += b" " * (-len(text) % 4)
-        out = bytearray()
         total = 12 + 8 + len(text) + (8 + len(self.bin) if self.bin else 0)
-        out += struct.pack("<III", GLB_MAGIC, 2, total)
-        out += struct.pack("<II", len(text), CHUNK_JSON) + text
+        parts = [struct.pack("<III", GLB_MAGIC, 2, total), struct.pack("<II", len(text), CHUNK_JSON), text]
         if self.bin:
-            out += struct.pack("<II", len(self.bin), CHUNK_BIN) + self.bin
-        return bytes(out)
+            parts += [struct.pack("<II", len(self.bin), CHUNK_BIN), self.bin]
+        return b"".join(parts)  # one copy of the binary chunk (tens of MB for a long clip)
 
 
 class GlbReader:
