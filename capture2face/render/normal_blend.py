@@ -46,6 +46,11 @@ def wrinkle_pd_layers(maps: np.ndarray) -> np.ndarray:
     maps = np.asarray(maps)
     k, h, w, _ = maps.shape
     out = np.zeros(((k + 1) // 2, h, w, 4), np.float16)
-    for i in range(k):  # one map at a time keeps the float64 temporaries small
-        out[i // 2, ..., 2 * (i % 2):2 * (i % 2) + 2] = pd_encode(unpack_normal(maps[i]))
+    for i in range(k):  # one map at a time keeps the temporaries small
+        # pd_encode(unpack_normal(t)) in float32: the normalization cancels in x/z and y/z
+        # except for the clamp of a grazing z.
+        n = maps[i].astype(np.float32) * np.float32(2.0 / 255.0) - np.float32(1.0)
+        length = np.sqrt(np.einsum("...c,...c->...", n, n))[..., None]
+        z = np.maximum(n[..., 2:3], np.float32(1e-3) * length)
+        out[i // 2, ..., 2 * (i % 2):2 * (i % 2) + 2] = n[..., :2] / z
     return out

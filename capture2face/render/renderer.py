@@ -259,6 +259,7 @@ class Renderer:
 
         self._setup_targets()
         self._face_size = rig.face_size()
+        self._face_centre = camera.face_centre_and_height(rig)[0]
         # For the FXAA pass's scissor: the rest mesh's box and how far each morph moves a vertex.
         self._box = np.stack([rig.vertices.min(0), rig.vertices.max(0)]).astype(np.float64)
         self._morph_reach = (np.linalg.norm(rig.morph_positions, axis=2).max(1) if M else np.zeros(0))
@@ -334,7 +335,7 @@ class Renderer:
         pose = np.asarray(state.head_pose, np.float64)
         if pose.shape != (4, 4):
             raise ValueError(f"head_pose must be (4, 4), got {pose.shape}")
-        depth = -(pose[:3, :3] @ camera.face_centre_and_height(rig)[0] + pose[:3, 3])[2]
+        depth = -(pose[:3, :3] @ self._face_centre + pose[:3, 3])[2]
         near = max(0.5, depth - 2.0 * self._face_size)
         far = max(depth, near) + 2.0 * self._face_size
         width, height = self._size
