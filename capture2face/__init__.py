@@ -2,7 +2,8 @@
 
 The stages are plain functions over dataclasses of NumPy arrays::
 
-    from capture2face import track_clip, retarget, default_avatar, run
+    from capture2face import run, track_clip, default_avatar, FaceRig, Track, Animation
+    from capture2face.retarget import retarget   # the subpackage shares the function's name
 
 Names are imported lazily so that ``import capture2face`` stays fast and a notebook
 only pays for the stages it uses.
@@ -26,7 +27,6 @@ _API = {
     "track_clip": "capture2face.tracking",
     "Animation": "capture2face.retarget.animation",
     "RetargetOptions": "capture2face.retarget",
-    "retarget": "capture2face.retarget",
     "Renderer": "capture2face.render",
     "RenderOptions": "capture2face.render",
     "SynthOptions": "capture2face.synth",

@@ -31,16 +31,20 @@ class SourceFitter:
         self.offset = np.array([(size - self.out_w) // 2, (size - self.out_h) // 2])
         self.src_size = (int(width), int(height))
 
-    def fit(self, rgb: np.ndarray) -> np.ndarray:
-        """(h, w, 3) source -> (size, size, 3) panel, black bars where the aspect differs."""
-        panel = np.zeros((self.size, self.size, 3), np.uint8)
+    def fit(self, rgb: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """(h, w, 3) source -> (size, size, 3) panel, black bars where the aspect differs
+        (written into ``out`` when given, e.g. a slice of the compare frame)."""
+        panel = np.empty((self.size, self.size, 3), np.uint8) if out is None else out
         if rgb.shape[1] != self.src_size[0] or rgb.shape[0] != self.src_size[1]:
             # A frame of another size (never in a sane clip): fit it on its own terms.
-            return SourceFitter(rgb.shape[1], rgb.shape[0], self.size).fit(rgb)
-        interp = cv2.INTER_AREA if self.scale < 1 else cv2.INTER_LINEAR
-        small = cv2.resize(rgb, (self.out_w, self.out_h), interpolation=interp)
+            return SourceFitter(rgb.shape[1], rgb.shape[0], self.size).fit(rgb, panel)
         x, y = self.offset
-        panel[y:y + self.out_h, x:x + self.out_w] = small
+        panel[:y], panel[y + self.out_h:], panel[:, :x], panel[:, x + self.out_w:] = 0, 0, 0, 0
+        if (self.out_w, self.out_h) == self.src_size:
+            panel[y:y + self.out_h, x:x + self.out_w] = rgb  # same size: no resampling
+        else:
+            interp = cv2.INTER_AREA if self.scale < 1 else cv2.INTER_LINEAR
+            panel[y:y + self.out_h, x:x + self.out_w] = cv2.resize(rgb, (self.out_w, self.out_h), interpolation=interp)
         return panel
 
     def to_panel(self, points_px: np.ndarray) -> np.ndarray:
@@ -90,13 +94,19 @@ def compare_frame(fitter: SourceFitter, source: np.ndarray | None, landmarks_px:
         (S, 3 S, 3) uint8.
     """
     s = avatar.shape[0]
-    panel = fitter.fit(source) if source is not None else np.zeros((s, s, 3), np.uint8)
+    out = np.empty((s, 3 * s, 3), np.uint8)  # panels written in place: no concatenation
+    panel = out[:, :s]
+    if source is not None:
+        fitter.fit(source, panel)
+    else:
+        panel[:] = 0
     if landmarks_px is not None:
         draw_points(panel, fitter.to_panel(landmarks_px), LANDMARK_COLOR if tracked else INTERPOLATED_COLOR,
                     radius=1 if s >= 384 else 0)
+    out[:, s:2 * s] = avatar
     if influence.shape[:2] != (s, s):
         influence = cv2.resize(influence, (s, s), interpolation=cv2.INTER_LINEAR)
-    out = np.concatenate([panel, avatar, influence], axis=1)
+    out[:, 2 * s:] = influence
     for k, text in enumerate(LABELS):
         label(out, text, k * s)
     return out

@@ -54,7 +54,8 @@ class RunOptions:
         neutral_frame: index of the neutral frame (None: picked automatically).
         face_model: MediaPipe ``face_landmarker.task`` (None: the default lookup).
         compare: also write compare.mp4.
-        samples: MSAA samples of the renders.
+        samples: MSAA samples of the renders; None: 4 on a GPU, and on a software GL
+            (llvmpipe) 1 sample + an FXAA pass, which looks alike at ~40% of the cost.
         crf: H.264 quality of the videos (lower = better, larger).
         preset: x264 preset of the videos ("veryfast" encodes ~3x faster than "medium"
             at about the same size for rendered faces).
@@ -69,7 +70,7 @@ class RunOptions:
     neutral_frame: int | None = None
     face_model: str | os.PathLike | None = None
     compare: bool = True
-    samples: int = 4
+    samples: int | None = None
     crf: int = 20
     preset: str = "veryfast"
     queue_frames: int = 8
@@ -175,9 +176,27 @@ def avatar_head_poses(rig: FaceRig, head_pose: np.ndarray, fov_y_degrees: float)
     return poses
 
 
+def run_render_options(options: RunOptions):
+    """The :class:`~capture2face.render.RenderOptions` of ``run``'s character view (with
+    ``compare``, its influence view comes out of the same draw)."""
+    from capture2face.render import RenderOptions
+    from capture2face.render.context import software_gl
+
+    samples, fxaa = options.samples, False
+    if samples is None:
+        fxaa = software_gl()
+        samples = 1 if fxaa else 4
+    return RenderOptions(size=int(options.size), wrinkles=options.wrinkles, samples=int(samples), fxaa=fxaa,
+                         influence_output=bool(options.compare))
+
+
 def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder: str | os.PathLike,
                  options: RunOptions, progress: bool = True) -> dict:
     """Pass 3: avatar.mp4 and compare.mp4 into ``folder``, stages overlapped.
+
+    One draw per frame gives both the character and its wrinkle-influence view (a second
+    colour attachment); the GL thread only draws and reads back, while worker threads
+    decode the source again, compose compare.mp4 frames and run the two H.264 encoders.
 
     Returns:
         ``{"render_s": GL thread busy seconds, "frames": n}``.
@@ -186,7 +205,7 @@ def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder
 
     from capture2face.compose import SourceFitter, compare_frame
     from capture2face.overlap import StageGroup
-    from capture2face.render import FrameState, Renderer, RenderOptions
+    from capture2face.render import FrameState, Renderer
     from capture2face.render.video import VideoWriter
     from capture2face.tracking.video import iter_frames
 
@@ -194,18 +213,17 @@ def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder
     n = animation.n_frames
     size = int(options.size)
     fps = float(track.fps)
-    render_opts = RenderOptions(size=size, wrinkles=options.wrinkles, samples=options.samples)
-    # The influence view is a diagnostic: half resolution without MSAA, upscaled when
-    # composed, costs a sixth of the full view on a software rasterizer.
-    heat_size = max(64, size // 4 * 2)
-    heat_opts = RenderOptions(size=heat_size, wrinkles=options.wrinkles if options.wrinkles != "off" else "auto",
-                              view="influence", samples=1)
+    render_opts = run_render_options(options)
     poses = avatar_head_poses(rig, animation.head_pose, render_opts.fov_y_degrees).astype(np.float32)
     fitter = SourceFitter(track.width, track.height, size)
     q = max(2, int(options.queue_frames))
+    # x264's own thread pool would oversubscribe the cores the rasterizer needs (llvmpipe
+    # runs one thread per core); two single-threaded encoders in their own threads suffice.
+    threads = 1
 
     def encode_avatar(frames) -> None:
-        with VideoWriter(folder / "avatar.mp4", fps, (size, size), crf=options.crf, preset=options.preset) as out:
+        with VideoWriter(folder / "avatar.mp4", fps, (size, size), crf=options.crf, preset=options.preset,
+                         threads=threads) as out:
             for frame in frames:
                 out.write(frame)
 
@@ -217,7 +235,7 @@ def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder
     def encode_compare(panels, sources) -> None:
         src = iter(sources)
         with VideoWriter(folder / "compare.mp4", fps, (3 * size, size), crf=options.crf,
-                         preset=options.preset) as out:
+                         preset=options.preset, threads=threads) as out:
             for i, (avatar, heat) in enumerate(panels):
                 out.write(compare_frame(fitter, next(src, None), track.landmarks_px[i],
                                         bool(track.presence[i]), avatar, heat))
@@ -233,7 +251,6 @@ def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder
             group.spawn("decode", decode_source, source_q)
             group.spawn("encode-compare", encode_compare, panel_q, source_q)
         renderer = stack.enter_context(Renderer.create_from_options(rig, render_opts))
-        heat = stack.enter_context(Renderer.create_from_options(rig, heat_opts)) if options.compare else None
         bar = stack.enter_context(tqdm(total=n, disable=not progress, unit="frame", desc="rendering", leave=False))
         for i in range(n):
             t0 = time.perf_counter()
@@ -241,12 +258,14 @@ def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder
                 bone_positions=animation.bone_positions[i], blend_weights=animation.blend_weights[i],
                 head_pose=poses[i], influences=animation.influences[i], zone_weights=animation.zone_weights[i],
             )
-            image = renderer.render(state)
-            panels = (image, heat.render(state)) if heat is not None else None
+            if options.compare:
+                image, heat = renderer.render_with_influence(state)
+            else:
+                image = renderer.render(state)
             busy += time.perf_counter() - t0
             avatar_q.put(image)
-            if panels is not None:
-                panel_q.put(panels)
+            if options.compare:
+                panel_q.put((image, heat))
             bar.update(1)
         avatar_q.close()
         if options.compare:

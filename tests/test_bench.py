@@ -33,6 +33,16 @@ def test_bench_cli_reports_every_figure(tmp_path):
     assert figures["peak_rss_mb"] > 50  # MediaPipe + GL + NumPy are loaded: not a bogus figure
     assert (figures["size"], figures["frames"]) == (128, 24)
     assert set(figures["goals"]) and all(isinstance(v, bool) for v in figures["goals"].values())
+    # Render drivers are timed interleaved: each figure is the median of its rounds, and
+    # the wrinkle cost is the median per-round ratio.
+    rounds = figures["render_rounds_fps"]
+    assert set(rounds) == {"off", "auto", "dynamic"} and len({len(v) for v in rounds.values()}) == 1
+    assert len(rounds["off"]) >= 3
+    for driver, fps in rounds.items():
+        assert figures[f"render_fps_wrinkles_{driver}"] == pytest.approx(np.median(fps), rel=0.01, abs=0.02)
+    ratio = np.median(np.array(rounds["auto"]) / np.array(rounds["off"]))
+    assert figures["render_auto_over_off"] == pytest.approx(ratio, rel=0.02)
+    assert figures["goals"]["render auto >= 0.9 x off"] == (figures["render_auto_over_off"] >= 0.9)
 
 
 def test_looped_clip_repeats_the_source_exactly(tmp_path):

@@ -459,6 +459,64 @@ def test_dynamic_driver_and_influence_view_render(rig, view):
     assert np.abs(grey[..., 0] - grey[..., 2]).max() < 30  # no influence: grey
 
 
+def test_wrinkle_pd_layers_pack_two_maps_per_layer():
+    """Wrinkle maps reach the shader as partial derivatives, maps 2j, 2j+1 in one RGBA
+    layer; decoding them gives back the unit normals (to float16 precision)."""
+    from capture2face.render.normal_blend import unpack_normal, wrinkle_pd_layers
+
+    maps = np.stack([_ridges(32, 1, 3), _ridges(32, 0, 5), _ridges(32, 0, 2)])
+    layers = wrinkle_pd_layers(maps)
+    assert layers.shape == (2, 32, 32, 4) and layers.dtype == np.float16
+    for k in range(3):
+        d = layers[k // 2, ..., 2 * (k % 2):2 * (k % 2) + 2].astype(np.float64)
+        assert np.abs(pd_decode(d) - unpack_normal(maps[k])).max() < 2e-3
+        assert np.abs(d).max() > 0.5  # the ridges are there, not a flat map
+    assert not layers[1, ..., 2:].any()  # no fourth map: flat
+
+
+@pytest.mark.parametrize("driver", ["auto", "off"])
+def test_influence_output_equals_the_influence_view(rig, view, driver):
+    """One draw, two attachments: the shaded image is the plain render, the second one the
+    influence view (the auto weights when the shading has no wrinkles)."""
+    stretch = FrameState.at_pose(rig, view, "stretch")
+    with Renderer.create_from_options(rig, RenderOptions(size=SIZE, wrinkles=driver, influence_output=True)) as r:
+        image, influence = r.render_with_influence(stretch)
+        again = r.render(stretch)
+    with Renderer.create_from_options(rig, RenderOptions(size=SIZE, wrinkles=driver)) as r:
+        plain = r.render(stretch)
+        with pytest.raises(ValueError):
+            r.render_with_influence(stretch)
+    with Renderer.create_from_options(rig, RenderOptions(size=SIZE, wrinkles="auto", view="influence")) as r:
+        separate = r.render(stretch)
+    assert np.array_equal(image, plain) and np.array_equal(again, plain)
+    assert np.array_equal(influence, separate)
+    blue = influence[..., 2].astype(int) - influence[..., 0]
+    assert (blue > 60).sum() > 200  # the stretch pose's forehead in the stretch colour
+
+
+def test_fxaa_smooths_edges_like_msaa(avatar):
+    """1 sample + FXAA: the silhouette's staircase is smoothed (closer to 4x MSAA than the
+    plain single-sample image), the flat background and the face's interior are left
+    alone, and the scissor box loses nothing."""
+    view = framing_pose(avatar, yaw=25.0, pitch=8.0, roll=7.0)
+    state = FrameState.at_pose(avatar, view, "compress")
+    images = {}
+    for name, kw in {"msaa": dict(samples=4), "one": dict(samples=1), "fxaa": dict(samples=1, fxaa=True)}.items():
+        with Renderer.create_from_options(avatar, RenderOptions(size=SIZE, wrinkles="auto", **kw)) as r:
+            images[name] = r.render(state).astype(int)
+            if name == "fxaa":
+                box = r._screen_box(state)
+                r._screen_box = lambda s: None  # the whole frame
+                assert np.array_equal(r.render(state), images[name])
+    assert box is not None and box[2] * box[3] < 0.9 * SIZE**2
+    one, fxaa, msaa = images["one"], images["fxaa"], images["msaa"]
+    changed = np.abs(fxaa - one).sum(2) > 0
+    edges = np.abs(msaa - one).sum(2) > 30  # where MSAA differs: edges
+    assert 200 < changed.sum() < 0.1 * SIZE**2
+    assert np.abs(fxaa - msaa)[edges].mean() < 0.75 * np.abs(one - msaa)[edges].mean()
+    assert np.array_equal(fxaa[:4], one[:4])  # background rows untouched
+
+
 # ---------------------------------------------------------------------------------------
 # Camera
 

@@ -1,9 +1,12 @@
-"""Render throughput: ``python -m capture2face.render.benchmark [--size 512] [--frames 60]``.
+"""Render throughput: ``python -m capture2face.render.benchmark [--size 512] [--frames 60]
+[--rounds 5] [--wrinkles off auto] [--samples 4] [--fxaa]``.
 
 Frames sweep rest -> stretch -> rest -> compress with a slowly turning head, so every
 frame has new uniforms (and, for ``dynamic``, new per-vertex weights). Timing covers
 ``Renderer.render`` including the read-back of the image; setup and one warm-up frame are
-excluded.
+excluded. The drivers are timed interleaved (``--rounds`` rounds, each rendering the same
+frames with every driver), and the median round is reported, so load from other
+processes hits every driver alike.
 """
 
 from __future__ import annotations
@@ -59,10 +62,38 @@ def render_fps(rig: FaceRig, wrinkles: str = "auto", frames: int = 60, size: int
     }
 
 
+def interleaved_fps(rig: FaceRig, drivers: list[str], frames: int = 60, rounds: int = 5,
+                    size: int | tuple[int, int] = 512, **options) -> dict[str, list[float]]:
+    """Frames per second of each driver in each of ``rounds`` rounds; within a round every
+    driver renders the same ``frames`` states, the starting driver rotating."""
+    base = RenderOptions(size=size, **options)
+    states = sweep_states(rig, frames, base.fov_y_degrees)
+    renderers = {}
+    fps: dict[str, list[float]] = {d: [] for d in drivers}
+    try:
+        for d in drivers:
+            renderers[d] = Renderer.create_from_options(rig, RenderOptions(size=size, wrinkles=d, **options))
+            renderers[d].render(states[0])
+        for k in range(rounds):
+            for j in range(len(drivers)):
+                d = drivers[(j + k) % len(drivers)]
+                start = time.perf_counter()
+                for state in states:
+                    renderers[d].render(state)
+                fps[d].append(frames / (time.perf_counter() - start))
+    finally:
+        for r in renderers.values():
+            r.close()
+    return fps
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=int, default=512)
     parser.add_argument("--frames", type=int, default=60)
+    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--samples", type=int, default=4)
+    parser.add_argument("--fxaa", action="store_true")
     parser.add_argument("--wrinkles", nargs="+", default=["off", "auto"], choices=WRINKLE_DRIVERS)
     parser.add_argument("--rig", help="a .rig.npz (default: the default avatar)")
     args = parser.parse_args(argv)
@@ -72,10 +103,13 @@ def main(argv: list[str] | None = None) -> None:
         from capture2face.rig.avatar import default_avatar
 
         rig = default_avatar()
-    for driver in args.wrinkles:
-        r = render_fps(rig, driver, args.frames, args.size)
-        print(f"{driver:8s} {r['size'][0]}x{r['size'][1]}: {r['fps']:6.1f} fps ({r['ms_per_frame']:.1f} ms/frame) "
-              f"on {r['gl_renderer']}, {rig.n_vertices} vertices")
+    drivers = list(dict.fromkeys(args.wrinkles))
+    fps = interleaved_fps(rig, drivers, args.frames, args.rounds, args.size, samples=args.samples, fxaa=args.fxaa)
+    for d in drivers:
+        median = float(np.median(fps[d]))
+        ratio = float(np.median(np.array(fps[d]) / np.array(fps[drivers[0]])))
+        print(f"{d:8s} {args.size}x{args.size}: {median:6.1f} fps ({1000 / median:.1f} ms/frame), "
+              f"{ratio:.2f} x {drivers[0]}; rounds {' '.join(f'{v:.1f}' for v in fps[d])}")
 
 
 if __name__ == "__main__":

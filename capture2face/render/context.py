@@ -31,3 +31,10 @@ def gl_context() -> moderngl.Context:
 def gl_renderer() -> str:
     """The GL_RENDERER string of the shared context (e.g. 'llvmpipe (LLVM 15.0.6, 256 bits)')."""
     return str(gl_context().info["GL_RENDERER"])
+
+
+def software_gl() -> bool:
+    """True when the context rasterizes on the CPU (Mesa llvmpipe, softpipe, swrast), where
+    per-pixel work such as MSAA costs what a GPU gets for free."""
+    name = gl_renderer().lower()
+    return any(key in name for key in ("llvmpipe", "softpipe", "swrast"))

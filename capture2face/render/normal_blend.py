@@ -30,3 +30,27 @@ def oat_blend(w: np.ndarray, n: np.ndarray) -> np.ndarray:
     w, n = np.asarray(w, np.float64), np.asarray(n, np.float64)
     out = np.concatenate([w[..., :2] + n[..., :2], w[..., 2:3] * n[..., 2:3]], axis=-1)
     return out / np.linalg.norm(out, axis=-1, keepdims=True)
+
+
+def wrinkle_pd_layers(maps: np.ndarray) -> np.ndarray:
+    """Wrinkle normal maps as the renderer samples them: partial derivatives, two maps per
+    RGBA layer (Jimenez: derivatives filter and blend linearly, so they are encoded once
+    here instead of per pixel).
+
+    Args:
+        maps: (K, H, W, 3) uint8 tangent-space normal maps.
+    Returns:
+        (ceil(K / 2), H, W, 4) float16: map 2j in RG and map 2j + 1 in BA of layer j (a
+        missing last map is flat: zeros).
+    """
+    maps = np.asarray(maps)
+    k, h, w, _ = maps.shape
+    out = np.zeros(((k + 1) // 2, h, w, 4), np.float16)
+    for i in range(k):  # one map at a time keeps the temporaries small
+        # pd_encode(unpack_normal(t)) in float32: the normalization cancels in x/z and y/z
+        # except for the clamp of a grazing z.
+        n = maps[i].astype(np.float32) * np.float32(2.0 / 255.0) - np.float32(1.0)
+        length = np.sqrt(np.einsum("...c,...c->...", n, n))[..., None]
+        z = np.maximum(n[..., 2:3], np.float32(1e-3) * length)
+        out[i // 2, ..., 2 * (i % 2):2 * (i % 2) + 2] = n[..., :2] / z
+    return out

@@ -4,6 +4,12 @@ Per frame only uniforms travel to the GL (bone offsets, active morph weights, pe
 pose influences or zone weights, head pose, lights); the mesh, morph deltas and textures
 are uploaded once. The one exception is the ``dynamic`` driver's per-vertex weights,
 which depend on the deformed mesh.
+
+Wrinkle maps are uploaded as Jimenez's partial derivatives, two maps per RGBA16F layer, so
+the ``auto`` driver adds one texture fetch per pixel. The influence view can come out of
+the shaded draw itself (``influence_output``: a second colour attachment), so a
+compare video costs one rasterization per frame, not two. Images are rasterized with the
+projection's y flipped, so GL's bottom-up rows read back top-down without a copy.
 """
 
 from __future__ import annotations
@@ -16,8 +22,9 @@ import numpy as np
 
 from capture2face.errors import CaptureError
 from capture2face.render import camera
-from capture2face.render.context import gl_context
+from capture2face.render.context import gl_context, software_gl
 from capture2face.render.dynamic import dynamic_wrinkle_weights
+from capture2face.render.normal_blend import wrinkle_pd_layers
 from capture2face.render.shaders import program
 from capture2face.rig.face_rig import FaceRig
 
@@ -38,6 +45,8 @@ SLOT_COLORS = [(0.10, 0.55, 1.00), (1.00, 0.30, 0.05), (0.20, 0.90, 0.20), (0.90
 # Texture units.
 _UNIT_ALBEDO, _UNIT_NORMAL, _UNIT_WRINKLE, _UNIT_MASK0, _UNIT_MASK1, _UNIT_MPOS, _UNIT_MNRM = range(7)
 _GL_SRGB8_ALPHA8 = 0x8C43
+_UNIT_SCENE = 0  # FXAA pass
+_FLIP_Y = np.diag([1.0, -1.0, 1.0, 1.0])
 
 
 @dataclass
@@ -51,6 +60,13 @@ class RenderOptions:
         normal_blend: ``pd`` (Jimenez partial derivatives) or ``oat`` (Oat's detail blend).
         view: ``shaded``, or ``influence`` (each wrinkle map's per-pixel weight as colour).
         samples: MSAA samples (1 = none).
+        fxaa: a screen-space FXAA pass after the render (meant for ``samples=1``: on
+            software GL such as llvmpipe, 4x MSAA multiplies the draw's cost ~2.5x while
+            FXAA adds ~10%).
+        influence_output: ``view="shaded"`` only: also draw the influence view in the same
+            pass (second colour attachment), for :meth:`Renderer.render_with_influence`.
+            With ``wrinkles="off"`` it shows the ``auto`` driver's weights (what it would
+            apply), while the shading stays without wrinkles.
         fov_y_degrees: vertical field of view.
         background: sRGB background colour in [0, 1].
     """
@@ -60,6 +76,8 @@ class RenderOptions:
     normal_blend: str = "pd"
     view: str = "shaded"
     samples: int = 4
+    fxaa: bool = False
+    influence_output: bool = False
     fov_y_degrees: float = 30.0
     background: tuple = (0.12, 0.12, 0.14)
 
@@ -136,7 +154,7 @@ class Renderer:
         self.rig = rig
         self.options = options
         self.ctx = gl_context()
-        self._software = any(name in self.gl_renderer.lower() for name in ("llvmpipe", "softpipe", "swrast"))
+        self._software = software_gl()
         self._resources: list = []
         try:
             self._setup()
@@ -156,7 +174,12 @@ class Renderer:
     def _setup(self) -> None:
         rig, opts, ctx = self.rig, self.options, self.ctx
         n_maps = len(rig.wrinkle_map_names)
-        driver = opts.wrinkles
+        shade_wrinkles = opts.wrinkles != "off"
+        self._influence_output = bool(opts.influence_output) and opts.view == "shaded"
+        # The driver that computes the per-pixel map weights: "off" still has the auto
+        # weights when they are shown in the influence output.
+        driver = "auto" if opts.wrinkles == "off" and self._influence_output else opts.wrinkles
+        self._driver = driver
         if driver != "off" and n_maps > MAX_MAPS:
             raise CaptureError(f"rig '{rig.name}' has {n_maps} wrinkle maps; the renderer takes at most {MAX_MAPS}")
         self._slots = {}
@@ -177,9 +200,9 @@ class Renderer:
             ("N_VERTICES", V), ("N_BONES", B), ("MAX_MORPHS", max(M, 1)), ("MORPH_TEX_WIDTH", MORPH_TEX_WIDTH),
         )
         face_defines = deform_defines + (
-            (f"DRIVER_{driver.upper()}", 1), ("N_MAPS", n_maps),
+            (f"DRIVER_{driver.upper()}", 1), ("N_MAPS", n_maps), ("SHADE_WRINKLES", int(shade_wrinkles)),
             (f"BLEND_{opts.normal_blend.upper()}", 1), (f"VIEW_{opts.view.upper()}", 1),
-        )
+        ) + ((("INFLUENCE_OUTPUT", 1),) if self._influence_output else ())
         self._face = program("face.vert", "face.frag", face_defines)
         self._feedback = program("feedback.vert", None, deform_defines, ("tf_position",))
 
@@ -223,9 +246,10 @@ class Renderer:
             (self._image_texture(albedo, internal_format=_GL_SRGB8_ALPHA8), _UNIT_ALBEDO),
             (self._image_texture(rig.normal_map), _UNIT_NORMAL),
         ]
-        if driver != "off" and n_maps:
-            k, h, w, _ = rig.wrinkle_maps.shape
-            tex = self._keep(ctx.texture_array((w, h, k), 3, np.ascontiguousarray(rig.wrinkle_maps).tobytes()))
+        if shade_wrinkles and n_maps:
+            layers = wrinkle_pd_layers(rig.wrinkle_maps)
+            k, h, w, _ = layers.shape
+            tex = self._keep(ctx.texture_array((w, h, k), 4, layers.tobytes(), dtype="f2"))
             self._mipmapped(tex)
             self._textures.append((tex, _UNIT_WRINKLE))
         if driver == "zones":
@@ -233,22 +257,41 @@ class Renderer:
             self._textures.append((self._image_texture(rig.zone_masks[..., 4:8]), _UNIT_MASK1))
         self._textures += [self._morph_positions_tex, self._morph_normals_tex]
 
-        # Render targets: multisampled colour + depth, resolved into a plain colour buffer.
-        width, height = opts.width_height
+        self._setup_targets()
+        self._face_size = rig.face_size()
+        self._face_centre = camera.face_centre_and_height(rig)[0]
+        # For the FXAA pass's scissor: the rest mesh's box and how far each morph moves a vertex.
+        self._box = np.stack([rig.vertices.min(0), rig.vertices.max(0)]).astype(np.float64)
+        self._morph_reach = (np.linalg.norm(rig.morph_positions, axis=2).max(1) if M else np.zeros(0))
+
+    def _setup_targets(self) -> None:
+        """Framebuffers. ``_target`` is drawn into (multisampled when ``samples`` > 1, then
+        blitted into ``_single``); ``_single`` holds the single-sample images: attachment 0
+        the view (FXAA's input texture with ``fxaa``), 1 the influence output. With FXAA
+        the view is read from ``_fxaa_out``."""
+        ctx, opts = self.ctx, self.options
+        size = opts.width_height
+        self._size = size
         samples = max(1, min(int(opts.samples), ctx.max_samples))
-        self._resolve = self._keep(ctx.framebuffer(color_attachments=[self._keep(ctx.renderbuffer((width, height), 4))]))
+        n_colors = 2 if self._influence_output else 1
+        rb = lambda s=0: self._keep(ctx.renderbuffer(size, 4, samples=s))  # noqa: E731
+        self._fxaa = None
+        if opts.fxaa:
+            self._scene_tex = self._keep(ctx.texture(size, 4))
+            self._scene_tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+            self._scene_tex.repeat_x = self._scene_tex.repeat_y = False
+            self._fxaa = program("fullscreen.vert", "fxaa.frag")
+            self._fxaa_vao = self._keep(ctx.vertex_array(self._fxaa, []))
+            self._fxaa_out = self._keep(ctx.framebuffer(color_attachments=[rb()]))
+        single = [self._scene_tex if opts.fxaa else rb()] + [rb() for _ in range(n_colors - 1)]
         if samples > 1:
             self._target = self._keep(ctx.framebuffer(
-                color_attachments=[self._keep(ctx.renderbuffer((width, height), 4, samples=samples))],
-                depth_attachment=self._keep(ctx.depth_renderbuffer((width, height), samples=samples)),
-            ))
+                color_attachments=[rb(samples) for _ in range(n_colors)],
+                depth_attachment=self._keep(ctx.depth_renderbuffer(size, samples=samples))))
+            self._single = self._keep(ctx.framebuffer(color_attachments=single))
         else:
-            self._target = self._keep(ctx.framebuffer(
-                color_attachments=[self._keep(ctx.renderbuffer((width, height), 4))],
-                depth_attachment=self._keep(ctx.depth_renderbuffer((width, height))),
-            ))
-        self._size = (width, height)
-        self._face_size = rig.face_size()
+            self._target = self._single = self._keep(ctx.framebuffer(
+                color_attachments=single, depth_attachment=self._keep(ctx.depth_renderbuffer(size))))
 
     def _mipmapped(self, tex) -> None:
         # Face atlases do not tile: clamp, so filtering at u, v = 0 or 1 never wraps around.
@@ -292,13 +335,16 @@ class Renderer:
         pose = np.asarray(state.head_pose, np.float64)
         if pose.shape != (4, 4):
             raise ValueError(f"head_pose must be (4, 4), got {pose.shape}")
-        depth = -(pose[:3, :3] @ camera.face_centre_and_height(rig)[0] + pose[:3, 3])[2]
+        depth = -(pose[:3, :3] @ self._face_centre + pose[:3, 3])[2]
         near = max(0.5, depth - 2.0 * self._face_size)
         far = max(depth, near) + 2.0 * self._face_size
         width, height = self._size
         _set(prog, "u_model_view", _mat(pose))
         _set(prog, "u_normal_matrix", _mat(np.linalg.inv(pose[:3, :3]).T))
-        _set(prog, "u_projection", _mat(camera.perspective(opts.fov_y_degrees, width / height, near, far)))
+        # y flipped: GL's bottom-up rows then read back top-down, no flip on the CPU.
+        projection = _FLIP_Y @ camera.perspective(opts.fov_y_degrees, width / height, near, far)
+        _set(prog, "u_projection", _mat(projection))
+        self._clip_from_head = projection @ pose
 
         light = np.asarray(state.light_direction if state.light_direction is not None else DEFAULT_LIGHT_DIRECTION, np.float64)
         _set(prog, "u_light_direction", tuple(light / np.linalg.norm(light)))
@@ -311,11 +357,11 @@ class Renderer:
         _set(prog, "u_map_color", colors)
         for tex, unit in self._textures:
             tex.use(unit)
-        for name, unit in (("u_albedo", _UNIT_ALBEDO), ("u_normal_map", _UNIT_NORMAL), ("u_wrinkle_maps", _UNIT_WRINKLE),
+        for name, unit in (("u_albedo", _UNIT_ALBEDO), ("u_normal_map", _UNIT_NORMAL), ("u_wrinkle_pd", _UNIT_WRINKLE),
                            ("u_zone_mask0", _UNIT_MASK0), ("u_zone_mask1", _UNIT_MASK1)):
             _set(prog, name, unit)
 
-        driver = opts.wrinkles
+        driver = self._driver
         if driver == "auto":
             infl = state.influences
             if infl is None:
@@ -359,12 +405,11 @@ class Renderer:
         self._deform_uniforms(self._feedback, state)
         self._morph_positions_tex[0].use(_UNIT_MPOS)
         self._morph_normals_tex[0].use(_UNIT_MNRM)
-        self._resolve.use()  # Mesa skips draws, even discarded ones, without a complete framebuffer
+        self._single.use()  # Mesa skips draws, even discarded ones, without a complete framebuffer
         self._feedback_vao.transform(self._feedback_out, moderngl.POINTS, vertices=self.rig.n_vertices)
         return np.frombuffer(self._feedback_out.read(), np.float32).reshape(-1, 3).copy()
 
-    def render(self, state: FrameState) -> np.ndarray:
-        """Draw one frame: (H, W, 3) uint8 sRGB, row 0 at the top."""
+    def _draw(self, state: FrameState) -> None:
         ctx = self.ctx
         self._frame_uniforms(state)
         self._target.use()
@@ -372,11 +417,64 @@ class Renderer:
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
         self._vao.render(moderngl.TRIANGLES)
-        if self._target is not self._resolve:
-            ctx.copy_framebuffer(self._resolve, self._target)
+        if self._target is not self._single:
+            ctx.copy_framebuffer(self._single, self._target)  # MSAA resolve, every attachment
+        if self._fxaa is not None:
+            ctx.disable(moderngl.DEPTH_TEST)
+            # Outside the mesh's screen box the image is the flat background, which FXAA
+            # leaves as it is: clear it there and run the pass on the box alone.
+            box = self._screen_box(state)
+            self._fxaa_out.scissor = None
+            self._fxaa_out.use()
+            if box is not None:
+                self._fxaa_out.clear(*map(float, self.options.background), 1.0)
+                self._fxaa_out.scissor = box
+                self._fxaa_out.use()
+            self._scene_tex.use(_UNIT_SCENE)
+            _set(self._fxaa, "u_scene", _UNIT_SCENE)
+            _set(self._fxaa, "u_texel", (1.0 / self._size[0], 1.0 / self._size[1]))
+            self._fxaa_vao.render(moderngl.TRIANGLES, vertices=3)
+
+    def _screen_box(self, state: FrameState) -> tuple[int, int, int, int] | None:
+        """(x, y, w, h) window rectangle holding every pixel of the deformed mesh this
+        frame (conservative: the rest box grown by the largest bone and morph
+        displacements, projected), or None when that is the whole frame."""
+        weights = np.abs(np.asarray(state.blend_weights, np.float64).ravel())
+        reach = (np.linalg.norm(np.asarray(state.bone_positions, np.float64) - self.rig.bone_rest, axis=1).max(initial=0.0)
+                 + float(weights @ self._morph_reach))
+        lo, hi = self._box[0] - reach, self._box[1] + reach
+        corners = np.stack(np.meshgrid(*zip(lo, hi), indexing="ij"), -1).reshape(-1, 3)
+        clip = np.c_[corners, np.ones(8)] @ self._clip_from_head.T
+        if (clip[:, 3] <= 1e-6).any():
+            return None
+        ndc = clip[:, :2] / clip[:, 3:4]
+        size = np.array(self._size)
+        x0, y0 = np.maximum(np.floor((ndc.min(0) + 1) * 0.5 * size) - 2, 0).astype(int)
+        x1, y1 = np.minimum(np.ceil((ndc.max(0) + 1) * 0.5 * size) + 2, size).astype(int)
+        if x0 <= 0 and y0 <= 0 and x1 >= size[0] and y1 >= size[1]:
+            return None
+        return int(x0), int(y0), int(max(x1 - x0, 0)), int(max(y1 - y0, 0))
+
+    def _read(self, framebuffer, attachment: int = 0) -> np.ndarray:
         width, height = self._size
-        pixels = np.frombuffer(self._resolve.read(components=3, alignment=1), np.uint8)
-        return pixels.reshape(height, width, 3)[::-1].copy()
+        image = np.empty((height, width, 3), np.uint8)  # a fresh array: callers queue it
+        framebuffer.read_into(image, components=3, attachment=attachment, alignment=1)
+        return image
+
+    def render(self, state: FrameState) -> np.ndarray:
+        """Draw one frame: (H, W, 3) uint8 sRGB, row 0 at the top."""
+        self._draw(state)
+        return self._read(self._fxaa_out if self._fxaa is not None else self._single)
+
+    def render_with_influence(self, state: FrameState) -> tuple[np.ndarray, np.ndarray]:
+        """Draw one frame once: ``(view, influence)``, both (H, W, 3) uint8 sRGB; the
+        influence view (as ``view="influence"`` draws it; MSAA applies to it, FXAA does
+        not) comes from the draw's second colour attachment. Needs
+        ``influence_output=True``."""
+        if not self._influence_output:
+            raise ValueError("render_with_influence needs RenderOptions(view='shaded', influence_output=True)")
+        image = self.render(state)
+        return image, self._read(self._single, 1)
 
     def close(self) -> None:
         """Release the GL objects of this renderer (the shared context and programs stay)."""

@@ -1,14 +1,17 @@
 // Shading pass, fragment stage: wrinkle maps over the base normal map (per-pixel weights
 // from the driver), skin lighting, filmic tone mapping, sRGB output.
-// Defines: N_MAPS (wrinkle maps, <= 4), BLEND_PD | BLEND_OAT, DRIVER_*, VIEW_SHADED |
-// VIEW_INFLUENCE.
+// Defines: N_MAPS (wrinkle maps, <= 4), SHADE_WRINKLES (0: weights only feed the
+// influence output), BLEND_PD | BLEND_OAT, DRIVER_*, VIEW_SHADED | VIEW_INFLUENCE,
+// INFLUENCE_OUTPUT (shaded view: the influence view also goes to colour attachment 1).
 #include "normal_blend.glsl"
 
 uniform sampler2D u_albedo;        // sRGB texture, decoded to linear by the sampler
 uniform sampler2D u_normal_map;
-#if !defined(DRIVER_OFF) && N_MAPS > 0
+#if !defined(DRIVER_OFF) && N_MAPS > 0 && SHADE_WRINKLES
 #define WRINKLES 1
-uniform sampler2DArray u_wrinkle_maps;
+// Jimenez's partial derivatives, decoded at upload: layer j holds map 2j in RG and map
+// 2j + 1 in BA, so two maps cost one fetch.
+uniform sampler2DArray u_wrinkle_pd;
 #endif
 #ifdef DRIVER_ZONES
 uniform sampler2D u_zone_mask0;    // zones 0-3 in RGBA
@@ -31,7 +34,10 @@ in vec2 v_uv;
 in vec4 v_map_weight;
 flat in int v_material;
 
-out vec4 f_color;
+layout(location = 0) out vec4 f_color;
+#if defined(INFLUENCE_OUTPUT) && !defined(VIEW_INFLUENCE)
+layout(location = 1) out vec4 f_influence;
+#endif
 
 const float PI = 3.14159265;
 
@@ -49,26 +55,53 @@ vec4 map_weights() {
 #endif
 }
 
+#ifdef WRINKLES
+// Partial derivatives of maps (2 layer, 2 layer + 1), fetched only where either weighs.
+vec4 wrinkle_pd(int layer, vec2 w) {
+    return any(greaterThan(w, vec2(0.0))) ? texture(u_wrinkle_pd, vec3(v_uv, layer)) : vec4(0.0);
+}
+#endif
+
 // Tangent-space normal: base map with the weighted wrinkle maps blended on top.
 vec3 tangent_normal(vec4 w) {
     vec3 base = unpack_normal(texture(u_normal_map, v_uv).rgb);
 #ifdef BLEND_OAT
+    // Oat's detail blend needs the wrinkle normals: n = normalize(dx, dy, 1) from the
+    // derivatives is exact for unit normals with z > 0.
     vec3 wrinkle = vec3(0.0, 0.0, 1.0);
 #ifdef WRINKLES
-    for (int k = 0; k < N_MAPS; ++k)
-        if (w[k] > 0.0)
-            wrinkle += w[k] * (unpack_normal(texture(u_wrinkle_maps, vec3(v_uv, k)).rgb) - vec3(0.0, 0.0, 1.0));
+    const vec3 Z = vec3(0.0, 0.0, 1.0);
+    if (any(greaterThan(w, vec4(0.0)))) {
+        vec4 d = wrinkle_pd(0, w.xy);
+        wrinkle += w.x * (pd_decode(d.rg) - Z) + w.y * (pd_decode(d.ba) - Z);
+#if N_MAPS > 2
+        d = wrinkle_pd(1, w.zw);
+        wrinkle += w.z * (pd_decode(d.rg) - Z) + w.w * (pd_decode(d.ba) - Z);
+#endif
+    }
 #endif
     return oat_blend(normalize(wrinkle), base);
 #else
+    // Jimenez: blending is a weighted sum of derivatives.
     vec2 d = pd_encode(base);
 #ifdef WRINKLES
-    for (int k = 0; k < N_MAPS; ++k)
-        if (w[k] > 0.0)
-            d += w[k] * pd_encode(unpack_normal(texture(u_wrinkle_maps, vec3(v_uv, k)).rgb));
+    vec4 d01 = wrinkle_pd(0, w.xy);
+    d += w.x * d01.rg + w.y * d01.ba;
+#if N_MAPS > 2
+    vec4 d23 = wrinkle_pd(1, w.zw);
+    d += w.z * d23.rg + w.w * d23.ba;
+#endif
 #endif
     return pd_decode(d);
 #endif
+}
+
+// Influence view: each wrinkle map's weight painted in its colour over a grey shading.
+vec4 influence_color(vec3 ng, vec3 l, vec4 w) {
+    vec3 grey = vec3(0.5) * (0.35 + 0.65 * max(dot(ng, l), 0.0));
+    float total = min(w.x + w.y + w.z + w.w, 1.0);
+    vec3 heat = w.x * u_map_color[0] + w.y * u_map_color[1] + w.z * u_map_color[2] + w.w * u_map_color[3];
+    return vec4(grey * (1.0 - total) + heat, 1.0);
 }
 
 float beckmann(float ndoth, float m) {
@@ -110,12 +143,11 @@ void main() {
     vec4 w = v_material == 0 ? map_weights() : vec4(0.0);  // no wrinkles on eyes or mouth
 
 #ifdef VIEW_INFLUENCE
-    // Each wrinkle map's per-pixel weight painted in its colour over a grey shading.
-    vec3 grey = vec3(0.5) * (0.35 + 0.65 * max(dot(ng, l), 0.0));
-    float total = min(w.x + w.y + w.z + w.w, 1.0);
-    vec3 heat = w.x * u_map_color[0] + w.y * u_map_color[1] + w.z * u_map_color[2] + w.w * u_map_color[3];
-    f_color = vec4(grey * (1.0 - total) + heat, 1.0);
+    f_color = influence_color(ng, l, w);
 #else
+#ifdef INFLUENCE_OUTPUT
+    f_influence = influence_color(ng, l, w);
+#endif
     vec3 n = ng;
     if (v_material == 0) {
         vec3 t = normalize(v_tangent.xyz - ng * dot(ng, v_tangent.xyz));
