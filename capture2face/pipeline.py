@@ -31,6 +31,7 @@ import numpy as np
 
 from capture2face.atomic import write_text_atomic
 from capture2face.errors import CaptureError
+from capture2face.heap import bound_heap, release_free_memory
 from capture2face.rig.face_rig import FaceRig
 
 WRINKLE_DRIVERS = ("auto", "zones", "dynamic", "off")
@@ -375,6 +376,7 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
 
     options = options or RunOptions()
     options.validate()
+    bound_heap()  # memory flat whatever the clip's length (see capture2face.heap)
     t_start = time.perf_counter()
     info = open_video(clip)  # bad input fails here, before anything is written
     rig = load_character(options.character)
@@ -392,14 +394,17 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
             if damaged and not options.allow_truncated:
                 raise CaptureError(damaged[0])
         track.save(tmp / "track.npz")
+        release_free_memory()
         seconds["track"] = time.perf_counter() - t
 
         t = time.perf_counter()
         animation = retarget_stage(track, rig)
+        release_free_memory()
         seconds["retarget"] = time.perf_counter() - t
 
         t = time.perf_counter()
         export_stage(rig, animation, tmp, track)
+        release_free_memory()
         seconds["export"] = time.perf_counter() - t
 
         t = time.perf_counter()

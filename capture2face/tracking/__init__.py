@@ -91,7 +91,8 @@ class TrackOptions:
 
 
 FLUSH_FRAMES = 256  # frames converted to head coordinates (and written to disk) at a time
-WINDOW_FRAMES = 1024  # frames per window of the gap-fill and filter passes
+WINDOW_FRAMES = 256  # frames per window of the gap-fill and filter passes (the filter
+# loops over frames anyway: a small window costs nothing and keeps temporaries small)
 
 
 class TrackBuilder:

@@ -45,7 +45,8 @@ class GapFill:
 
     def fill(self, arr: np.ndarray) -> None:
         """Fill ``arr`` (F, ...) in place (its gap frames' rows are ignored)."""
-        self._blend(arr, np.arange(len(arr)), arr[self.lo], arr[self.hi])
+        gap = np.flatnonzero(self.interpolated | self.held)
+        self._blend(arr, gap, arr[self.lo[gap]], arr[self.hi[gap]])
 
     def fill_window(self, read, start: int, stop: int) -> np.ndarray:
         """Frames ``start .. stop`` of an array, gaps filled.
@@ -55,19 +56,24 @@ class GapFill:
         Returns:
             (stop - start, ...) float64.
         """
-        lo, hi = self.lo[start:stop], self.hi[start:stop]
-        need = np.unique(np.concatenate([np.arange(start, stop), lo, hi]))
-        rows = np.asarray(read(need), np.float64)
-        out = rows[np.searchsorted(need, np.arange(start, stop))]
-        self._blend(out, np.arange(start, stop), rows[np.searchsorted(need, lo)], rows[np.searchsorted(need, hi)])
+        gap = start + np.flatnonzero(self.interpolated[start:stop] | self.held[start:stop])
+        out = np.asarray(read(np.arange(start, stop)), np.float64)
+        if gap.size:
+            src = np.unique(np.concatenate([self.lo[gap], self.hi[gap]]))
+            rows = np.asarray(read(src), np.float64)
+            a = rows[np.searchsorted(src, self.lo[gap])]
+            b = rows[np.searchsorted(src, self.hi[gap])]
+            # Sources inside the window are read again above: identical values.
+            self._blend(out, gap - start, a, b, gap)
         return out
 
-    def _blend(self, out: np.ndarray, frames: np.ndarray, a: np.ndarray, b: np.ndarray) -> None:
-        gap = np.flatnonzero(self.interpolated[frames] | self.held[frames])
-        if not gap.size:
+    def _blend(self, out: np.ndarray, rows: np.ndarray, a: np.ndarray, b: np.ndarray,
+               frames: np.ndarray | None = None) -> None:
+        """out[rows] = (1 - w) a + w b for the gap frames ``frames`` (default ``rows``)."""
+        if not rows.size:
             return
-        w = self.w[frames[gap]].reshape((-1,) + (1,) * (out.ndim - 1))
-        out[gap] = (1.0 - w) * a[gap] + w * b[gap]
+        w = self.w[rows if frames is None else frames].reshape((-1,) + (1,) * (out.ndim - 1))
+        out[rows] = (1.0 - w) * a + w * b
 
 
 def gap_runs(presence: np.ndarray) -> list[tuple[int, int]]:
