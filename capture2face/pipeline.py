@@ -3,13 +3,18 @@
 Three passes over the clip, because retargeting needs the neutral frame, which is picked
 from the whole clip:
 
-1. decode + track (:func:`track_stage`; MediaPipe at its own speed, decoding prefetched);
-2. retarget every frame at once (:func:`retarget_stage`; vectorized, milliseconds) and
-   write the animation exports (:func:`export_stage`);
+1. decode + track (:func:`track_stage`; MediaPipe at its own speed, decoding prefetched;
+   the landmarks go to files in the run's work folder, ``.work`` in the staging folder);
+2. retarget in overlapping windows of frames (:func:`retarget_stage`; vectorized,
+   milliseconds) and write the animation exports (:func:`export_stage`);
 3. render + compose + encode (:func:`render_stage`): the GL thread (this one, which owns
    the context) renders the character and its wrinkle-influence view while worker
    threads decode the source again, compose compare.mp4 frames and run the two H.264
-   encoders, all joined by bounded queues (memory stays flat whatever the clip's length).
+   encoders, all joined by bounded queues.
+
+Memory does not grow with the clip's length beyond ~1.5 KB a frame (the Animation and the
+track's per-frame scores and poses): whole-clip computations run window by window and
+malloc is kept from fragmenting (:mod:`capture2face.heap`).
 
 Every output is written into a hidden temporary folder that replaces ``OUT/<clip stem>/``
 only when all of it is complete (:mod:`capture2face.staging`), so a failure or an

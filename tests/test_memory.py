@@ -215,3 +215,11 @@ def test_windowed_retarget_direct_and_bone_only_modes(rig, noisy_track):
         b = retarget(noisy_track, rig, RetargetOptions(window_frames=100, window_overlap=40, **opts))
         assert np.abs(a.bone_positions - b.bone_positions).max() < 2e-3
         assert np.abs(a.blend_weights - b.blend_weights).max() < 2e-3
+
+
+def test_heap_settings_apply_on_glibc():
+    from capture2face.heap import bound_heap, release_free_memory
+
+    applied = bound_heap()
+    assert applied == (sys.platform.startswith("linux") and "glibc" in " ".join(__import__("platform").libc_ver()))
+    release_free_memory()  # must not raise anywhere

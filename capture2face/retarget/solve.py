@@ -9,7 +9,8 @@ so the retargeted feature points are *linear* in the unknowns x = (t_1..t_{B-1},
 
     min_x |A x - b_f|^2_W + ridge |x|^2 + temporal |x_f - x_{f-1}|^2,   0 <= w <= 1
 
-over all frames at once (W: per-feature-point reliability weights). Why jointly rather than "bone = its mapped landmark": a bone's
+over all frames of a window at once (W: per-feature-point reliability weights; windows:
+:mod:`capture2face.retarget.windows`). Why jointly rather than "bone = its mapped landmark": a bone's
 landmark vertex moves by sum_i W_vi t_i, not by its own t_i, so copying landmark motion
 into bones leaves a systematic error wherever skinning blends neighbouring bones, and the
 morph motion at that vertex would be counted twice.
