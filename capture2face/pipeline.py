@@ -61,7 +61,7 @@ class RunOptions:
         face_model: MediaPipe ``face_landmarker.task`` (None: the default lookup).
         compare: also write compare.mp4.
         samples: MSAA samples of the renders; None: 4 on a GPU, and on a software GL
-            (llvmpipe) 1 sample + an FXAA pass, which looks alike at ~40% of the cost.
+            (llvmpipe) 1 sample + an FXAA pass, whose edges look alike at ~55% of the cost.
         crf: H.264 quality of the videos (lower = better, larger).
         preset: x264 preset of the videos ("veryfast" encodes ~3x faster than "medium"
             at about the same size for rendered faces).

@@ -60,9 +60,9 @@ class RenderOptions:
         normal_blend: ``pd`` (Jimenez partial derivatives) or ``oat`` (Oat's detail blend).
         view: ``shaded``, or ``influence`` (each wrinkle map's per-pixel weight as colour).
         samples: MSAA samples (1 = none).
-        fxaa: a screen-space FXAA pass after the render (meant for ``samples=1``: on
-            software GL such as llvmpipe, 4x MSAA multiplies the draw's cost ~2.5x while
-            FXAA adds ~10%).
+        fxaa: a screen-space FXAA pass after the render, over the mesh's screen box
+            (meant for ``samples=1``: on software GL such as llvmpipe, 4x MSAA costs
+            ~2.3x the single-sample draw, FXAA ~1.25x).
         influence_output: ``view="shaded"`` only: also draw the influence view in the same
             pass (second colour attachment), for :meth:`Renderer.render_with_influence`.
             With ``wrinkles="off"`` it shows the ``auto`` driver's weights (what it would
