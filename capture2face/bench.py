@@ -246,8 +246,8 @@ def memory_check(long_seconds: float = 600.0, short_seconds: float = 10.0, size:
                  progress: bool = True) -> dict:
     """Peak RSS of ``capture2face run`` on a ``long_seconds`` clip vs a ``short_seconds``
     one at the same size (both loops of one synthetic clip). The pipeline streams frames
-    through bounded queues, so only per-frame arrays (the track, ~100 bytes a landmark)
-    grow with length.
+    through bounded queues and keeps landmarks on disk, so only ~1.5 KB a frame (the
+    Animation, the track's scores and poses) grows with length.
 
     Returns:
         ``short_peak_rss_mb``, ``long_peak_rss_mb``, ``ratio`` (long / short), the clip
