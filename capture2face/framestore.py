@@ -92,7 +92,6 @@ class FrameArray:
 
     def append(self, rows: np.ndarray) -> None:
         """Add ``rows`` (k, *row_shape) at the end."""
-        rows = np.ascontiguousarray(rows, self.dtype).reshape((-1,) + self.row_shape)
         self.write(self._frames, rows)
 
     def write(self, start: int, rows: np.ndarray) -> None:

@@ -195,7 +195,7 @@ class TrackBuilder:
         if not presence.any():
             raise CaptureError(f"{self.info.path}: no face found in {n} frames")
         options = self.options
-        width, height = self.size or (self.info.width, self.info.height)
+        width, height = self.size  # set by the first add(); n > 0 here
         t = np.asarray(self._times, np.float64)
         scores = np.concatenate(self._scores)
         pose = np.concatenate(self._pose)
@@ -272,15 +272,11 @@ class TrackBuilder:
                 f.close()
                 os.unlink(f.path)
         out = {"px": px, "depth": depth, "head": head}
-        if self._own_dir:  # a notebook's Track: plain arrays, the folder goes
-            arrays = {k: np.asarray(v) for k, v in out.items()}
-            for v in out.values():
-                v.close()
-            return arrays
-        readonly = {k: v.reopen_readonly() for k, v in out.items()}
+        # A notebook's Track gets plain arrays (its folder goes); the pipeline's stays on disk.
+        result = {k: np.asarray(v) if self._own_dir else v.reopen_readonly() for k, v in out.items()}
         for v in out.values():
             v.close()
-        return readonly
+        return result
 
 
 class Tracker:
@@ -339,8 +335,6 @@ def build_track(times: list[float], obs: list[FaceObservation | None], size: tup
     builder = TrackBuilder(info, options)
     for t, o in zip(times, obs):
         builder.add(t, o, size)
-    if not times:
-        builder.size = size
     return builder.finish()
 
 

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from capture2face.tracking.head_pose import split_pose
+
 
 @dataclass
 class OneEuro:
@@ -115,9 +117,8 @@ def filter_pose(pose: np.ndarray, t: np.ndarray, params: OneEuro) -> np.ndarray:
     angular speed is added in cm-equivalents at 10 cm (a point on the face surface).
     """
     pose = np.asarray(pose, np.float64)
-    m3 = pose[:, :3, :3]
-    scale = np.cbrt(np.linalg.det(m3))
-    q = Rotation.from_matrix(m3 / scale[:, None, None]).as_quat()  # (F, 4) x, y, z, w
+    _, rot, scale = split_pose(pose)
+    q = rot.as_quat()  # (F, 4) x, y, z, w
     sign = np.sign(np.einsum("fi,fi->f", q[1:], q[:-1]))
     sign[sign == 0] = 1.0
     q[1:] *= np.cumprod(sign)[:, None]

@@ -20,6 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+from capture2face.tracking.head_pose import split_pose
+
 
 @dataclass
 class GapFill:
@@ -83,12 +85,6 @@ def gap_runs(presence: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(edges[0::2].tolist(), edges[1::2].tolist()))
 
 
-def _split_pose(pose: np.ndarray) -> tuple[np.ndarray, Rotation, np.ndarray]:
-    m3 = pose[:, :3, :3]
-    scale = np.cbrt(np.linalg.det(m3))
-    return pose[:, :3, 3], Rotation.from_matrix(m3 / scale[:, None, None]), scale
-
-
 def plan_gaps(times: np.ndarray, presence: np.ndarray, max_gap_seconds: float) -> GapFill:
     """Where each frame's values come from (see :class:`GapFill`). At least one frame of
     ``presence`` (F,) must be True."""
@@ -123,7 +119,7 @@ def fill_pose(gaps: GapFill, pose: np.ndarray) -> None:
     over long ones."""
     for a, b in gap_runs(~(gaps.interpolated | gaps.held)):
         if gaps.interpolated[a]:
-            trans, rot, scale = _split_pose(pose[[a - 1, b]])
+            trans, rot, scale = split_pose(pose[[a - 1, b]])
             w = gaps.w[a:b]
             r = Slerp([0.0, 1.0], rot)(w)
             s = (1.0 - w) * scale[0] + w * scale[1]

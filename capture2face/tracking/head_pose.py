@@ -22,6 +22,7 @@ take no part in the fits, exactly as in MediaPipe.
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from capture2face.rig.canonical import CanonicalMesh, load_canonical_mesh
 
@@ -146,3 +147,10 @@ def project_camera_points(points: np.ndarray, width: int, height: int,
         ndc_x = np.where(depth > 0, f * (height / width) * pts[..., 0] / depth, np.nan)
         ndc_y = np.where(depth > 0, f * pts[..., 1] / depth, np.nan)
     return np.stack([(ndc_x + 1.0) * 0.5 * width, (1.0 - ndc_y) * 0.5 * height], axis=-1)
+
+
+def split_pose(pose: np.ndarray) -> tuple[np.ndarray, Rotation, np.ndarray]:
+    """Head poses (F, 4, 4) ``[s R | t]`` -> translation (F, 3), rotations (F), scale (F,)."""
+    m3 = pose[:, :3, :3]
+    scale = np.cbrt(np.linalg.det(m3))
+    return pose[:, :3, 3], Rotation.from_matrix(m3 / scale[:, None, None]), scale

@@ -11,7 +11,8 @@ one (a hard speed gate did that on real clips). Only tracked frames are candidat
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+
+from capture2face.tracking.head_pose import split_pose
 
 STEADY_SPEED = 10.0  # cm/s of surface motion (head speed) that doubles a frame's cost
 
@@ -27,8 +28,7 @@ def head_speed(pose: np.ndarray, times: np.ndarray) -> np.ndarray:
     pose = np.asarray(pose, np.float64)
     if pose.shape[0] < 2:
         return np.zeros(pose.shape[0])
-    m3 = pose[:, :3, :3]
-    rot = Rotation.from_matrix(m3 / np.cbrt(np.linalg.det(m3))[:, None, None])
+    _, rot, _ = split_pose(pose)
     dt = np.maximum(np.diff(times), 1e-6)
     ang = (rot[1:] * rot[:-1].inv()).magnitude() / dt
     lin = np.linalg.norm(np.diff(pose[:, :3, 3], axis=0), axis=1) / dt

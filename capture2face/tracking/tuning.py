@@ -28,7 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from capture2face.tracking import TrackOptions, Tracker, build_track
+from capture2face.tracking import TrackOptions, build_track
+from capture2face.tracking.landmarker import FaceLandmarker
 from capture2face.tracking.video import iter_frames, open_video
 
 EYE_CORNERS = (33, 263)
@@ -73,10 +74,11 @@ def observe(clip: str | Path, options: TrackOptions | None = None):
     """Track ``clip`` once; returns what :func:`build_track` needs to rebuild it cheaply."""
     info = open_video(clip)
     times, obs, size = [], [], (info.width, info.height)
-    with Tracker(info, options or TrackOptions()) as tracker:
+    # Detection only: build_track does the head coordinates, gaps and filtering later.
+    with FaceLandmarker.create_from_options((options or TrackOptions()).landmarker_options()) as landmarker:
         for t, rgb in iter_frames(clip):
             times.append(t)
-            obs.append(tracker.process(t, rgb))
+            obs.append(landmarker.detect(rgb, t))
             size = (rgb.shape[1], rgb.shape[0])
     return times, obs, size, info
 
