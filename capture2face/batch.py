@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from capture2face.atomic import write_text_atomic
-from capture2face.errors import CaptureError
+from capture2face.errors import CaptureError, install_process_defaults
 
 VIDEO_EXTENSIONS = (".mp4", ".mov", ".m4v", ".mkv", ".avi", ".webm", ".mpg", ".mpeg", ".wmv", ".flv")
 LIST_EXTENSIONS = (".txt", ".lst")
@@ -97,18 +97,10 @@ def expand_inputs(inputs: Iterable[str | os.PathLike]) -> list[BatchClip]:
     return clips
 
 
-def _raise_interrupt(signum, frame):
-    raise KeyboardInterrupt
-
-
 def _worker_init() -> None:
-    """Pool worker start-up: SIGTERM unwinds like Ctrl-C (outputs are staged, so a
-    terminated worker leaves nothing half-written); MediaPipe's C++ logs stay quiet."""
-    import signal
-
-    signal.signal(signal.SIGTERM, _raise_interrupt)
-    os.environ.setdefault("GLOG_minloglevel", "2")
-    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
+    """Pool worker start-up (outputs are staged, so a terminated worker leaves nothing
+    half-written)."""
+    install_process_defaults()
 
 
 def _run_clip(path: str, out: str, name: str, options: Any) -> dict:

@@ -9,15 +9,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import signal
 import sys
 from pathlib import Path
 
-from capture2face.errors import CaptureError
-
-WRINKLE_DRIVERS = ("auto", "zones", "dynamic", "off")
-
+from capture2face.errors import CaptureError, install_process_defaults
 
 def _cmd_avatar(args: argparse.Namespace) -> int:
     from capture2face.rig.avatar import default_avatar
@@ -141,6 +136,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from capture2face.render.renderer import WRINKLE_DRIVERS
+
     parser = argparse.ArgumentParser(
         prog="capture2face",
         description="Performance capture: a face video drives a wrinkled 3D character.",
@@ -223,18 +220,10 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _raise_interrupt(signum, frame):
-    raise KeyboardInterrupt
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    # MediaPipe and TFLite log to stderr from C++; keep the user's terminal readable.
-    os.environ.setdefault("GLOG_minloglevel", "2")
-    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
-    # SIGTERM unwinds like Ctrl-C, so atomic writers delete their temporary files.
-    signal.signal(signal.SIGTERM, _raise_interrupt)
+    install_process_defaults()
     try:
         return int(args.func(args) or 0)
     except CaptureError as exc:

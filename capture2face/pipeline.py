@@ -37,9 +37,9 @@ import numpy as np
 from capture2face.atomic import write_text_atomic
 from capture2face.errors import CaptureError
 from capture2face.heap import bound_heap, release_free_memory
+from capture2face.render.renderer import WRINKLE_DRIVERS
 from capture2face.rig.face_rig import FaceRig
 
-WRINKLE_DRIVERS = ("auto", "zones", "dynamic", "off")
 OUTPUT_FILES = ("avatar.mp4", "compare.mp4", "track.npz", "animation.npz", "animation.glb",
                 "livelink.csv", "report.json")
 BUILTIN_CHARACTERS = ("default", "wide")

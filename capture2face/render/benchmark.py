@@ -40,28 +40,6 @@ def sweep_states(rig: FaceRig, frames: int, fov_y_degrees: float = 30.0) -> list
     return states
 
 
-def render_fps(rig: FaceRig, wrinkles: str = "auto", frames: int = 60, size: int | tuple[int, int] = 512,
-               **options) -> dict:
-    """Frames per second of ``Renderer.render`` for ``rig``.
-
-    Returns:
-        {"fps", "ms_per_frame", "frames", "size", "wrinkles", "gl_renderer"}.
-    """
-    opts = RenderOptions(size=size, wrinkles=wrinkles, **options)
-    states = sweep_states(rig, frames, opts.fov_y_degrees)
-    with Renderer.create_from_options(rig, opts) as renderer:
-        renderer.render(states[0])  # warm-up: shader compile and first-use costs
-        start = time.perf_counter()
-        for state in states:
-            renderer.render(state)
-        elapsed = time.perf_counter() - start
-        gl = renderer.gl_renderer
-    return {
-        "fps": frames / elapsed, "ms_per_frame": 1000.0 * elapsed / frames, "frames": frames,
-        "size": opts.width_height, "wrinkles": wrinkles, "gl_renderer": gl,
-    }
-
-
 def interleaved_fps(rig: FaceRig, drivers: list[str], frames: int = 60, rounds: int = 5,
                     size: int | tuple[int, int] = 512, **options) -> dict[str, list[float]]:
     """Frames per second of each driver in each of ``rounds`` rounds; within a round every

@@ -22,7 +22,7 @@ import numpy as np
 
 from capture2face.errors import CaptureError
 from capture2face.render import camera
-from capture2face.render.context import gl_context, software_gl
+from capture2face.render.context import gl_context, gl_renderer, software_gl
 from capture2face.render.dynamic import dynamic_wrinkle_weights
 from capture2face.render.normal_blend import wrinkle_pd_layers
 from capture2face.render.shaders import program
@@ -173,6 +173,11 @@ class Renderer:
 
     def _setup(self) -> None:
         rig, opts, ctx = self.rig, self.options, self.ctx
+        # Influence-view colour of each wrinkle map (by name, else by slot); uploaded per
+        # frame because renderers of other rigs may share the compiled program.
+        self._map_colors = np.array(SLOT_COLORS, np.float32)
+        for k, name in enumerate(rig.wrinkle_map_names[:MAX_MAPS]):
+            self._map_colors[k] = MAP_COLORS.get(name, SLOT_COLORS[k])
         n_maps = len(rig.wrinkle_map_names)
         shade_wrinkles = opts.wrinkles != "off"
         self._influence_output = bool(opts.influence_output) and opts.view == "shaded"
@@ -351,10 +356,7 @@ class Renderer:
         _set(prog, "u_light_color", tuple(map(float, state.light_color if state.light_color is not None else DEFAULT_LIGHT_COLOR)))
         _set(prog, "u_ambient", tuple(map(float, state.ambient if state.ambient is not None else DEFAULT_AMBIENT)))
         _set(prog, "u_fill_color", DEFAULT_FILL_COLOR)
-        colors = np.array(SLOT_COLORS, np.float32)
-        for k, name in enumerate(rig.wrinkle_map_names[:MAX_MAPS]):
-            colors[k] = MAP_COLORS.get(name, SLOT_COLORS[k])
-        _set(prog, "u_map_color", colors)
+        _set(prog, "u_map_color", self._map_colors)
         for tex, unit in self._textures:
             tex.use(unit)
         for name, unit in (("u_albedo", _UNIT_ALBEDO), ("u_normal_map", _UNIT_NORMAL), ("u_wrinkle_pd", _UNIT_WRINKLE),
@@ -392,7 +394,7 @@ class Renderer:
     # ---- public API -------------------------------------------------------------------
     @property
     def gl_renderer(self) -> str:
-        return str(self.ctx.info["GL_RENDERER"])
+        return gl_renderer()  # the renderer draws in the shared context
 
     @property
     def size(self) -> tuple[int, int]:
