@@ -23,6 +23,7 @@ influence error from 0.089/0.070/0.088 (brows only) to 0.082/0.060/0.083.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 from dataclasses import dataclass
@@ -159,6 +160,7 @@ def cache_dir() -> Path:
     return Path(os.environ.get("CAPTURE2FACE_CACHE") or Path.home() / ".cache" / "capture2face")
 
 
+@functools.lru_cache(maxsize=None)
 def _source_hash() -> str:
     """Hash of the builder's source files: a code change gives a new cache file."""
     from capture2face.rig import maps
@@ -371,16 +373,19 @@ def _mouth_interior(lip_loop: np.ndarray, pos: np.ndarray, upper: np.ndarray):
 # Skinning
 
 
-def _skin_weights(pos: np.ndarray, tris: np.ndarray, n_skin: int, lowerness: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _skin_weights(skin: np.ndarray, graph, loops: list[np.ndarray], lowerness: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """Geodesic compact-support falloffs, head takes the remainder, top 4 kept. The jaw's
     falloff is broad (the whole lower face follows it) and gated by ``lowerness`` (n_skin,)
     so it never reaches the upper lip.
 
-    Returns (joints (n_skin, 4), weights (n_skin, 4), dense (n_skin, B))."""
+    Args:
+        skin: (n_skin, 3) skin vertex positions; graph: their edge-length graph;
+        loops: the skin's boundary loops.
+    Returns (joints (n_skin, 4), weights (n_skin, 4))."""
     from scipy.sparse.csgraph import dijkstra
 
-    skin = pos[:n_skin]
-    graph = mesh_ops.edge_graph(skin, tris)
+    n_skin = len(skin)
     dist = np.empty((len(BONES) - 1, n_skin))
     for i, b in enumerate(BONES[1:]):
         dist[i] = dijkstra(graph, indices=_bone_source(skin, b), directed=False, min_only=True)
@@ -390,7 +395,7 @@ def _skin_weights(pos: np.ndarray, tris: np.ndarray, n_skin: int, lowerness: np.
     k[[b.name for b in BONES[1:]].index("jaw")] *= lowerness
     # The hairline stays partly with the head, so a brow raise bunches the forehead's
     # skin below it instead of lifting the face's whole top edge.
-    outer = max(mesh_ops.boundary_loops(tris), key=len)
+    outer = max(loops, key=len)
     top = outer[skin[outer, 1] > skin[list(BROW_R), 1].max()]
     to_top = dijkstra(graph, indices=top, directed=False, min_only=True)
     pin = 1.0 - FOREHEAD_PIN_HEAD * (1.0 - features.smoothstep(to_top / FOREHEAD_PIN_CM))
@@ -399,7 +404,7 @@ def _skin_weights(pos: np.ndarray, tris: np.ndarray, n_skin: int, lowerness: np.
     dense = np.zeros((n_skin, len(BONES)))
     dense[:, 1:] = (k / np.maximum(total, 1.0)).T
     dense[:, 0] = np.maximum(0.0, 1.0 - total)
-    return (*_top4(dense), dense)
+    return _top4(dense)
 
 
 def _bone_source(skin: np.ndarray, bone: BoneSpec) -> np.ndarray:
@@ -458,9 +463,10 @@ class _MorphBuilder:
         pinned = pinned[~fixed[pinned]] if len(pinned) else pinned
         fixed[pinned] = True
         values[pinned] = 0.0
-        far = self.distance_to(np.concatenate(ids)) > radius
-        fixed |= far & ~np.isin(np.arange(self.n), np.concatenate(ids))
-        values[far & ~np.isin(np.arange(self.n), np.concatenate(ids))] = 0.0
+        sources = np.concatenate(ids)
+        far = (self.distance_to(sources) > radius) & ~np.isin(np.arange(self.n), sources)
+        fixed |= far
+        values[far] = 0.0
         return mesh_ops.smooth_extension(self.lap, fixed, values, order=2)
 
     def harmonic(self, fixed: np.ndarray, values: np.ndarray) -> np.ndarray:
@@ -642,7 +648,7 @@ def build_avatar(variant: str = "default") -> FaceRig:
         val[ids] = value
     sets["lowerness"] = np.clip(mb.harmonic(fixed, val), 0.0, 1.0)
 
-    joints, weights, _ = _skin_weights(pos, tris, n_skin, sets["lowerness"])
+    joints, weights = _skin_weights(pos, mb.graph, loops, sets["lowerness"])
     skin_morphs = _build_morphs(mb, sets, mirror)
 
     # Eyes and mouth interior.
