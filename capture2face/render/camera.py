@@ -69,10 +69,22 @@ def rotation_matrix(yaw: float, pitch: float, roll: float) -> np.ndarray:
     when facing it), positive pitch tilts it up towards +y, positive roll turns +x
     towards +y.
     """
-    y, p, r = np.radians([yaw, pitch, roll])
-    rx = np.array([[1, 0, 0], [0, np.cos(p), np.sin(p)], [0, -np.sin(p), np.cos(p)]])
-    ry = np.array([[np.cos(y), 0, np.sin(y)], [0, 1, 0], [-np.sin(y), 0, np.cos(y)]])
-    rz = np.array([[np.cos(r), -np.sin(r), 0], [np.sin(r), np.cos(r), 0], [0, 0, 1]])
+    return rotation_ypr(np.array([yaw, pitch, roll], np.float64))
+
+
+def rotation_ypr(angles_deg: np.ndarray) -> np.ndarray:
+    """(..., 3) yaw, pitch, roll in degrees -> (..., 3, 3) rotations: the batched form of
+    :func:`rotation_matrix`, ``Rz(roll) @ Ry(yaw) @ Rx(pitch)``."""
+    y, p, r = np.moveaxis(np.radians(np.asarray(angles_deg, np.float64)), -1, 0)
+    cy, sy, cp, sp, cr, sr = np.cos(y), np.sin(y), np.cos(p), np.sin(p), np.cos(r), np.sin(r)
+    one, zero = np.ones_like(y), np.zeros_like(y)
+
+    def mat(*rows):
+        return np.stack([np.stack(row, -1) for row in rows], -2)
+
+    rx = mat((one, zero, zero), (zero, cp, sp), (zero, -sp, cp))
+    ry = mat((cy, zero, sy), (zero, one, zero), (-sy, zero, cy))
+    rz = mat((cr, -sr, zero), (sr, cr, zero), (zero, zero, one))
     return rz @ ry @ rx
 
 
@@ -83,12 +95,19 @@ def face_centre_and_height(rig: FaceRig) -> tuple[np.ndarray, float]:
     return (lo + hi) / 2.0, float(hi[1] - lo[1])
 
 
+def framing_distance(rig: FaceRig, fov_y_degrees: float) -> float:
+    """Camera distance (cm, to the face's centre) at which the skin fills ``FRAMING_FILL``
+    of the frame height."""
+    _, height = face_centre_and_height(rig)
+    return float(height / (2.0 * FRAMING_FILL * np.tan(np.radians(fov_y_degrees) / 2.0)))
+
+
 def framing_pose(rig: FaceRig, yaw: float = 0.0, pitch: float = 0.0, roll: float = 0.0,
                  fov_y_degrees: float = 30.0) -> np.ndarray:
     """(4, 4) head -> camera pose that centres the face and makes its skin fill about 60%
     of the frame height (angles in degrees, see :func:`rotation_matrix`)."""
-    centre, height = face_centre_and_height(rig)
-    distance = height / (2.0 * FRAMING_FILL * np.tan(np.radians(fov_y_degrees) / 2.0))
+    centre, _ = face_centre_and_height(rig)
+    distance = framing_distance(rig, fov_y_degrees)
     rot = rotation_matrix(yaw, pitch, roll)
     pose = np.eye(4)
     pose[:3, :3] = rot

@@ -28,8 +28,9 @@ def contact_sheet(rig=None, cell: int = 256, supersample: int = 2) -> np.ndarray
     import cv2
 
     from capture2face.render import FrameState, Renderer, RenderOptions
+    from capture2face.render.camera import framing_distance
     from capture2face.rig.avatar import default_avatar
-    from capture2face.synth.trajectories import framing_distance, head_poses
+    from capture2face.synth.trajectories import head_poses
 
     rig = rig or default_avatar()
     size = cell * supersample

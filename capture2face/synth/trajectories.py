@@ -18,7 +18,7 @@ import numpy as np
 from scipy.interpolate import PchipInterpolator
 
 from capture2face.errors import CaptureError
-from capture2face.render.camera import FRAMING_FILL, face_centre_and_height
+from capture2face.render.camera import face_centre_and_height, framing_distance, rotation_ypr
 from capture2face.rig.face_rig import FaceRig
 
 # MediaPipe's geometry pipeline assumes this vertical field of view (degrees) for its
@@ -70,28 +70,6 @@ class Performance:
 
 
 # ---- head pose ------------------------------------------------------------------------
-
-def rotation_ypr(angles_deg: np.ndarray) -> np.ndarray:
-    """(..., 3) yaw, pitch, roll in degrees -> (..., 3, 3) rotations, the vectorized form
-    of ``render.camera.rotation_matrix``: ``Rz(roll) @ Ry(yaw) @ Rx(pitch)``."""
-    y, p, r = np.moveaxis(np.radians(np.asarray(angles_deg, np.float64)), -1, 0)
-    cy, sy, cp, sp, cr, sr = np.cos(y), np.sin(y), np.cos(p), np.sin(p), np.cos(r), np.sin(r)
-    one, zero = np.ones_like(y), np.zeros_like(y)
-
-    def mat(*rows):
-        return np.stack([np.stack(row, -1) for row in rows], -2)
-
-    rx = mat((one, zero, zero), (zero, cp, sp), (zero, -sp, cp))
-    ry = mat((cy, zero, sy), (zero, one, zero), (-sy, zero, cy))
-    rz = mat((cr, -sr, zero), (sr, cr, zero), (zero, zero, one))
-    return rz @ ry @ rx
-
-
-def framing_distance(rig: FaceRig, fov_y: float = DEFAULT_FOV_Y) -> float:
-    """Camera distance (cm, to the face's centre) of ``render.camera.framing_pose``."""
-    _, height = face_centre_and_height(rig)
-    return float(height / (2.0 * FRAMING_FILL * np.tan(np.radians(fov_y) / 2.0)))
-
 
 def head_poses(rig: FaceRig, angles_deg: np.ndarray, offset: np.ndarray, fov_y: float = DEFAULT_FOV_Y) -> np.ndarray:
     """``render.camera.framing_pose`` for each frame's angles, translated by ``offset``.
