@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from capture2face.retarget import RetargetOptions, retarget
+from capture2face.retarget import RetargetOptions, retarget, shared_blendshapes
 from capture2face.retarget.influences import region_influence, rig_influences, vertex_influences
 
 
@@ -116,8 +116,7 @@ def score(track, animation, truth, source, target) -> dict:
     # Morph weights; MediaPipe's scores on the morphs that share a name.
     w_true = truth.blend_weights[use].astype(np.float64)
     w_pred = animation.blend_weights[use].astype(np.float64)
-    mp_index = {n: i for i, n in enumerate(track.blendshape_names)}
-    shared = [(m, mp_index[n]) for m, n in enumerate(target.morph_names) if n in mp_index]
+    shared = shared_blendshapes(target.morph_names, track.blendshape_names)
     result_mp = {}
     if shared:
         ms, ss = np.array(shared).T

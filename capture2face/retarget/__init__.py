@@ -126,13 +126,17 @@ def feature_correspondence(rig) -> tuple[np.ndarray, np.ndarray, bool]:
     return np.asarray(rig.bone_landmarks)[bones], rig.bone_rest[bones].astype(np.float64), False
 
 
+def shared_blendshapes(morph_names: list[str], blendshape_names: list[str]) -> list[tuple[int, int]]:
+    """(morph index, blendshape index) of every morph that shares a name with a MediaPipe score."""
+    index = {n: i for i, n in enumerate(blendshape_names)}
+    return [(m, index[n]) for m, n in enumerate(morph_names) if n in index]
+
+
 def _mediapipe_weights(track, rig) -> np.ndarray:
     """(F, M) MediaPipe's scores for morphs that share a name, 0 for the others."""
     weights = np.zeros((track.n_frames, rig.n_morphs), np.float32)
-    index = {n: i for i, n in enumerate(track.blendshape_names)}
-    for m, name in enumerate(rig.morph_names):
-        if name in index:
-            weights[:, m] = track.blendshapes[:, index[name]]
+    for m, s in shared_blendshapes(rig.morph_names, track.blendshape_names):
+        weights[:, m] = track.blendshapes[:, s]
     return np.clip(weights, 0.0, 1.0)
 
 
@@ -254,9 +258,7 @@ def solve_bones_weights(mapped: MappedPoints, rig, landmarks: np.ndarray, per_ve
     rest_pts = rig.vertices[vertices].astype(np.float64)
     skin = rig.dense_skin_weights()[vertices].astype(np.float64)
     model = linear_rig_model(rig.replace(skin_joints=np.zeros_like(rig.skin_joints)), vertices, True)
-    solver = LinearSolver(model, ridge=options.ridge, temporal=options.temporal_smoothness,
-                          morph_ridge=options.morph_ridge, sparsity=options.sparsity,
-                          axis_weights=(1.0, 1.0, options.depth_weight))
+    solver = _joint_solver(model, options, None, options.morph_ridge, options.sparsity)
     for w in mapped.windows:
         pts = mapped.read(w)
         bones = np.repeat(rest[None], len(pts), 0)
