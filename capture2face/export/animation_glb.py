@@ -23,8 +23,8 @@ import numpy as np
 
 from capture2face.errors import CaptureError
 from capture2face.rig.glb_container import GlbBuilder, GlbReader
+from capture2face.rig.gltf import METRES_PER_CM
 
-METRES_PER_CM = 0.01
 
 
 def _frame_times(animation, fps: float | None) -> np.ndarray:
@@ -146,13 +146,6 @@ def add_animation(builder: GlbBuilder, rig, animation, nodes: dict, fps: float |
     return builder.add("animations", {"name": name, "samplers": samplers, "channels": channels})
 
 
-def write_animation_glb(rig, animation, path: str | os.PathLike, fps: float | None = None) -> None:
-    """Write ``animation.glb``: ``rig`` with ``animation`` (atomic)."""
-    from capture2face.rig.gltf import export_glb
-
-    export_glb(rig, path, animation=animation, fps=fps)
-
-
 @dataclass
 class GlbAnimation:
     """An animation read back from a .glb. F keyframes, B joints, M morph targets.
@@ -176,7 +169,7 @@ class GlbAnimation:
 
 
 def read_glb_animation(path: str | os.PathLike, index: int = 0, cm_per_unit: float = 100.0) -> GlbAnimation:
-    """Read animation ``index`` of a .glb with one skin (as :func:`write_animation_glb` writes)."""
+    """Read animation ``index`` of a .glb with one skin (as ``rig.gltf.export_glb(rig, path, animation=...)`` writes)."""
     r = GlbReader(path)
     g = r.gltf
     anims = g.get("animations", [])

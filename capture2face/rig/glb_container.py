@@ -193,12 +193,15 @@ class GlbReader:
         uri = buf.get("uri")
         if uri is None:
             return self.bin
+        return self._uri_bytes(uri)
+
+    def _uri_bytes(self, uri: str) -> bytes:
+        """Bytes behind a glTF URI: a base64 data URI or a file beside the .gltf."""
         if uri.startswith("data:"):
             import base64
 
             return base64.b64decode(uri.split(",", 1)[1])
-        ext = os.path.join(os.path.dirname(self.path), uri)
-        with open(ext, "rb") as fh:
+        with open(os.path.join(os.path.dirname(self.path), uri), "rb") as fh:
             return fh.read()
 
     def view_bytes(self, index: int) -> tuple[bytes, int | None]:
@@ -261,13 +264,8 @@ class GlbReader:
         try:
             if "bufferView" in img:
                 data, _ = self.view_bytes(img["bufferView"])
-            elif img.get("uri", "").startswith("data:"):
-                import base64
-
-                data = base64.b64decode(img["uri"].split(",", 1)[1])
             else:
-                with open(os.path.join(os.path.dirname(self.path), img["uri"]), "rb") as fh:
-                    data = fh.read()
+                data = self._uri_bytes(img["uri"])
             return decode_image(data)
         except (OSError, ValueError, KeyError) as exc:
             raise CaptureError(f"{self.path}: image {index} is unreadable ({exc.__class__.__name__})") from None

@@ -9,7 +9,6 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
-from scipy.sparse.csgraph import dijkstra
 
 
 def unique_edges(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -120,14 +119,6 @@ def edge_graph(vertices: np.ndarray, triangles: np.ndarray) -> sp.csr_matrix:
     n = len(vertices)
     g = sp.coo_matrix((length, (edges[:, 0], edges[:, 1])), shape=(n, n))
     return (g + g.T).tocsr()
-
-
-def geodesic_distances(vertices: np.ndarray, triangles: np.ndarray, sources: np.ndarray) -> np.ndarray:
-    """(S, V) shortest-path distances along mesh edges from each source vertex.
-
-    Edge paths follow the surface, so they go around holes (eyes, mouth): the upper lip
-    is far from the lower lip even though they touch in space."""
-    return dijkstra(edge_graph(vertices, triangles), indices=np.asarray(sources), directed=False)
 
 
 def uniform_laplacian(n_vertices: int, triangles: np.ndarray) -> sp.csr_matrix:
