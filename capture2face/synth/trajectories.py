@@ -119,14 +119,12 @@ def random_performance(
     expression: bool = True,
     face_exit: bool = False,
     fov_y: float = DEFAULT_FOV_Y,
-    aspect: float = 1.0,
 ) -> Performance:
     """A smooth random performance of ``frames`` frames, deterministic for ``seed``.
 
     ``expression=False`` keeps one mild, non-neutral expression throughout (head motion
     only); ``head_motion=False`` keeps the head frontal and centred. ``face_exit=True``
-    slides the head out of the frame sideways for about one second mid-clip.
-    ``aspect`` (width / height) sizes the sideways exit.
+    slides the head out of the (square) frame sideways for about one second mid-clip.
     """
     if frames < 2:
         raise CaptureError(f"a synthetic performance needs at least 2 frames (got {frames})")
@@ -219,7 +217,7 @@ def random_performance(
 
     exiting = np.zeros(frames, bool)
     if face_exit:
-        offset_f, exiting = _face_exit(rig, offset_f, fps, fov_y, aspect)
+        offset_f, exiting = _face_exit(rig, offset_f, fps, fov_y)
     return Performance(
         times=f / fps,
         fps=float(fps),
@@ -244,7 +242,7 @@ def _random_lights(rng: np.random.Generator, n: int) -> np.ndarray:
                      np.cos(azimuth) * np.cos(elevation)], 1)
 
 
-def _face_exit(rig: FaceRig, offset: np.ndarray, fps: float, fov_y: float, aspect: float):
+def _face_exit(rig: FaceRig, offset: np.ndarray, fps: float, fov_y: float):
     """Slide the head sideways out of the frame for ~1 s in the middle of the clip.
 
     Returns the new (F, 3) offsets and the (F,) frames where the head is (partly) out.
@@ -256,7 +254,7 @@ def _face_exit(rig: FaceRig, offset: np.ndarray, fps: float, fov_y: float, aspec
     start = frames // 2 - out_len // 2
     # Far enough that the whole face is outside the horizontal field of view.
     _, height = face_centre_and_height(rig)
-    half_width = framing_distance(rig, fov_y) * np.tan(np.radians(fov_y) / 2) * aspect
+    half_width = framing_distance(rig, fov_y) * np.tan(np.radians(fov_y) / 2)  # square frames
     shift = half_width + height  # the face is narrower than it is tall
     f = np.arange(frames)
     # Smoothstep ramps in and out.
