@@ -20,6 +20,11 @@ Figures (all frames per second of wall time unless named otherwise):
 * ``end_to_end_fps``: :func:`capture2face.pipeline.run` with default options (avatar.mp4,
   compare.mp4 and every export), clip frames / total seconds.
 * ``peak_rss_mb``: this process's peak resident memory.
+* ``cpu_ms_per_frame``: processor time (user + system, every thread of the process:
+  MediaPipe's, llvmpipe's, the encoders') per frame of the decode, track, render (``auto``
+  driver), encode and end-to-end measurements. With ``cpu_cores`` cores, no scheduling can
+  run the pipeline faster than ``end_to_end_fps_cpu_bound`` = cores x 1000 /
+  ``cpu_ms_per_frame["end_to_end"]``: the work itself caps the speed, whatever overlaps.
 """
 
 from __future__ import annotations
@@ -40,6 +45,26 @@ from capture2face.errors import CaptureError
 RENDER_FRAMES_MAX = 40  # frames per round and driver; the renderer's speed is per frame
 RENDER_ROUNDS = 5
 ENCODE_FRAMES = 120
+
+
+class _Clock:
+    """Wall and process CPU seconds (all threads) of a ``with`` block."""
+
+    def __enter__(self) -> "_Clock":
+        self._wall, self._cpu = time.perf_counter(), time.process_time()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.wall = time.perf_counter() - self._wall
+        self.cpu = time.process_time() - self._cpu
+
+
+def cpu_cores() -> int:
+    """Cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
 
 
 def _best_of(fn, repeats: int = 3) -> float:
@@ -89,14 +114,17 @@ def run_bench(size: int = 512, frames: int = 300, progress: bool = True, seed: i
         synthesize(clip, SynthOptions(frames=frames, size=size, seed=seed), progress=progress)
         result["synth_seconds"] = round(time.perf_counter() - t, 2)
 
-        t = time.perf_counter()
-        n = sum(1 for _ in iter_frames(clip))
-        result["decode_fps"] = n / (time.perf_counter() - t)
+        cpu_ms: dict[str, float] = {}
+        with _Clock() as clock:
+            n = sum(1 for _ in iter_frames(clip))
+        result["decode_fps"] = n / clock.wall
+        cpu_ms["decode"] = 1000.0 * clock.cpu / n
 
         options = RunOptions(size=size)
-        t = time.perf_counter()
-        track = track_stage(clip, options, progress=progress)
-        result["track_fps"] = track.n_frames / (time.perf_counter() - t)
+        with _Clock() as clock:
+            track = track_stage(clip, options, progress=progress)
+        result["track_fps"] = track.n_frames / clock.wall
+        cpu_ms["track"] = 1000.0 * clock.cpu / track.n_frames
 
         animation = retarget(track, rig, RetargetOptions())
         total_s = _best_of(lambda: retarget(track, rig, RetargetOptions()))
@@ -105,18 +133,23 @@ def run_bench(size: int = 512, frames: int = 300, progress: bool = True, seed: i
         result["wrinkle_ms_per_frame"] = 1000.0 * wrinkle_s / track.n_frames
 
         rendered, render_figures = _render_rounds(rig, animation, replace(options, compare=False), progress)
+        cpu_ms["render_wrinkles_auto"] = render_figures.pop("render_cpu_ms_per_frame_auto")
         result.update(render_figures)
 
-        t = time.perf_counter()
-        with VideoWriter(tmp / "encode.mp4", track.fps, (size, size)) as out:
+        with _Clock() as clock, VideoWriter(tmp / "encode.mp4", track.fps, (size, size)) as out:
             for i in range(ENCODE_FRAMES):
                 out.write(rendered[i % len(rendered)])
-        result["encode_fps"] = ENCODE_FRAMES / (time.perf_counter() - t)
+        result["encode_fps"] = ENCODE_FRAMES / clock.wall
+        cpu_ms["encode"] = 1000.0 * clock.cpu / ENCODE_FRAMES
 
-        t = time.perf_counter()
-        report = run(clip, tmp / "out", options, progress=progress)
-        result["end_to_end_fps"] = report["frames"] / (time.perf_counter() - t)
+        with _Clock() as clock:
+            report = run(clip, tmp / "out", options, progress=progress)
+        result["end_to_end_fps"] = report["frames"] / clock.wall
         result["end_to_end_seconds"] = report["seconds"]
+        cpu_ms["end_to_end"] = 1000.0 * clock.cpu / report["frames"]
+    result["cpu_ms_per_frame"] = {k: round(v, 2) for k, v in cpu_ms.items()}
+    result["cpu_cores"] = cpu_cores()
+    result["end_to_end_fps_cpu_bound"] = result["cpu_cores"] * 1000.0 / cpu_ms["end_to_end"]
     result["peak_rss_mb"] = peak_rss_mb()
     result["goals"] = {
         "end_to_end_fps >= 60": result["end_to_end_fps"] >= 60,
@@ -146,6 +179,7 @@ def _render_rounds(rig, animation, options, progress: bool = True) -> tuple[list
                          head_pose=poses[i], influences=animation.influences[i],
                          zone_weights=animation.zone_weights[i]) for i in range(n_render)]
     fps: dict[str, list[float]] = {d: [] for d in drivers}
+    cpu: dict[str, float] = {d: 0.0 for d in drivers}
     rendered: list[np.ndarray] = []
     renderers = {}
     try:
@@ -156,12 +190,13 @@ def _render_rounds(rig, animation, options, progress: bool = True) -> tuple[list
         for k in range(RENDER_ROUNDS):
             for j in range(len(drivers)):
                 d = drivers[(j + k) % len(drivers)]  # rotate who goes first
-                t = time.perf_counter()
-                for state in states:
-                    image = renderers[d].render(state)
-                    if d == "auto" and len(rendered) < 30:
-                        rendered.append(image)
-                fps[d].append(n_render / (time.perf_counter() - t))
+                with _Clock() as clock:
+                    for state in states:
+                        image = renderers[d].render(state)
+                        if d == "auto" and len(rendered) < 30:
+                            rendered.append(image)
+                fps[d].append(n_render / clock.wall)
+                cpu[d] += clock.cpu
                 bar.update(1)
         bar.close()
         gl = renderers["off"].gl_renderer
@@ -171,6 +206,7 @@ def _render_rounds(rig, animation, options, progress: bool = True) -> tuple[list
     figures = {f"render_fps_wrinkles_{d}": float(np.median(fps[d])) for d in drivers}
     figures["render_auto_over_off"] = float(np.median(np.array(fps["auto"]) / np.array(fps["off"])))
     figures["render_rounds_fps"] = {d: [round(v, 2) for v in fps[d]] for d in drivers}
+    figures["render_cpu_ms_per_frame_auto"] = 1000.0 * cpu["auto"] / (RENDER_ROUNDS * n_render)
     figures["render_antialias"] = "fxaa" if base.fxaa else f"msaa{base.samples}" if base.samples > 1 else "none"
     figures["gl_renderer"] = gl
     return rendered, figures

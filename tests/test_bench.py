@@ -30,6 +30,15 @@ def test_bench_cli_reports_every_figure(tmp_path):
     # Stages alone are faster than the whole pipeline, which runs all of them.
     assert figures["end_to_end_fps"] < figures["decode_fps"]
     assert figures["end_to_end_fps"] < figures["track_fps"] * 1.05
+    # Processor time: every stage costs some, the whole pipeline more than tracking alone,
+    # and no run beats the bound its own work sets on this many cores.
+    cpu = figures["cpu_ms_per_frame"]
+    assert set(cpu) == {"decode", "track", "render_wrinkles_auto", "encode", "end_to_end"}
+    assert all(v > 0 for v in cpu.values())
+    assert cpu["end_to_end"] > cpu["track"]
+    assert figures["cpu_cores"] >= 1
+    assert figures["end_to_end_fps_cpu_bound"] == pytest.approx(figures["cpu_cores"] * 1000 / cpu["end_to_end"], rel=0.01)
+    assert figures["end_to_end_fps"] <= figures["end_to_end_fps_cpu_bound"] * 1.01
     assert figures["peak_rss_mb"] > 50  # MediaPipe + GL + NumPy are loaded: not a bogus figure
     assert (figures["size"], figures["frames"]) == (128, 24)
     assert set(figures["goals"]) and all(isinstance(v, bool) for v in figures["goals"].values())
