@@ -25,9 +25,10 @@ from capture2face.tracking.landmarker import BLENDSHAPE_NAMES
 from capture2face.tracking.track import Track
 
 
-# The defaults carry strong morph priors tuned for a real tracker's noise; a noise-free
-# track is recovered exactly with weak ones.
-EXACT = RetargetOptions(morph_ridge=1e-4, sparsity=0.0)
+# The defaults carry strong morph priors and half-trust the tracker's depth motion, tuned
+# for a real tracker's noise; a noise-free track is recovered exactly with weak priors and
+# all of its depth.
+EXACT = RetargetOptions(morph_ridge=1e-4, sparsity=0.0, depth_motion=1.0)
 
 
 @pytest.fixture(scope="module")
@@ -174,7 +175,7 @@ def test_perfect_track_recovers_bones_and_weights(rig, performance):
 def test_joint_solve_beats_bone_equals_landmark(rig, performance):
     track = perfect_track(rig, performance)
     joint = _bone_error_iod(retarget(track, rig, EXACT), performance.bone_positions, rig)
-    direct_opts = RetargetOptions(joint_solve=False, morph_ridge=1e-4, sparsity=0.0)
+    direct_opts = RetargetOptions(joint_solve=False, morph_ridge=1e-4, sparsity=0.0, depth_motion=1.0)
     direct = _bone_error_iod(retarget(track, rig, direct_opts), performance.bone_positions, rig)
     assert np.percentile(joint, 95) < 0.5 * np.percentile(direct, 95)
 
@@ -228,7 +229,7 @@ def test_character_without_landmark_vertices_uses_bone_landmarks(rig, performanc
     scores = np.random.default_rng(5).uniform(0, 1, (performance.n_frames, len(names))).astype(np.float32)
     track = perfect_track(rig, performance, blendshapes=scores)
     imported = rig.replace(landmark_vertices=np.full_like(rig.landmark_vertices, -1))
-    anim = retarget(track, imported)
+    anim = retarget(track, imported, RetargetOptions(depth_motion=1.0))
     # Each bone follows its landmark's motion.
     lm = track.landmarks_head.astype(np.float64)
     bl = rig.bone_landmarks
@@ -266,21 +267,43 @@ def test_reliability_weights_discount_wandering_points(rig, performance):
     lm = track.landmarks_head.copy()
     lm[:, bad] += wander - wander[track.neutral_frame]
     track = dataclasses.replace(track, landmarks_head=lm.astype(np.float32))
-    plain = _bone_error_iod(retarget(track, rig, RetargetOptions(reweight_iterations=0, oval_weight=1.0)),
+    plain = _bone_error_iod(retarget(track, rig, RetargetOptions(reweight_iterations=0, oval_weight=1.0,
+                                                                 depth_motion=1.0)),
                             performance.bone_positions, rig)
-    irls = _bone_error_iod(retarget(track, rig, RetargetOptions(reweight_iterations=2, oval_weight=1.0)),
+    irls = _bone_error_iod(retarget(track, rig, RetargetOptions(reweight_iterations=2, oval_weight=1.0,
+                                                                depth_motion=1.0)),
                            performance.bone_positions, rig)
     assert np.percentile(irls, 95) < 0.7 * np.percentile(plain, 95)
 
 
 def test_default_priors_stay_close_on_a_perfect_track(rig, performance):
-    anim = retarget(perfect_track(rig, performance), rig)
+    # The morph priors' cost (a perfect track's depth is worth all of it).
+    anim = retarget(perfect_track(rig, performance), rig, RetargetOptions(depth_motion=1.0))
     err = _bone_error_iod(anim, performance.bone_positions, rig)
     assert np.percentile(err, 95) < 0.03  # the morph priors cost some accuracy here
     zero = np.abs(performance.blend_weights).mean()
     assert np.abs(anim.blend_weights - performance.blend_weights).mean() < 0.85 * zero
     # Shrunk, but following the true weights (all-zero weights would not correlate).
     assert np.corrcoef(anim.blend_weights.ravel(), performance.blend_weights.ravel())[0, 1] > 0.7
+
+
+def test_depth_motion_scales_the_trackers_depth_motion_only(rig, performance):
+    from capture2face.retarget import _fit_network, feature_correspondence
+
+    track = perfect_track(rig, performance)
+    landmarks, target, _ = feature_correspondence(rig)
+    half = _fit_network(track, rig, landmarks, target, RetargetOptions(depth_motion=0.5))
+    full = _fit_network(track, rig, landmarks, target, RetargetOptions(depth_motion=1.0))
+    src = track.landmarks_head[:, landmarks].astype(np.float64)
+    neutral = src[track.neutral_frame]
+    damped = neutral + (src - neutral) * np.array([1.0, 1.0, 0.5])
+    np.testing.assert_allclose(half(src), full(damped), atol=1e-9)
+    np.testing.assert_allclose(half(neutral), target, atol=1e-6)  # the neutral still lands exactly
+    # x and y motion is untouched: a frame moved only in x, y maps like the full network.
+    flat = src.copy()
+    flat[..., 2] = neutral[..., 2]
+    np.testing.assert_allclose(half(flat), full(flat), atol=1e-9)
+    assert np.abs(src[..., 2] - neutral[..., 2]).max() > 0.05  # the clip does move in depth
 
 
 def test_retarget_timing_is_measurable(rig, performance):

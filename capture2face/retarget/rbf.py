@@ -66,12 +66,15 @@ class FeatureMap:
         offset: (N, 3) ``target_neutral - network(source_neutral)``: what makes the
             neutral frame land exactly on the target's neutral even when the network
             smooths (``smoothing > 0``) or uses fewer centres than feature points.
+        depth_motion: how much of the source's depth (z) motion away from its neutral
+            the network is given (1 = all of it).
     """
 
     source_neutral: np.ndarray
     target_neutral: np.ndarray
     network: RBFInterpolator
     offset: np.ndarray
+    depth_motion: float = 1.0
 
     def __call__(self, source_points: np.ndarray) -> np.ndarray:
         """Map frames of source feature points onto the target.
@@ -84,6 +87,8 @@ class FeatureMap:
             ``target_neutral`` exactly.
         """
         pts = np.asarray(source_points, np.float64)
+        if self.depth_motion != 1.0:
+            pts = self.source_neutral + (pts - self.source_neutral) * np.array([1.0, 1.0, self.depth_motion])
         flat = pts.reshape(-1, 3)
         # One call over all F x N points: the kernel matrix is evaluated in big blocks.
         mapped = self.network(flat).reshape(pts.shape)
@@ -98,6 +103,7 @@ def fit_feature_map(
     epsilon: float | None = None,
     n_centers: int | None = None,
     keep_centers: np.ndarray | None = None,
+    depth_motion: float = 1.0,
 ) -> FeatureMap:
     """Train the network on neutral pairs.
 
@@ -110,6 +116,8 @@ def fit_feature_map(
             None = all but coincident ones). Fewer centres make the per-frame
             evaluation cheaper.
         keep_centers: indices that must be centres (e.g. the bones' landmarks).
+        depth_motion: scale of the source's depth motion away from its neutral
+            (see :class:`FeatureMap`).
     Returns:
         The :class:`FeatureMap`.
     """
@@ -121,4 +129,5 @@ def fit_feature_map(
         src[centers], tgt[centers], kernel=kernel, smoothing=smoothing, degree=1, **kwargs
     )
     offset = tgt - network(src)
-    return FeatureMap(source_neutral=src, target_neutral=tgt, network=network, offset=offset)
+    return FeatureMap(source_neutral=src, target_neutral=tgt, network=network, offset=offset,
+                      depth_motion=float(depth_motion))
