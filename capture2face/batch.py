@@ -24,8 +24,8 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any, Iterable
 
-from capture2face.atomic import write_text_atomic
 from capture2face.errors import CaptureError, install_process_defaults
+from capture2face.io.atomic import write_text_atomic
 
 VIDEO_EXTENSIONS = (".mp4", ".mov", ".m4v", ".mkv", ".avi", ".webm", ".mpg", ".mpeg", ".wmv", ".flv")
 LIST_EXTENSIONS = (".txt", ".lst")
@@ -176,8 +176,8 @@ def run_batch(inputs: Iterable[str | os.PathLike], out: str | os.PathLike, optio
     Raises:
         CaptureError: no clips found, output folder not writable, Ray not installed.
     """
+    from capture2face.io.staging import check_writable
     from capture2face.pipeline import RunOptions, outputs_complete
-    from capture2face.staging import check_writable
 
     options = options or RunOptions()
     out = Path(out)

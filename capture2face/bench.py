@@ -234,7 +234,7 @@ def loop_clip(source: str | os.PathLike, dest: str | os.PathLike, seconds: float
     """
     import av
 
-    from capture2face.atomic import atomic_path
+    from capture2face.io.atomic import atomic_path
 
     with av.open(str(source)) as inp:
         stream = inp.streams.video[0]

@@ -97,7 +97,7 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     )
     text = json.dumps(result, indent=2)
     if args.json:
-        from capture2face.atomic import write_text_atomic
+        from capture2face.io.atomic import write_text_atomic
 
         write_text_atomic(args.json, text + "\n")
     print(text)
@@ -128,7 +128,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         result = run_bench(size=args.size, frames=args.frames, progress=not args.quiet)
     text = json.dumps(result, indent=2)
     if args.json:
-        from capture2face.atomic import write_text_atomic
+        from capture2face.io.atomic import write_text_atomic
 
         write_text_atomic(args.json, text + "\n")
     print(text)

@@ -14,10 +14,10 @@ from the whole clip:
 
 Memory does not grow with the clip's length beyond ~1.5 KB a frame (the Animation and the
 track's per-frame scores and poses): whole-clip computations run window by window and
-malloc is kept from fragmenting (:mod:`capture2face.heap`).
+malloc is kept from fragmenting (:mod:`capture2face.runtime.heap`).
 
 Every output is written into a hidden temporary folder that replaces ``OUT/<clip stem>/``
-only when all of it is complete (:mod:`capture2face.staging`), so a failure or an
+only when all of it is complete (:mod:`capture2face.io.staging`), so a failure or an
 interrupt (SIGINT, SIGTERM) leaves nothing half-written behind.
 """
 
@@ -34,11 +34,11 @@ from typing import Any
 
 import numpy as np
 
-from capture2face.atomic import write_text_atomic
 from capture2face.errors import CaptureError
-from capture2face.heap import bound_heap, release_free_memory
+from capture2face.io.atomic import write_text_atomic
 from capture2face.render.renderer import WRINKLE_DRIVERS
 from capture2face.rig.face_rig import FaceRig
+from capture2face.runtime.heap import bound_heap, release_free_memory
 
 OUTPUT_FILES = ("avatar.mp4", "compare.mp4", "track.npz", "animation.npz", "animation.glb",
                 "livelink.csv", "report.json")
@@ -210,9 +210,9 @@ def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder
     from tqdm import tqdm
 
     from capture2face.compose import SourceFitter, compare_frame
-    from capture2face.overlap import StageGroup
     from capture2face.render import FrameState, Renderer
     from capture2face.render.video import VideoWriter
+    from capture2face.runtime.overlap import StageGroup
     from capture2face.tracking.video import iter_frames
 
     folder = Path(folder)
@@ -376,12 +376,12 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
         CaptureError: unreadable clip, no face, bad character, output not writable, ...
             Nothing is left in ``out_dir`` then (nor on KeyboardInterrupt).
     """
-    from capture2face.staging import staged_folder
+    from capture2face.io.staging import staged_folder
     from capture2face.tracking.video import open_video
 
     options = options or RunOptions()
     options.validate()
-    bound_heap()  # memory flat whatever the clip's length (see capture2face.heap)
+    bound_heap()  # memory flat whatever the clip's length (see capture2face.runtime.heap)
     t_start = time.perf_counter()
     info = open_video(clip)  # bad input fails here, before anything is written
     rig = load_character(options.character)

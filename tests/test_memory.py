@@ -11,7 +11,7 @@ import pytest
 
 import capture2face.retarget as retarget_mod
 import capture2face.tracking as tracking_mod
-from capture2face.framestore import FrameArray
+from capture2face.io.framestore import FrameArray
 from capture2face.retarget import RetargetOptions, retarget
 from capture2face.retarget.windows import SpilledMedian, frame_windows
 from capture2face.rig.avatar import default_avatar
@@ -218,7 +218,7 @@ def test_windowed_retarget_direct_and_bone_only_modes(rig, noisy_track):
 
 
 def test_heap_settings_apply_on_glibc():
-    from capture2face.heap import bound_heap, release_free_memory
+    from capture2face.runtime.heap import bound_heap, release_free_memory
 
     applied = bound_heap()
     assert applied == (sys.platform.startswith("linux") and "glibc" in " ".join(__import__("platform").libc_ver()))

@@ -12,7 +12,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from capture2face.errors import CaptureError
-from capture2face.tracking import Track, TrackOptions, Tracker, build_track, track_clip
+from capture2face.tracking import Track, TrackOptions, Tracker, track_clip
 from capture2face.tracking.filtering import OneEuro, filter_pose, one_euro
 from capture2face.tracking.gaps import fill_gaps, gap_runs
 from capture2face.tracking.head_pose import (

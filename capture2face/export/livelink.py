@@ -29,8 +29,8 @@ import os
 
 import numpy as np
 
-from capture2face.atomic import atomic_path
 from capture2face.errors import CaptureError
+from capture2face.io.atomic import atomic_path
 
 HEADER = (
     "Timecode,BlendShapeCount,EyeBlinkLeft,EyeLookDownLeft,EyeLookInLeft,EyeLookOutLeft,"

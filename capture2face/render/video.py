@@ -14,8 +14,8 @@ import av
 import cv2
 import numpy as np
 
-from capture2face.atomic import atomic_path
 from capture2face.errors import CaptureError
+from capture2face.io.atomic import atomic_path
 
 
 def frame_rate(fps: float | Fraction) -> Fraction:

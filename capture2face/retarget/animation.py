@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from capture2face.npzio import load_dataclass, save_dataclass
+from capture2face.io.npz import load_dataclass, save_dataclass
 
 FORMAT = "capture2face.Animation/1"
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from capture2face.framestore import FrameArray
+from capture2face.io.framestore import FrameArray
 
 
 @dataclass
@@ -96,7 +96,7 @@ class MappedPoints:
 
     Args:
         source: (F, L, 3) landmarks in head coordinates (an array or a
-            :class:`~capture2face.framestore.FrameArray`); read by frame ranges.
+            :class:`~capture2face.io.framestore.FrameArray`); read by frame ranges.
         network: callable (k, N, 3) -> (k, N, 3), the feature map.
         landmarks: (N,) the landmarks it maps.
         windows: the windows :meth:`read` will be asked for.

@@ -239,7 +239,7 @@ def _variant_shape(v: np.ndarray, variant: str) -> np.ndarray:
     if variant == "default":
         return v.copy()
     out = v.astype(np.float64).copy()
-    x, y, z = out[:, 0], out[:, 1], out[:, 2]
+    x, y = out[:, 0], out[:, 1]
     out[:, 0] = x * 1.15
     out[:, 1] += 0.5 * features.smoothstep((y - 3.2) / 1.2)  # brows and forehead up
     out[:, 1] -= 0.5 * features.smoothstep((-5.5 - y) / 2.5)  # longer chin
@@ -484,7 +484,6 @@ def _mirror_map(v: np.ndarray) -> np.ndarray:
 def _build_morphs(mb: _MorphBuilder, sets: dict, mirror: np.ndarray) -> dict[str, np.ndarray]:
     """All morph targets as (n_skin, 3) displacement fields (cm)."""
     pos = mb.pos
-    flip = np.array([-1.0, 1.0, 1.0])
     out: dict[str, np.ndarray] = {}
 
     def sided(name: str, make):

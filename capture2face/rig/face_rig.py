@@ -17,11 +17,11 @@ from __future__ import annotations
 
 import dataclasses
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from capture2face.npzio import load_dataclass, save_dataclass
+from capture2face.io.npz import load_dataclass, save_dataclass
 
 FORMAT = "capture2face.FaceRig/1"
 

@@ -35,8 +35,8 @@ import os
 
 import numpy as np
 
-from capture2face.atomic import write_bytes_atomic
 from capture2face.errors import CaptureError
+from capture2face.io.atomic import write_bytes_atomic
 from capture2face.rig.face_rig import FaceRig
 from capture2face.rig.glb_container import ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER, GlbBuilder
 

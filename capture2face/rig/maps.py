@@ -320,7 +320,7 @@ def build_maps(landmark_uvs: np.ndarray, uvs: np.ndarray, triangles: np.ndarray,
 def write_maps(rig, directory: str | os.PathLike) -> list[Path]:
     """Write a rig's textures as PNGs: albedo.png, normal.png, wrinkle_<name>.png,
     zones_0.png and zones_1.png (RGBA: zones 0-3 and 4-7). Returns the paths written."""
-    from capture2face.atomic import atomic_path
+    from capture2face.io.atomic import atomic_path
 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)

@@ -68,7 +68,7 @@ def contact_sheet(rig=None, cell: int = 256, supersample: int = 2) -> np.ndarray
 def write_contact_sheet(path: str | os.PathLike, cell: int = 256) -> None:
     import cv2
 
-    from capture2face.atomic import atomic_path
+    from capture2face.io.atomic import atomic_path
 
     sheet = contact_sheet(cell=cell)
     with atomic_path(path) as tmp:

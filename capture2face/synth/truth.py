@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from capture2face.npzio import load_dataclass, save_dataclass
+from capture2face.io.npz import load_dataclass, save_dataclass
 from capture2face.retarget.influences import region_influence, rig_influences, zone_weights
 from capture2face.rig.face_rig import FaceRig
 

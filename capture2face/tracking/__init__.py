@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from capture2face.errors import CaptureError
-from capture2face.framestore import FrameArray
+from capture2face.io.framestore import FrameArray
 from capture2face.tracking.filtering import CausalOneEuro, OneEuro, filter_pose
 from capture2face.tracking.gaps import fill_pose, plan_gaps
 from capture2face.tracking.head_pose import FOV_Y_DEGREES, canonical_mesh, head_landmarks
@@ -100,10 +100,10 @@ class TrackBuilder:
     clip's length (~300 bytes a frame).
 
     Every :data:`FLUSH_FRAMES` frames the landmarks are put in head coordinates and
-    appended to raw files in a work folder (:mod:`capture2face.framestore`); only the
+    appended to raw files in a work folder (:mod:`capture2face.io.framestore`); only the
     blendshape scores, head poses and times stay in RAM. :meth:`finish` fills gaps and
     filters window by window. With ``workdir`` the Track's landmark arrays are read-only
-    :class:`~capture2face.framestore.FrameArray` files in that folder (valid as long as
+    :class:`~capture2face.io.framestore.FrameArray` files in that folder (valid as long as
     it is); without, a private temporary folder is used and the Track holds ordinary
     arrays.
     """

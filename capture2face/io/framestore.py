@@ -10,7 +10,7 @@ The class is array-like enough for the stages that consume a
 :class:`~capture2face.tracking.track.Track`: ``len``, ``shape``, ``dtype``, integer and
 slice indexing along the frame axis (``a[i]``, ``a[s:e]``, ``a[s:e, idx]``), ``np.asarray``
 (reads it all: for short clips and notebooks), and :meth:`FrameArray.iter_chunks` for
-streaming writers (:mod:`capture2face.npzio`).
+streaming writers (:mod:`capture2face.io.npz`).
 """
 
 from __future__ import annotations

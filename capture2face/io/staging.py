@@ -15,8 +15,8 @@ import tempfile
 from pathlib import Path
 from typing import Iterator
 
-from capture2face.atomic import DIR_MODE
 from capture2face.errors import CaptureError
+from capture2face.io.atomic import DIR_MODE
 
 STAGING_PREFIX = ".tmp-"
 

@@ -15,8 +15,8 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from capture2face.atomic import atomic_path
 from capture2face.errors import CaptureError
+from capture2face.io.atomic import atomic_path
 
 T = TypeVar("T")
 
