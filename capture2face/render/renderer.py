@@ -1,9 +1,10 @@
 """``Renderer``: a FaceRig drawn by OpenGL with automatic wrinkles.
 
-Per frame only uniforms travel to the GL (bone offsets, active morph weights, per-bone
-pose influences or zone weights, head pose, lights); the mesh, morph deltas and textures
-are uploaded once. The one exception is the ``dynamic`` driver's per-vertex weights,
-which depend on the deformed mesh.
+The mesh is deformed in NumPy (morphs over the active weights, translation-only
+skinning: ~0.15 ms) and travels to the GL once per frame with each vertex's wrinkle-map
+weights, so the vertex stage only transforms: on a software GL such as llvmpipe, the
+shader's morph loop and per-joint uniform indexing cost ~12% of a frame. Uniforms
+carry the head pose, lights and zone weights; textures are uploaded once.
 
 Wrinkle maps are uploaded as Jimenez's partial derivatives, two maps per RGBA16F layer, so
 the ``auto`` driver adds one texture fetch per pixel. The influence view can come out of
@@ -14,7 +15,6 @@ projection's y flipped, so GL's bottom-up rows read back top-down without a copy
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import moderngl
@@ -26,13 +26,13 @@ from capture2face.render.context import gl_context, gl_renderer, software_gl
 from capture2face.render.dynamic import dynamic_wrinkle_weights
 from capture2face.render.normal_blend import wrinkle_pd_layers
 from capture2face.render.shaders import program
+from capture2face.render.skinning import Deformer
 from capture2face.rig.face_rig import FaceRig
 
 WRINKLE_DRIVERS = ("auto", "zones", "dynamic", "off")
 NORMAL_BLENDS = ("pd", "oat")
 VIEWS = ("shaded", "influence")
 MAX_MAPS = 4  # wrinkle maps travel as a vec4 per vertex
-MORPH_TEX_WIDTH = 4096
 
 DEFAULT_LIGHT_DIRECTION = (0.44, 0.64, 0.63)  # camera space, towards the key light: raking from above right (elevation 40 deg, 35 deg to the side) so wrinkles read
 DEFAULT_LIGHT_COLOR = (1.15, 1.1, 1.05)
@@ -43,7 +43,7 @@ MAP_COLORS = {"stretch": (0.10, 0.55, 1.00), "compress": (1.00, 0.30, 0.05)}
 SLOT_COLORS = [(0.10, 0.55, 1.00), (1.00, 0.30, 0.05), (0.20, 0.90, 0.20), (0.90, 0.20, 0.90)]
 
 # Texture units.
-_UNIT_ALBEDO, _UNIT_NORMAL, _UNIT_WRINKLE, _UNIT_MASK0, _UNIT_MASK1, _UNIT_MPOS, _UNIT_MNRM = range(7)
+_UNIT_ALBEDO, _UNIT_NORMAL, _UNIT_WRINKLE, _UNIT_MASK0, _UNIT_MASK1 = range(5)
 _GL_SRGB8_ALPHA8 = 0x8C43
 _UNIT_SCENE = 0  # FXAA pass
 _FLIP_Y = np.diag([1.0, -1.0, 1.0, 1.0])
@@ -195,55 +195,36 @@ class Renderer:
                 slot = np.zeros(4, np.float32)
                 slot[rig.wrinkle_map_names.index(name)] = 1.0
                 self._slots[name] = slot
-        # Pose -> wrinkle map, so the vertex stage sums influences straight into map weights.
+        # Pose -> wrinkle map, so skinning sums influences straight into map weights.
         self._pose_to_map = np.zeros((len(rig.pose_names), 4), np.float32)
         if driver == "auto" and len(rig.pose_names):
             self._pose_to_map[np.arange(len(rig.pose_names)), rig.pose_maps] = 1.0
 
-        V, M, B = rig.n_vertices, rig.n_morphs, rig.n_bones
-        deform_defines = (
-            ("N_VERTICES", V), ("N_BONES", B), ("MAX_MORPHS", max(M, 1)), ("MORPH_TEX_WIDTH", MORPH_TEX_WIDTH),
-        )
-        face_defines = deform_defines + (
+        face_defines = (
             (f"DRIVER_{driver.upper()}", 1), ("N_MAPS", n_maps), ("SHADE_WRINKLES", int(shade_wrinkles)),
             (f"BLEND_{opts.normal_blend.upper()}", 1), (f"VIEW_{opts.view.upper()}", 1),
         ) + ((("INFLUENCE_OUTPUT", 1),) if self._influence_output else ())
         self._face = program("face.vert", "face.frag", face_defines)
-        self._feedback = program("feedback.vert", None, deform_defines, ("tf_position",))
 
-        # Mesh: one buffer per attribute, uploaded once.
+        # Mesh: the deformed positions, normals and (auto, dynamic) per-vertex map weights
+        # in one buffer written per frame; the rest uploaded once.
+        self._deformer = Deformer(rig)
+        self._vertex_weights = driver in ("auto", "dynamic")
+        self._frame_vertices = np.zeros((rig.n_vertices, 10 if self._vertex_weights else 6), np.float32)
+        self._frame_buffer = self._keep(ctx.buffer(reserve=self._frame_vertices.nbytes))
+        layout = "3f 3f 4f" if self._vertex_weights else "3f 3f"
+        names = ("in_position", "in_normal") + (("in_map_weight",) if self._vertex_weights else ())
         f4 = lambda a: self._keep(ctx.buffer(np.ascontiguousarray(a, np.float32).tobytes()))  # noqa: E731
         bufs = [
-            (f4(rig.vertices), "3f", "in_position"),
-            (f4(rig.normals), "3f", "in_normal"),
-            (self._keep(ctx.buffer(np.ascontiguousarray(rig.skin_joints, np.int32).tobytes())), "4i", "in_joints"),
-            (f4(rig.skin_weights), "4f", "in_weights"),
-        ]
-        shading = [
+            (self._frame_buffer, layout, *names),
             (f4(rig.tangents), "4f", "in_tangent"),
             (f4(rig.uvs), "2f", "in_uv"),
             (f4(rig.material), "1f", "in_material"),
         ]
-        if driver == "dynamic":
-            self._dynamic_buffer = self._keep(ctx.buffer(reserve=V * 4))
-            shading.append((self._dynamic_buffer, "1f", "in_dynamic"))
         index = self._keep(ctx.buffer(np.ascontiguousarray(rig.triangles, np.int32).tobytes()))
-        self._vao = self._keep(ctx.vertex_array(self._face, bufs + shading, index_buffer=index,
+        self._vao = self._keep(ctx.vertex_array(self._face, bufs, index_buffer=index,
                                                 index_element_size=4, skip_errors=True))
-        self._feedback_vao = self._keep(ctx.vertex_array(self._feedback, bufs, skip_errors=True))
-        self._feedback_out = self._keep(ctx.buffer(reserve=V * 12))
-
-        # Morph deltas (Yang): texel m * V + v of two RGB32F textures.
-        total = max(M, 1) * V
-        rows = math.ceil(total / MORPH_TEX_WIDTH)
-        for attr, unit in (("morph_positions", _UNIT_MPOS), ("morph_normals", _UNIT_MNRM)):
-            data = np.zeros((rows * MORPH_TEX_WIDTH, 3), np.float32)
-            if M:
-                data[:total] = getattr(rig, attr).reshape(-1, 3)
-            tex = self._keep(ctx.texture((MORPH_TEX_WIDTH, rows), 3, data.tobytes(), dtype="f4"))
-            tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
-            tex.repeat_x = tex.repeat_y = False
-            setattr(self, f"_{attr}_tex", (tex, unit))
+        self._positions = None  # this frame's deformed positions, for the FXAA scissor box
 
         # Colour and normal maps (row 0 = top = v 0, the glTF convention, uploaded as is).
         albedo = np.concatenate([rig.albedo, np.full(rig.albedo.shape[:2] + (1,), 255, np.uint8)], axis=2)
@@ -260,14 +241,10 @@ class Renderer:
         if driver == "zones":
             self._textures.append((self._image_texture(rig.zone_masks[..., :4]), _UNIT_MASK0))
             self._textures.append((self._image_texture(rig.zone_masks[..., 4:8]), _UNIT_MASK1))
-        self._textures += [self._morph_positions_tex, self._morph_normals_tex]
 
         self._setup_targets()
         self._face_size = rig.face_size()
         self._face_centre = camera.face_centre_and_height(rig)[0]
-        # For the FXAA pass's scissor: the rest mesh's box and how far each morph moves a vertex.
-        self._box = np.stack([rig.vertices.min(0), rig.vertices.max(0)]).astype(np.float64)
-        self._morph_reach = (np.linalg.norm(rig.morph_positions, axis=2).max(1) if M else np.zeros(0))
 
     def _setup_targets(self) -> None:
         """Framebuffers. ``_target`` is drawn into (multisampled when ``samples`` > 1, then
@@ -314,29 +291,8 @@ class Renderer:
         return tex
 
     # ---- per-frame uniforms ---------------------------------------------------------
-    def _deform_uniforms(self, prog: moderngl.Program, state: FrameState) -> None:
-        rig = self.rig
-        bones = np.asarray(state.bone_positions, np.float64)
-        weights = np.asarray(state.blend_weights, np.float64).ravel()
-        if bones.shape != (rig.n_bones, 3):
-            raise ValueError(f"bone_positions must be ({rig.n_bones}, 3), got {bones.shape}")
-        if weights.shape != (rig.n_morphs,):
-            raise ValueError(f"blend_weights must be ({rig.n_morphs},), got {weights.shape}")
-        active = np.flatnonzero(weights)
-        index = np.zeros(max(rig.n_morphs, 1), np.int32)
-        value = np.zeros(max(rig.n_morphs, 1), np.float32)
-        index[: len(active)] = active
-        value[: len(active)] = weights[active]
-        _set(prog, "u_morph_count", int(len(active)))
-        _set(prog, "u_morph_index", index)
-        _set(prog, "u_morph_weight", value)
-        _set(prog, "u_bone_offset", (bones - rig.bone_rest).astype(np.float32))
-        _set(prog, "u_morph_positions", _UNIT_MPOS)
-        _set(prog, "u_morph_normals", _UNIT_MNRM)
-
     def _frame_uniforms(self, state: FrameState) -> None:
         rig, opts, prog = self.rig, self.options, self._face
-        self._deform_uniforms(prog, state)
         pose = np.asarray(state.head_pose, np.float64)
         if pose.shape != (4, 4):
             raise ValueError(f"head_pose must be (4, 4), got {pose.shape}")
@@ -363,6 +319,11 @@ class Renderer:
                            ("u_zone_mask0", _UNIT_MASK0), ("u_zone_mask1", _UNIT_MASK1)):
             _set(prog, name, unit)
 
+        positions, normals = self._deformer(state.bone_positions, state.blend_weights)
+        self._positions = positions
+        vertices = self._frame_vertices
+        vertices[:, 0:3] = positions
+        vertices[:, 3:6] = normals
         driver = self._driver
         if driver == "auto":
             infl = state.influences
@@ -373,7 +334,8 @@ class Renderer:
             infl = np.asarray(infl, np.float32)
             if infl.shape != (len(rig.pose_names), rig.n_bones):
                 raise ValueError(f"influences must be ({len(rig.pose_names)}, {rig.n_bones}), got {infl.shape}")
-            _set(prog, "u_bone_map_weight", np.ascontiguousarray(infl.T @ self._pose_to_map))  # (B, 4)
+            # Dutreve 5.2: Inf(v, P_k) = sum_i w_vi * I_Pk(J_i), summed per wrinkle map.
+            vertices[:, 6:10] = self._deformer.skin(infl.T @ self._pose_to_map)
         elif driver == "zones":
             zones = state.zone_weights
             if zones is None:
@@ -384,12 +346,14 @@ class Renderer:
             if zones.shape != (8,):
                 raise ValueError(f"zone_weights must be (8,), got {zones.shape}")
             _set(prog, "u_zone_weight", zones)
-        if driver in ("zones", "dynamic"):
             _set(prog, "u_stretch_slot", tuple(self._slots["stretch"]))
             _set(prog, "u_compress_slot", tuple(self._slots["compress"]))
-        if driver == "dynamic":
-            weights = dynamic_wrinkle_weights(rig, self.deformed_positions(state))
-            self._dynamic_buffer.write(weights.astype(np.float32).tobytes())
+        elif driver == "dynamic":
+            # Oat: smoothed area change per vertex, + compress / - stretch.
+            amount = dynamic_wrinkle_weights(rig, positions).astype(np.float32)[:, None]
+            vertices[:, 6:10] = (np.maximum(-amount, 0.0) * self._slots["stretch"]
+                                 + np.maximum(amount, 0.0) * self._slots["compress"])
+        self._frame_buffer.write(vertices)
 
     # ---- public API -------------------------------------------------------------------
     @property
@@ -402,14 +366,9 @@ class Renderer:
         return self._size
 
     def deformed_positions(self, state: FrameState) -> np.ndarray:
-        """(V, 3) float32 deformed positions in head coordinates, computed by the GPU's
-        vertex stage and read back through transform feedback."""
-        self._deform_uniforms(self._feedback, state)
-        self._morph_positions_tex[0].use(_UNIT_MPOS)
-        self._morph_normals_tex[0].use(_UNIT_MNRM)
-        self._single.use()  # Mesa skips draws, even discarded ones, without a complete framebuffer
-        self._feedback_vao.transform(self._feedback_out, moderngl.POINTS, vertices=self.rig.n_vertices)
-        return np.frombuffer(self._feedback_out.read(), np.float32).reshape(-1, 3).copy()
+        """(V, 3) float32 deformed positions in head coordinates: the mesh the renderer
+        draws for ``state``."""
+        return self._deformer.positions(state.bone_positions, state.blend_weights)
 
     def _draw(self, state: FrameState) -> None:
         ctx = self.ctx
@@ -438,15 +397,11 @@ class Renderer:
             self._fxaa_vao.render(moderngl.TRIANGLES, vertices=3)
 
     def _screen_box(self, state: FrameState) -> tuple[int, int, int, int] | None:
-        """(x, y, w, h) window rectangle holding every pixel of the deformed mesh this
-        frame (conservative: the rest box grown by the largest bone and morph
-        displacements, projected), or None when that is the whole frame."""
-        weights = np.abs(np.asarray(state.blend_weights, np.float64).ravel())
-        reach = (np.linalg.norm(np.asarray(state.bone_positions, np.float64) - self.rig.bone_rest, axis=1).max(initial=0.0)
-                 + float(weights @ self._morph_reach))
-        lo, hi = self._box[0] - reach, self._box[1] + reach
-        corners = np.stack(np.meshgrid(*zip(lo, hi), indexing="ij"), -1).reshape(-1, 3)
-        clip = np.c_[corners, np.ones(8)] @ self._clip_from_head.T
+        """(x, y, w, h) window rectangle holding every pixel of the mesh drawn this frame
+        (after :meth:`_frame_uniforms`; its projected vertices' box, 2 pixels wider: FXAA reads the diagonal
+        neighbours), or None when that is the whole frame or a vertex is behind the eye."""
+        positions = self._positions
+        clip = positions @ self._clip_from_head[:, :3].T + self._clip_from_head[:, 3]  # (V, 4)
         if (clip[:, 3] <= 1e-6).any():
             return None
         ndc = clip[:, :2] / clip[:, 3:4]

@@ -1,0 +1,60 @@
+"""The rig's deformation in NumPy, prepared once per renderer: morph targets (Yang), then
+translation-only linear blend skinning (Dutreve), as ``capture2face.rig.deform`` defines
+it, in float32 and over the active morphs only (~0.15 ms for the default avatar, against
+~5 ms for the batched reference).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from capture2face.rig.face_rig import FaceRig
+
+
+class Deformer:
+    """``deformer(bones, weights) -> (positions, normals)`` for one rig."""
+
+    def __init__(self, rig: FaceRig):
+        self.n_vertices, self.n_bones, self.n_morphs = rig.n_vertices, rig.n_bones, rig.n_morphs
+        self._vertices = np.ascontiguousarray(rig.vertices, np.float32).ravel()
+        self._normals = np.ascontiguousarray(rig.normals, np.float32).ravel()
+        self._morph_positions = np.ascontiguousarray(rig.morph_positions, np.float32).reshape(rig.n_morphs, -1)
+        self._morph_normals = np.ascontiguousarray(rig.morph_normals, np.float32).reshape(rig.n_morphs, -1)
+        self._bone_rest = np.asarray(rig.bone_rest, np.float64)
+        # Skinning as one (V, B) matrix: the 4 weights of each vertex in its joints' columns.
+        skin = np.zeros((rig.n_vertices, rig.n_bones), np.float32)
+        np.add.at(skin, (np.arange(rig.n_vertices)[:, None], np.asarray(rig.skin_joints)), rig.skin_weights)
+        self._skin = skin
+
+    def _check(self, bone_positions, blend_weights) -> tuple[np.ndarray, np.ndarray]:
+        bones = np.asarray(bone_positions, np.float64)
+        weights = np.asarray(blend_weights, np.float32).ravel()
+        if bones.shape != (self.n_bones, 3):
+            raise ValueError(f"bone_positions must be ({self.n_bones}, 3), got {bones.shape}")
+        if weights.shape != (self.n_morphs,):
+            raise ValueError(f"blend_weights must be ({self.n_morphs},), got {weights.shape}")
+        return bones, weights
+
+    def positions(self, bone_positions: np.ndarray, blend_weights: np.ndarray) -> np.ndarray:
+        """(V, 3) float32 deformed positions, head coordinates (cm)."""
+        bones, weights = self._check(bone_positions, blend_weights)
+        active = np.flatnonzero(weights)
+        positions = (self._vertices + weights[active] @ self._morph_positions[active]).reshape(-1, 3)
+        positions += self._skin @ (bones - self._bone_rest).astype(np.float32)
+        return positions
+
+    def normals(self, blend_weights: np.ndarray) -> np.ndarray:
+        """(V, 3) float32 unit normals: translations leave them alone, only morphs bend them."""
+        weights = np.asarray(blend_weights, np.float32).ravel()
+        active = np.flatnonzero(weights)
+        normals = (self._normals + weights[active] @ self._morph_normals[active]).reshape(-1, 3)
+        normals /= np.maximum(np.sqrt(np.einsum("vc,vc->v", normals, normals)), 1e-12)[:, None]
+        return normals
+
+    def skin(self, per_bone: np.ndarray) -> np.ndarray:
+        """(V, K) float32 per-vertex blend ``sum_i w_vi * per_bone[J_i]`` of (B, K) values."""
+        return self._skin @ np.asarray(per_bone, np.float32)
+
+    def __call__(self, bone_positions: np.ndarray, blend_weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(positions, normals), (V, 3) float32 each."""
+        return self.positions(bone_positions, blend_weights), self.normals(blend_weights)
