@@ -253,6 +253,16 @@ def test_oat_blend_with_flat_wrinkle_returns_base():
     assert (tilted[:, 0] > n[:, 0]).all()
 
 
+def test_srgb_encoding_within_a_quarter_level():
+    from capture2face.render.glsl_eval import eval_glsl
+
+    c = np.linspace(0.0, 1.0, 4001)[:, None].repeat(3, 1)
+    exact = np.where(c <= 0.0031308, 12.92 * c, 1.055 * c ** (1 / 2.4) - 0.055)
+    glsl = eval_glsl("color.glsl", "linear_to_srgb(a)", {"a": c}, 3)
+    assert np.abs(glsl - exact).max() < 0.3 / 255
+    assert (np.diff(glsl[:, 0]) >= 0).all()  # monotone
+
+
 # ---------------------------------------------------------------------------------------
 # Dynamic (area-change) driver
 

@@ -4,6 +4,7 @@
 // influence output), BLEND_PD | BLEND_OAT, DRIVER_*, VIEW_SHADED | VIEW_INFLUENCE,
 // INFLUENCE_OUTPUT (shaded view: the influence view also goes to colour attachment 1).
 #include "normal_blend.glsl"
+#include "color.glsl"
 
 uniform sampler2D u_albedo;        // sRGB texture, decoded to linear by the sampler
 uniform sampler2D u_normal_map;
@@ -117,7 +118,9 @@ float ksk_specular(vec3 n, vec3 l, vec3 v, float m, float rho_s) {
     vec3 h = l + v;
     vec3 hn = normalize(h);
     float ndoth = max(dot(n, hn), 1e-4);
-    float fresnel = 0.028 + 0.972 * pow(1.0 - max(dot(hn, v), 0.0), 5.0);
+    float f = 1.0 - max(dot(hn, v), 0.0);
+    float f2 = f * f;
+    float fresnel = 0.028 + 0.972 * (f2 * f2 * f);  // f^5: llvmpipe's pow is exp2(5 log2 f)
     return ndotl * rho_s * max(beckmann(ndoth, m) * fresnel / dot(h, h), 0.0);
 }
 
@@ -125,14 +128,6 @@ float ksk_specular(vec3 n, vec3 l, vec3 v, float m, float rho_s) {
 vec3 skin_diffuse(float ndotl) {
     const vec3 wrap = vec3(0.40, 0.18, 0.12);
     return max((vec3(ndotl) + wrap) / (1.0 + wrap), 0.0);
-}
-
-vec3 aces_film(vec3 x) {  // Narkowicz's fit of the ACES filmic curve
-    return clamp((x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14), 0.0, 1.0);
-}
-
-vec3 linear_to_srgb(vec3 c) {
-    return mix(12.92 * c, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(0.0031308, c));
 }
 
 void main() {
@@ -157,19 +152,12 @@ void main() {
     }
     vec3 albedo = texture(u_albedo, v_uv).rgb;
     float ndotl = dot(n, l);
-    vec3 diffuse;
-    float specular;
-    if (v_material == 1) {         // eye: glossy
-        diffuse = vec3(max(ndotl, 0.0));
-        specular = ksk_specular(n, l, v, 0.08, 1.2);
-    } else if (v_material == 2) {  // mouth interior: dark and matte
-        albedo *= 0.25;
-        diffuse = vec3(max(ndotl, 0.0));
-        specular = 0.1 * ksk_specular(n, l, v, 0.3, 0.18);
-    } else {                       // skin
-        diffuse = skin_diffuse(ndotl);
-        specular = ksk_specular(n, l, v, 0.3, 0.18);
-    }
+    // One lighting path for every material (a software GL runs every side of a branch):
+    // skin wraps its diffuse; eyes are glossy; the mouth interior dark and matte.
+    bool skin = v_material == 0, eye = v_material == 1;
+    vec3 diffuse = skin ? skin_diffuse(ndotl) : vec3(max(ndotl, 0.0));
+    float specular = ksk_specular(n, l, v, eye ? 0.08 : 0.3, eye ? 1.2 : (skin ? 0.18 : 0.018));
+    if (v_material == 2) albedo *= 0.25;
     float hemi = 0.6 + 0.4 * n.y;
     vec3 radiance = albedo * (u_light_color * diffuse + u_fill_color * max(dot(n, lf), 0.0) + u_ambient * hemi)
                   + u_light_color * specular;
