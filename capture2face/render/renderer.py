@@ -262,9 +262,14 @@ class Renderer:
             self._scene_tex = self._keep(ctx.texture(size, 4))
             self._scene_tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
             self._scene_tex.repeat_x = self._scene_tex.repeat_y = False
+            # Two passes: one marks the edge pixels in a depth buffer, the other blends
+            # along the edges with the early depth test skipping every other block.
+            self._fxaa_mark = program("fullscreen.vert", "fxaa.frag", (("MARK_EDGES", 1),))
             self._fxaa = program("fullscreen.vert", "fxaa.frag")
+            self._fxaa_mark_vao = self._keep(ctx.vertex_array(self._fxaa_mark, []))
             self._fxaa_vao = self._keep(ctx.vertex_array(self._fxaa, []))
-            self._fxaa_out = self._keep(ctx.framebuffer(color_attachments=[rb()]))
+            self._fxaa_out = self._keep(ctx.framebuffer(color_attachments=[rb()],
+                                                        depth_attachment=self._keep(ctx.depth_renderbuffer(size))))
         single = [self._scene_tex if opts.fxaa else rb()] + [rb() for _ in range(n_colors - 1)]
         if samples > 1:
             self._target = self._keep(ctx.framebuffer(
@@ -377,12 +382,12 @@ class Renderer:
         self._target.use()
         self._target.clear(*map(float, self.options.background), 1.0, depth=1.0)
         ctx.enable(moderngl.DEPTH_TEST)
+        ctx.depth_func = "<"
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
         self._vao.render(moderngl.TRIANGLES)
         if self._target is not self._single:
             ctx.copy_framebuffer(self._single, self._target)  # MSAA resolve, every attachment
         if self._fxaa is not None:
-            ctx.disable(moderngl.DEPTH_TEST)
             # Outside the mesh's screen box the image is the flat background, which FXAA
             # leaves as it is: clear it there and run the pass on the box alone.
             box = self._screen_box(state)
@@ -393,8 +398,14 @@ class Renderer:
                 self._fxaa_out.scissor = box
                 self._fxaa_out.use()
             self._scene_tex.use(_UNIT_SCENE)
-            _set(self._fxaa, "u_scene", _UNIT_SCENE)
-            _set(self._fxaa, "u_texel", (1.0 / self._size[0], 1.0 / self._size[1]))
+            for prog in (self._fxaa_mark, self._fxaa):
+                _set(prog, "u_scene", _UNIT_SCENE)
+                _set(prog, "u_texel", (1.0 / self._size[0], 1.0 / self._size[1]))
+            # Pass 1 copies every pixel and writes depth 1 at edges, 0 elsewhere (over the
+            # box: no clear needed); pass 2, at depth 0.5, shades where '<' passes: the edges.
+            ctx.depth_func = "1"
+            self._fxaa_mark_vao.render(moderngl.TRIANGLES, vertices=3)
+            ctx.depth_func = "<"
             self._fxaa_vao.render(moderngl.TRIANGLES, vertices=3)
 
     def _screen_box(self, state: FrameState) -> tuple[int, int, int, int] | None:

@@ -1,7 +1,8 @@
 // FXAA (Lottes 2009, the compact "FXAA 2" variant): edges found from the luma of the 4
 // diagonal neighbours, then blended along the edge with 2 or 4 filtered samples. Runs on
-// the sRGB-encoded colour (perceptual luma), after a single-sample render: one
-// screen-space pass, where MSAA multiplies the whole rasterization on a software GL.
+// the sRGB-encoded colour (perceptual luma), after a single-sample render: screen-space
+// work, where MSAA multiplies the whole rasterization on a software GL. Defines:
+// MARK_EDGES (the first of the two passes, see below).
 
 uniform sampler2D u_scene;   // single-sample colour, LINEAR filtering, clamped
 uniform vec2 u_texel;        // 1 / size
@@ -27,7 +28,15 @@ void main() {
     float m = luma(rgb_m);
     float lo = min(m, min(min(nw, ne), min(sw, se)));
     float up = max(m, max(max(nw, ne), max(sw, se)));
-    if (up - lo < max(EDGE_MIN, up * EDGE_REL)) {  // flat: most pixels stop here
+    bool flat_area = up - lo < max(EDGE_MIN, up * EDGE_REL);  // most pixels
+#ifdef MARK_EDGES
+    // Pass 1: every pixel keeps its colour; the depth marks the edges (1) for pass 2,
+    // drawn at depth 0.5, which the early depth test then skips everywhere else. (A
+    // software GL runs both sides of a branch, so one pass would blend every pixel.)
+    f_color = vec4(rgb_m, 1.0);
+    gl_FragDepth = flat_area ? 0.0 : 1.0;
+#else
+    if (flat_area) {
         f_color = vec4(rgb_m, 1.0);
         return;
     }
@@ -39,4 +48,5 @@ void main() {
     vec3 b = 0.5 * a + 0.25 * (texture(u_scene, uv - 0.5 * dir).rgb + texture(u_scene, uv + 0.5 * dir).rgb);
     float lb = luma(b);
     f_color = vec4((lb < lo || lb > up) ? a : b, 1.0);
+#endif
 }
