@@ -22,9 +22,7 @@ class Deformer:
         self._morph_normals = np.ascontiguousarray(rig.morph_normals, np.float32).reshape(rig.n_morphs, -1)
         self._bone_rest = np.asarray(rig.bone_rest, np.float64)
         # Skinning as one (V, B) matrix: the 4 weights of each vertex in its joints' columns.
-        skin = np.zeros((rig.n_vertices, rig.n_bones), np.float32)
-        np.add.at(skin, (np.arange(rig.n_vertices)[:, None], np.asarray(rig.skin_joints)), rig.skin_weights)
-        self._skin = skin
+        self._skin = rig.dense_skin_weights()
 
     def _check(self, bone_positions, blend_weights) -> tuple[np.ndarray, np.ndarray]:
         bones = np.asarray(bone_positions, np.float64)
