@@ -104,6 +104,20 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_eval_fidelity(args: argparse.Namespace) -> int:
+    from capture2face.fidelity import evaluate_fidelity, table
+
+    result = evaluate_fidelity(args.paths, character=args.character, plot_dir=args.plots,
+                               progress=not args.quiet)
+    if args.json:
+        from capture2face.io.atomic import write_text_atomic
+
+        write_text_atomic(args.json, json.dumps(result, indent=2) + "\n")
+    print(table(result["clips"]))
+    print(result["summary"])
+    return 0
+
+
 def _cmd_batch(args: argparse.Namespace) -> int:
     from capture2face.batch import run_batch
     from capture2face.pipeline import RunOptions
@@ -192,14 +206,23 @@ def build_parser() -> argparse.ArgumentParser:
     run_args(p)
     p.set_defaults(func=_cmd_run)
 
-    p = sub.add_parser("eval", help="closed-loop accuracy against synthetic ground truth")
-    p.add_argument("dataset", choices=["synthetic"])
+    p = sub.add_parser("eval", help="accuracy: synthetic ground truth, or fidelity on real clips")
+    evals = p.add_subparsers(dest="dataset", required=True, metavar="DATASET")
+    p = evals.add_parser("synthetic", help="closed-loop accuracy against synthetic ground truth")
     p.add_argument("--frames", type=int, default=300)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--size", type=int, default=512)
     p.add_argument("--target-variant", default=None, help="retarget onto another avatar, e.g. 'wide'")
     p.add_argument("--json", metavar="PATH")
     p.set_defaults(func=_cmd_eval)
+    p = evals.add_parser("fidelity", help="does the character do what the actor does? (real clips, no truth)")
+    p.add_argument("paths", nargs="+", metavar="CLIP_OR_RUN_DIR",
+                   help="clips (tracked and retargeted, nothing rendered) or `run` output folders")
+    p.add_argument("--character", metavar="FILE", default=None, help="character for clips (default avatar)")
+    p.add_argument("--plots", metavar="DIR", default=None,
+                   help="write <clip>.fidelity.png per clip: each measure over time")
+    p.add_argument("--json", metavar="PATH", help="write every figure as JSON")
+    p.set_defaults(func=_cmd_eval_fidelity)
 
     p = sub.add_parser("batch", help="run many clips in parallel")
     p.add_argument("inputs", nargs="+", help="clips, folders or glob patterns")
