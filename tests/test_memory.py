@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import capture2face.retarget as retarget_mod
-import capture2face.tracking as tracking_mod
+import capture2face.retarget.driver as retarget_mod
+import capture2face.tracking.tracker as tracking_mod
 from capture2face.io.framestore import FrameArray
 from capture2face.retarget import RetargetOptions, retarget
 from capture2face.retarget.windows import SpilledMedian, frame_windows

@@ -1,0 +1,354 @@
+"""The retargeting driver: :func:`retarget` fits the feature-point network, solves bones
+and morph weights window by window, and evaluates wrinkle influences and zone weights
+(the steps are described in :mod:`capture2face.retarget`)."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from capture2face.errors import CaptureError
+from capture2face.retarget import influences as inf
+from capture2face.retarget.animation import Animation
+from capture2face.retarget.rbf import FeatureMap, fit_feature_map
+from capture2face.retarget.solve import LinearSolver, linear_rig_model
+from capture2face.retarget.windows import MappedPoints, SpilledMedian, frame_windows
+
+
+@dataclass
+class RetargetOptions:
+    """Retargeting settings (defaults chosen by ``capture2face eval synthetic``).
+
+    Attributes:
+        kernel: RBF kernel of the feature-point network.
+        smoothing: RBF smoothing (0 = interpolate the neutral pairs exactly; the neutral
+            frame maps exactly onto the target's neutral either way).
+        epsilon: RBF shape parameter (only for kernels that need one).
+        n_centers: RBF centres (a well-spread subset of the feature points; None = all).
+        temporal_smoothness: weight of |x_f - x_{f-1}|^2 against the feature-point fit
+            (unknowns scaled to unit feature-point motion).
+        ridge: weight of |t_f|^2 on bone translations (keeps directions the feature
+            points cannot see at rest).
+        morph_ridge: weight of |w_f|^2 on morph weights.
+        sparsity: weight of sum(w_f) (an L1 prior: few morphs at a time), in units of
+            the scaled least-squares gradient.
+        depth_weight: weight of the feature points' z (depth) residual against x and y.
+        depth_motion: how much of the tracker's depth (z) motion away from the neutral
+            frame the feature-point network is given (1 = all of it).
+        solve_blend_weights: solve the rig's morph weights with the bones; when False, or
+            when the rig has no per-landmark vertices, morphs that share a name with a
+            MediaPipe blendshape take its score and the others stay 0.
+        joint_solve: solve bones from all feature points through the skinning (True), or
+            take each bone's mapped landmark directly (False; for comparison).
+        oval_weight: a-priori weight of the face-oval (silhouette) feature points.
+        reweight_iterations: iteratively reweighted least squares: each pass weights
+            every feature point by the inverse of its median squared residual over the
+            clip (0 = one plain solve).
+        reweight_floor: residual (cm) added in quadrature before inverting, so that
+            points the rig fits perfectly do not take all the weight.
+        window_frames, window_overlap: the solve runs over windows of this many frames
+            sharing this many with the next (:mod:`capture2face.retarget.windows`).
+    """
+
+    # Chosen on 300 synthetic frames (``capture2face eval synthetic``): thin-plate,
+    # linear and cubic kernels with 64-128 centres all land within 0.001 IOD of bone error
+    # of each other (the tracker's landmark error dominates); all centres is slightly worse
+    # (it fits the tracker's neutral-frame noise) and 4x slower. The cubic polyharmonic
+    # kernel needs no shape parameter (no epsilon to tune against face size) and is
+    # cheaper to evaluate than the thin-plate spline's r^2 log r. Smoothing changed nothing
+    # measurable: the neutral pairs are fitted exactly and the offset term keeps the
+    # neutral exact anyway.
+    kernel: str = "cubic"
+    smoothing: float = 0.0
+    epsilon: float | None = None
+    n_centers: int | None = 96
+    temporal_smoothness: float = 0.05
+    ridge: float = 1e-4
+    # Morph priors, a compromise measured both ways. MediaPipe's landmark error on the
+    # synthetic face (~0.15 cm, mostly view-dependent, so temporal smoothing cannot remove
+    # it) is as large as most morphs' motion. On 300 tracked synthetic frames, blendweight
+    # MAE: 0.17 (morph_ridge 1e-4, no L1), 0.10 (0.1, 0.05: the default), 0.074 (1.0,
+    # 0.05); all-zero weights score 0.065, MediaPipe's own scores 0.12. But on a
+    # noise-free track the strong prior shrinks every weight to ~0 (MAE 0.057 = the
+    # all-zero score) while the default still follows the motion (0.043) and weak priors
+    # recover it exactly (morph_ridge=1e-4, sparsity=0: 0.0006).
+    morph_ridge: float = 0.1
+    sparsity: float = 0.05
+    depth_weight: float = 1.0
+    # The tracker's depth is its weakest coordinate: MediaPipe regresses a relative z
+    # from the image, and on tracked synthetic clips the depth motion of the retargeted
+    # bones correlates 0.06 with the true one (x: 0.62, y: 0.80). Giving the network half
+    # of it, bone_error_iod_p95 on seeds 0-4 (300 frames): 0.066/0.055/0.064/0.060/0.072
+    # -> 0.062/0.051/0.063/0.057/0.068, median 0.027 -> 0.026, blend weights and
+    # influences unchanged (0.0 is no better than 0.5). A perfect 3D track is recovered
+    # exactly with depth_motion=1.
+    depth_motion: float = 0.5
+    solve_blend_weights: bool = True
+    joint_solve: bool = True
+    # Feature-point reliability, chosen on seed 1 and checked on seeds 0 and 2 (300
+    # synthetic frames; bone_error_iod_p95 0.072/0.063/0.084 -> 0.066/0.057/0.066,
+    # blendweight_mae 0.094/0.089/0.097 -> 0.074/0.070/0.068; a floor of 0.02 cm or
+    # one pass less costs ~0.001 p95, and so does giving the oval full weight). The tracker's error is
+    # far from uniform: lip and chin landmarks err 2-3x more than eye and nose ones, and
+    # the silhouette is a guess wherever there is no visible head outline.
+    oval_weight: float = 0.1
+    reweight_iterations: int = 2
+    reweight_floor: float = 0.01
+    # Windows: memory stays flat whatever the clip's length; the overlap is many times
+    # the temporal term's reach, so the result matches one whole-clip solve (tests).
+    window_frames: int = 1000
+    window_overlap: int = 100
+
+
+def feature_correspondence(rig) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Which tracker landmarks the rig has, and where.
+
+    Returns:
+        (landmarks (N,), target points (N, 3), per_vertex): with per-landmark vertices
+        (``per_vertex`` True) every landmark that sits on a skin vertex; otherwise the bones'
+        landmarks and the bones' rest positions.
+    """
+    lv = np.asarray(rig.landmark_vertices)
+    # Skin only: iris landmarks follow the gaze, which the rig's eyeballs do not.
+    has = np.flatnonzero(lv >= 0)
+    has = has[np.asarray(rig.material)[lv[has]] == 0]
+    if len(has) >= 3 * max(1, rig.n_bones - 1):
+        return has, rig.vertices[lv[has]].astype(np.float64), True
+    bones = np.flatnonzero(np.asarray(rig.bone_landmarks) >= 0)
+    if len(bones) < 4:
+        raise CaptureError(f"character '{rig.name}' has too few tracked feature points to retarget onto")
+    return np.asarray(rig.bone_landmarks)[bones], rig.bone_rest[bones].astype(np.float64), False
+
+
+def shared_blendshapes(morph_names: list[str], blendshape_names: list[str]) -> list[tuple[int, int]]:
+    """(morph index, blendshape index) of every morph that shares a name with a MediaPipe score."""
+    index = {n: i for i, n in enumerate(blendshape_names)}
+    return [(m, index[n]) for m, n in enumerate(morph_names) if n in index]
+
+
+def _mediapipe_weights(track, rig) -> np.ndarray:
+    """(F, M) MediaPipe's scores for morphs that share a name, 0 for the others."""
+    weights = np.zeros((track.n_frames, rig.n_morphs), np.float32)
+    for m, s in shared_blendshapes(rig.morph_names, track.blendshape_names):
+        weights[:, m] = track.blendshapes[:, s]
+    return np.clip(weights, 0.0, 1.0)
+
+
+# MediaPipe's FACE_OVAL: the silhouette, which a mask-like character (or hair, or a beard)
+# leaves the tracker guessing at.
+FACE_OVAL = np.array([10, 21, 54, 58, 67, 93, 103, 109, 127, 132, 136, 148, 149, 150, 152, 162, 172, 176,
+                      234, 251, 284, 288, 297, 323, 332, 338, 356, 361, 365, 377, 378, 379, 389, 397, 400, 454])
+
+
+RELIABILITY_ADMM_ITERATIONS = 20
+
+
+def landmark_prior_weights(landmarks: np.ndarray, options: RetargetOptions) -> np.ndarray:
+    """(N,) a-priori reliability of each feature point (silhouette points down-weighted)."""
+    w = np.ones(len(landmarks))
+    w[np.isin(landmarks, FACE_OVAL)] = options.oval_weight
+    return w
+
+
+def _residual2(model, x: np.ndarray, mapped: np.ndarray) -> np.ndarray:
+    """(F, N) squared feature-point residual of the solution ``x`` (F, n)."""
+    fit = (x @ model.matrix.T).reshape(len(x), -1, 3) + model.rest
+    return np.sum((mapped - fit) ** 2, axis=2)
+
+
+def _reliability(median_r2: np.ndarray, floor: float) -> np.ndarray:
+    """(N,) inverse robust residual variance per feature point over the clip (IRLS) from
+    the per-point median squared residual (robust to the frames a point is briefly lost
+    on), normalised to mean 1; ``floor`` (cm) bounds the weight of well-fitted points."""
+    w = 1.0 / (median_r2 + floor**2)
+    return w / w.mean()
+
+
+def _fit_network(track, rig, landmarks, target, options: RetargetOptions) -> FeatureMap:
+    neutral = track.landmarks_head[track.neutral_frame, landmarks]
+    bone_lm = np.asarray(rig.bone_landmarks)
+    keep = np.flatnonzero(np.isin(landmarks, bone_lm[bone_lm >= 0]))
+    return fit_feature_map(
+        neutral, target, kernel=options.kernel, smoothing=options.smoothing,
+        epsilon=options.epsilon, n_centers=options.n_centers, keep_centers=keep,
+        depth_motion=options.depth_motion,
+    )
+
+
+def _joint_solver(model, options: RetargetOptions, landmark_weights, morph_ridge: float, sparsity: float) -> LinearSolver:
+    return LinearSolver(model, ridge=options.ridge, temporal=options.temporal_smoothness,
+                        morph_ridge=morph_ridge, sparsity=sparsity,
+                        axis_weights=(1.0, 1.0, options.depth_weight), landmark_weights=landmark_weights)
+
+
+class _Blend:
+    """Bones (F, B, 3) and weights (F, M) float32 assembled from cross-faded windows."""
+
+    def __init__(self, frames: int, rig, weights: bool):
+        self.bones = np.zeros((frames, rig.n_bones, 3), np.float32)
+        self.weights = np.zeros((frames, rig.n_morphs), np.float32) if weights else None
+
+    def add(self, w, bones: np.ndarray, weights: np.ndarray | None) -> None:
+        fade = w.fade[:, None]
+        self.bones[w.start:w.stop] += fade[:, :, None] * bones
+        if self.weights is not None:
+            self.weights[w.start:w.stop] += fade * weights
+
+
+def solve_bones_weights(mapped: MappedPoints, rig, landmarks: np.ndarray, per_vertex: bool,
+                        options: RetargetOptions, neutral: int | None = None
+                        ) -> tuple[np.ndarray, np.ndarray | None]:
+    """Bones (F, B, 3) and morph weights (F, M) float32 (None = not solved) from the
+    mapped points, window by window.
+
+    Args:
+        mapped: the network's output (target feature points per frame), by window.
+        landmarks: (N,) the tracker landmarks they belong to.
+        neutral: the neutral frame, pinned to rest bones and zero weights.
+    """
+    rest = rig.bone_rest.astype(np.float64)
+    bone_lm = np.asarray(rig.bone_landmarks)
+    slot = {int(l): i for i, l in enumerate(landmarks)}
+    direct = [(b, slot[int(l)]) for b, l in enumerate(bone_lm) if b > 0 and int(l) in slot]
+    solve_w = options.solve_blend_weights and per_vertex
+    out = _Blend(mapped.frames, rig, solve_w)
+    if not per_vertex:  # imported character: bone = its mapped feature point
+        for w in mapped.windows:
+            pts = mapped.read(w)
+            bones = np.repeat(rest[None], len(pts), 0)
+            for b, i in direct:
+                bones[:, b] = pts[:, i]
+            out.add(w, bones, None)
+        return out.bones, None
+    vertices = np.asarray(rig.landmark_vertices)[landmarks]
+    if options.joint_solve:
+        model = linear_rig_model(rig, vertices, solve_morphs=solve_w)
+        prior_w = landmark_prior_weights(landmarks, options)
+        lw = prior_w
+        # Reliability passes fit with weak morph priors: their residual is what the rig
+        # cannot explain (tracker error), not motion the priors hold back, so a
+        # perfect track keeps uniform weights. A short ADMM is enough for residuals (the
+        # unbounded fit is worse: negative morphs soak up the tracker's error).
+        for _ in range(options.reweight_iterations):
+            solver = _joint_solver(model, options, lw, morph_ridge=1e-4, sparsity=0.0)
+            solver.iterations = RELIABILITY_ADMM_ITERATIONS
+            with SpilledMedian(len(landmarks)) as r2:
+                for w in mapped.windows:
+                    pts = mapped.read(w)
+                    r2.add(_residual2(model, solver.solve(pts, pin=w.pin(neutral))[w.own], pts[w.own]))
+                lw = prior_w * _reliability(r2.median(), options.reweight_floor)
+        solver = _joint_solver(model, options, lw, options.morph_ridge, options.sparsity)
+        nb = model.n_bone_vars
+        for w in mapped.windows:
+            x = solver.solve(mapped.read(w), pin=w.pin(neutral))
+            bones = np.repeat(rest[None], len(x), 0)
+            bones[:, model.free_bones] += x[:, :nb].reshape(len(x), -1, 3)
+            weights = None
+            if solve_w:
+                weights = np.zeros((len(x), rig.n_morphs))
+                weights[:, model.morphs] = x[:, nb:]
+            out.add(w, bones, weights)
+        return out.bones, out.weights
+    # Direct: each bone copies its landmark's motion; morphs explain what is left.
+    rest_pts = rig.vertices[vertices].astype(np.float64)
+    skin = rig.dense_skin_weights()[vertices].astype(np.float64)
+    model = linear_rig_model(rig.replace(skin_joints=np.zeros_like(rig.skin_joints)), vertices, True)
+    solver = _joint_solver(model, options, None, options.morph_ridge, options.sparsity)
+    for w in mapped.windows:
+        pts = mapped.read(w)
+        bones = np.repeat(rest[None], len(pts), 0)
+        for b, i in direct:
+            bones[:, b] += pts[:, i] - rest_pts[i]
+        weights = None
+        if solve_w:
+            residual = pts - np.einsum("nb,fbc->fnc", skin, bones - rest)
+            x = solver.solve(residual, pin=w.pin(neutral))
+            weights = np.zeros((len(pts), rig.n_morphs))
+            weights[:, model.morphs] = x[:, model.n_bone_vars:]
+        out.add(w, bones, weights)
+    return out.bones, out.weights
+
+
+def _per_frame(fn, *arrays, chunk: int = 2048) -> np.ndarray:
+    """``fn(*arrays)`` for a per-frame function, evaluated ``chunk`` frames at a time
+    (its float64 temporaries stay bounded on long clips)."""
+    frames = len(arrays[0])
+    first = fn(*(a[:chunk] for a in arrays))
+    if frames <= chunk:
+        return first
+    out = np.empty((frames,) + first.shape[1:], first.dtype)
+    out[:chunk] = first
+    for s in range(chunk, frames, chunk):
+        out[s:s + chunk] = fn(*(a[s:s + chunk] for a in arrays))
+    return out
+
+
+def retarget(track, rig, options: RetargetOptions | None = None) -> Animation:
+    """Retarget a track onto a character.
+
+    Args:
+        track: :class:`~capture2face.tracking.track.Track` (landmarks in head coordinates,
+            a neutral frame).
+        rig: the target :class:`~capture2face.rig.face_rig.FaceRig`.
+    Returns:
+        :class:`Animation` with every field filled. Frames without a face carry what the
+        track holds for them (interpolated or held landmarks); ``presence`` says which.
+    """
+    options = options or RetargetOptions()
+    if track.n_frames == 0:
+        raise CaptureError("the track has no frames to retarget")
+    if not 0 <= track.neutral_frame < track.n_frames:
+        raise CaptureError(f"neutral frame {track.neutral_frame} is outside the track's {track.n_frames} frames")
+    # The solve's matrices are small (~100 x 100): BLAS threads only add synchronisation,
+    # which on a loaded 2-core machine made a 105 x 105 eigendecomposition take 77 ms
+    # instead of 1 ms. One thread is the fast choice at these sizes.
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _retarget(track, rig, options)
+
+
+def _retarget(track, rig, options: RetargetOptions) -> Animation:
+    landmarks, target, per_vertex = feature_correspondence(rig)
+    network = _fit_network(track, rig, landmarks, target, options)
+    windows = frame_windows(track.n_frames, options.window_frames, options.window_overlap)
+    reads = 1 + (options.reweight_iterations if per_vertex and options.joint_solve else 0)
+    with MappedPoints(track.landmarks_head, network, landmarks, windows, reads) as mapped:
+        bones, weights = solve_bones_weights(mapped, rig, landmarks, per_vertex, options, track.neutral_frame)
+    if weights is None:
+        weights = _mediapipe_weights(track, rig)
+    bones[:, 0] = rig.bone_rest[0]
+    weights = np.clip(weights, 0.0, 1.0).astype(np.float32, copy=False)
+    influences = _per_frame(lambda b: inf.rig_influences(b, rig), bones)
+    return Animation(
+        times=np.asarray(track.times, np.float64),
+        fps=float(track.fps),
+        bone_names=list(rig.bone_names),
+        bone_positions=bones,
+        head_pose=np.asarray(track.head_pose, np.float32),
+        blend_names=list(rig.morph_names),
+        blend_weights=weights,
+        pose_names=list(rig.pose_names),
+        influences=influences,
+        rest_influence=_per_frame(inf.rest_influence, influences),
+        region_names=list(rig.region_names),
+        region_influence=_per_frame(lambda i: inf.region_influence(i, rig), influences),
+        zone_names=list(rig.zone_names),
+        zone_weights=_per_frame(lambda w: inf.zone_weights(w, rig.zone_table), weights),
+        mediapipe_blendshapes=np.asarray(track.blendshapes, np.float32),
+        mediapipe_blendshape_names=list(track.blendshape_names),
+        presence=np.asarray(track.presence, bool),
+        character=rig.name,
+    )
+
+
+def retarget_ms_per_frame(track, rig, options: RetargetOptions | None = None, repeats: int = 3) -> float:
+    """Wall time of :func:`retarget` (network fit, mapping, solve, influences, zones) in
+    milliseconds per frame, the best of ``repeats`` runs."""
+    best = np.inf
+    for _ in range(max(1, repeats)):
+        start = time.perf_counter()
+        retarget(track, rig, options)
+        best = min(best, time.perf_counter() - start)
+    return 1000.0 * best / max(1, track.n_frames)
