@@ -17,8 +17,24 @@ dimensionless) and how each is measured:
   weighs a lid bone skinning a sliver of skin like a brow bone carrying the forehead.
 * ``baseline_*``: the same figures for trivial predictions (rest bones, zero weights,
   zero influences): a figure is only worth as much as its distance to these.
-* Retargeting starts from a frame the truth holds at neutral (the tracker's own pick is
-  reported as ``neutral_frame_auto``).
+  ``<figure>_ratio`` = figure / its trivial prediction (1 = no better than predicting
+  nothing; lower is better), for every figure that has one (:data:`RATIOS`). The tracker's
+  ``landmark_nme_iod`` has none (no trivial landmark prediction survives head motion).
+* ``blendweight_active_r``: mean over the morphs *active* in the clip (true weight std
+  above :data:`ACTIVE_STD`) of the Pearson r of solved against true weight over frames
+  (``blendweight_active_r_per_morph``: name -> r; a morph the solve leaves constant scores
+  0, as does the all-zero prediction); ``blendweight_active_mae``: the MAE over those
+  morphs only (``_ratio`` against all zeros).
+* ``mouth_open_gain`` / ``mouth_open_r``: the mouth opening (landmarks 13-14, in the
+  rig's own rest inter-ocular units, ``fidelity.character_measures``) of the target rig
+  deformed by the solved bones and weights, against the source rig deformed by the true
+  ones: std(solved) / std(true), and Pearson r. The rest pose has gain 0.
+* Retargeting starts from a frame the truth holds at neutral, and again from the
+  tracker's own pick (``neutral_frame_auto``; one tracking pass, two retargets): the
+  second set of figures, same keys, is the nested ``auto_neutral`` block, so the cost of a
+  bad neutral pick shows.
+* ``goals``: the benchmark's goals (:data:`GOALS`, stated for 300 frames), each with the
+  values it was judged on and ``met``; also inside ``auto_neutral``.
 
 Cross-character (``target_variant``): the truth lives on the source avatar and has to be
 carried onto the target to be compared. Both avatars share one topology, so the rest->rest
@@ -42,6 +58,32 @@ import numpy as np
 
 from capture2face.retarget import RetargetOptions, retarget, shared_blendshapes
 from capture2face.retarget.influences import region_influence, rig_influences, vertex_influences
+
+# A morph is active in a clip when its true weight's std over the scored frames exceeds this.
+ACTIVE_STD = 0.02
+
+# figure -> the trivial prediction it is divided by for ``<figure>_ratio``.
+RATIOS: dict[str, str] = {
+    "bone_error_iod_median": "baseline_rest_bone_error_iod_median",
+    "bone_error_iod_p95": "baseline_rest_bone_error_iod_p95",
+    "bone_error_iod_mean": "baseline_rest_bone_error_iod_mean",
+    "blendweight_mae": "baseline_zero_blendweight_mae",
+    "blendweight_active_mae": "baseline_zero_blendweight_active_mae",
+    "blendweight_mae_shared": "baseline_zero_blendweight_mae_shared",
+    "mediapipe_blendshape_mae": "baseline_zero_blendweight_mae_shared",
+    "wrinkle_influence_mae": "baseline_zero_influence_mae",
+    "wrinkle_influence_mae_vertex": "baseline_zero_influence_mae",
+    "wrinkle_influence_mae_bone": "baseline_zero_influence_mae_bone",
+    "region_influence_mae": "baseline_zero_region_influence_mae",
+}
+
+# The benchmark's goals (on 300 frames): name -> description.
+GOALS: dict[str, str] = {
+    "bone_p95": "bone_error_iod_p95 <= 0.6 x the rest-pose figure",
+    "blendweights": "blendweight_mae below the all-zero figure and blendweight_active_r >= 0.6",
+    "wrinkles": "wrinkle_influence_mae <= 0.5 x the zero-influence figure",
+}
+GOAL_FRAMES = 300
 
 
 def local_rest_maps(source, target) -> np.ndarray:
@@ -86,6 +128,50 @@ def _face_bones(rig) -> np.ndarray:
     return np.flatnonzero((np.arange(rig.n_bones) > 0) & (np.asarray(rig.bone_landmarks) >= 0))
 
 
+def _pearson(a: np.ndarray, b: np.ndarray) -> float:
+    """Pearson r; 0 when either side is constant (a constant prediction explains nothing)."""
+    a = np.asarray(a, np.float64) - np.mean(a)
+    b = np.asarray(b, np.float64) - np.mean(b)
+    den = np.sqrt((a * a).sum() * (b * b).sum())
+    return float((a * b).sum() / den) if den > 1e-12 else 0.0
+
+
+def _mouth_open(rig, bone_positions: np.ndarray, blend_weights: np.ndarray) -> np.ndarray:
+    """(F,) mouth opening (landmarks 13-14) of ``rig`` deformed, in its rest IOD units."""
+    from capture2face.fidelity import MEASURES, character_measures
+
+    return character_measures(rig, bone_positions, blend_weights)[:, list(MEASURES).index("mouth_open")]
+
+
+def add_ratios(result: dict) -> dict:
+    """Add ``<figure>_ratio`` = figure / trivial prediction for each of :data:`RATIOS`
+    present in ``result`` (NaN where the trivial figure is 0). Returns ``result``."""
+    for key, base in RATIOS.items():
+        if key in result and base in result:
+            result[key + "_ratio"] = float(result[key] / result[base]) if result[base] > 0 else float("nan")
+    return result
+
+
+def goals(result: dict) -> dict:
+    """The :data:`GOALS` judged on ``result`` (a :func:`score` dict with ratios): per goal
+    its description, the values judged and ``met``; ``all_met``; ``frames_as_stated``:
+    whether the clip has the :data:`GOAL_FRAMES` frames the goals are stated for."""
+    bw_ratio, bw_r = result["blendweight_mae_ratio"], result["blendweight_active_r"]
+    out = {
+        "bone_p95": {"value": result["bone_error_iod_p95_ratio"], "limit": 0.6,
+                     "met": bool(result["bone_error_iod_p95_ratio"] <= 0.6)},
+        "blendweights": {"value": bw_ratio, "limit": 1.0, "active_r": bw_r, "active_r_limit": 0.6,
+                         "met": bool(bw_ratio < 1.0 and bw_r >= 0.6)},
+        "wrinkles": {"value": result["wrinkle_influence_mae_ratio"], "limit": 0.5,
+                     "met": bool(result["wrinkle_influence_mae_ratio"] <= 0.5)},
+    }
+    for name, entry in out.items():
+        entry["goal"] = GOALS[name]
+    out["all_met"] = all(entry["met"] for entry in out.values())
+    out["frames_as_stated"] = bool(result["frames"] == GOAL_FRAMES)
+    return out
+
+
 def score(track, animation, truth, source, target) -> dict:
     """Compare a track and its retargeted animation with the synthetic truth.
 
@@ -123,8 +209,29 @@ def score(track, animation, truth, source, target) -> dict:
         result_mp = {
             "mediapipe_blendshape_mae": float(np.abs(track.blendshapes[use][:, ss] - w_true[:, ms]).mean()),
             "blendweight_mae_shared": float(np.abs(w_pred[:, ms] - w_true[:, ms]).mean()),
+            "baseline_zero_blendweight_mae_shared": float(np.abs(w_true[:, ms]).mean()),
             "shared_morphs": len(shared),
         }
+    # Morphs active in the clip: does the solve follow them (r), and by how much (MAE)?
+    active = np.flatnonzero(w_true.std(0) > ACTIVE_STD)
+    per_morph = {str(target.morph_names[m]): _pearson(w_pred[:, m], w_true[:, m]) for m in active}
+    result_active = {
+        "blendweight_active_morphs": int(len(active)),
+        "blendweight_active_r": float(np.mean(list(per_morph.values()))) if len(active) else float("nan"),
+        "blendweight_active_r_per_morph": per_morph,
+        "blendweight_active_mae": float(np.abs(w_pred[:, active] - w_true[:, active]).mean()) if len(active) else float("nan"),
+        "baseline_zero_blendweight_active_mae": float(np.abs(w_true[:, active]).mean()) if len(active) else float("nan"),
+    }
+
+    # Mouth opening: the target deformed by the solve against the source by the truth.
+    mouth_true = _mouth_open(source, truth.bone_positions[use], truth.blend_weights[use])
+    mouth_pred = _mouth_open(target, animation.bone_positions[use], animation.blend_weights[use])
+    s_true = float(np.std(mouth_true))
+    result_mouth = {
+        "mouth_open_gain": float(np.std(mouth_pred) / s_true) if s_true > 1e-12 else float("nan"),
+        "mouth_open_r": _pearson(mouth_pred, mouth_true),
+        "mouth_open_true_std_iod": s_true,
+    }
 
     # Per-bone influences, bones that move in some reference pose.
     # Recomputed (not the truth file's copy) so truth and prediction share the rig's
@@ -150,6 +257,8 @@ def score(track, animation, truth, source, target) -> dict:
         "bone_error_iod_mean": float(np.mean(err_iod)),
         "blendweight_mae": float(np.abs(w_pred - w_true).mean()),
         **result_mp,
+        **result_active,
+        **result_mouth,
         # Per vertex: what the renderer shows (a bone skinning a large patch of
         # forehead matters more than a lid bone skinning a sliver); per bone alongside.
         "wrinkle_influence_mae": float(vertex_err.mean()),
@@ -159,9 +268,11 @@ def score(track, animation, truth, source, target) -> dict:
         # Trivial predictors, for scale: rest bones, zero weights, zero influences.
         "baseline_rest_bone_error_iod_median": float(np.median(rest_err)),
         "baseline_rest_bone_error_iod_p95": float(np.percentile(rest_err, 95)),
+        "baseline_rest_bone_error_iod_mean": float(np.mean(rest_err)),
         "baseline_zero_blendweight_mae": float(np.abs(w_true).mean()),
         "baseline_zero_influence_mae": float(np.abs(vertex_influences(inf_true[use], skin)).mean()),
         "baseline_zero_influence_mae_bone": float(np.abs(inf_true[use][:, :, moving]).mean()),
+        "baseline_zero_region_influence_mae": float(np.abs(region_true[use]).mean()),
         "neutral_frame": int(neutral),
         "neutral_bone_offset_cm": float(np.abs(animation.bone_positions[neutral] - target.bone_rest).max()),
         "target": target.name,
@@ -173,7 +284,7 @@ def score(track, animation, truth, source, target) -> dict:
         result["motion_scale_ratio"] = float(moved_pred.mean() / moved_src.mean())
         result["face_size_ratio"] = float(target.face_size() / source.face_size())
         result["interocular_ratio"] = float(target.interocular() / source.interocular())
-    return result
+    return add_ratios(result)
 
 
 def synthetic_case(frames: int = 300, seed: int = 0, size: int = 512, folder: str | Path | None = None,
@@ -195,7 +306,8 @@ def synthetic_case(frames: int = 300, seed: int = 0, size: int = 512, folder: st
 
 
 def evaluate_track(track, truth, target_variant: str | None = None,
-                   options: RetargetOptions | None = None, true_neutral: bool = True) -> dict:
+                   options: RetargetOptions | None = None, true_neutral: bool = True,
+                   auto_neutral: bool = True) -> dict:
     """Retarget a tracked synthetic clip of the default avatar onto the default avatar (or
     ``target_variant``) and score it against ``truth`` (see :func:`score`).
 
@@ -203,6 +315,9 @@ def evaluate_track(track, truth, target_variant: str | None = None,
     figures measure retargeting rather than the tracker's automatic neutral pick (which
     the result reports: ``neutral_frame_auto`` and ``neutral_frame_auto_offset_iod``, the
     largest true bone displacement on that frame).
+    ``auto_neutral`` (with ``true_neutral``): also retarget the same track from the
+    tracker's own pick and score it into the nested ``auto_neutral`` block (same keys,
+    its own ``goals``). When the pick is the truth's frame the block repeats the figures.
     """
     import dataclasses
 
@@ -210,18 +325,29 @@ def evaluate_track(track, truth, target_variant: str | None = None,
 
     auto = int(track.neutral_frame)
     held = truth.pose_frames("neutral")
-    if true_neutral and len(held):
-        track = dataclasses.replace(track, neutral_frame=int(held[0]))
     source = default_avatar()
     target = default_avatar(variant=target_variant) if target_variant else source
-    start = time.perf_counter()
-    animation = retarget(track, target, options)
-    elapsed = time.perf_counter() - start
-    result = score(track, animation, truth, source, target)
-    result["retarget_ms_per_frame"] = 1000.0 * elapsed / max(1, track.n_frames)
+
+    def run(neutral: int) -> dict:
+        posed = dataclasses.replace(track, neutral_frame=int(neutral))
+        start = time.perf_counter()
+        animation = retarget(posed, target, options)
+        elapsed = time.perf_counter() - start
+        result = score(posed, animation, truth, source, target)
+        result["retarget_ms_per_frame"] = 1000.0 * elapsed / max(1, track.n_frames)
+        result["goals"] = goals(result)
+        return result
+
+    first = int(held[0]) if true_neutral and len(held) else auto
+    result = run(first)
     moved = np.linalg.norm(truth.bone_positions[auto] - source.bone_rest, axis=1).max()
     result["neutral_frame_auto"] = auto
     result["neutral_frame_auto_offset_iod"] = float(moved / source.interocular())
+    if auto_neutral and first != auto:
+        result["auto_neutral"] = run(auto)
+    elif auto_neutral:
+        result["auto_neutral"] = {k: v for k, v in result.items() if k not in ("neutral_frame_auto",
+                                                                               "neutral_frame_auto_offset_iod")}
     return result
 
 
@@ -240,7 +366,8 @@ def evaluate_synthetic(
     Args:
         workdir: where the synthetic clip goes (default: a temporary folder, removed).
     Returns:
-        The figures of :func:`score`, the retargeting time per frame, seed and size.
+        The figures of :func:`evaluate_track` (truth's neutral, and the tracker's pick in
+        ``auto_neutral``), seed and size.
     """
     clip, track = synthetic_case(frames, seed, size, workdir, progress)
     result = evaluate_track(track, clip.truth, target_variant, options)

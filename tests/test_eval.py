@@ -29,29 +29,76 @@ def same(case):
 @pytest.fixture(scope="module")
 def cross(case):
     clip, track = case
-    return evaluate_track(track, clip.truth, target_variant="wide")
+    return evaluate_track(track, clip.truth, target_variant="wide", auto_neutral=False)
 
 
 def test_same_character_figures(same):
+    """Each accuracy figure against its trivial prediction (rest bones, all-zero weights,
+    zero influences): an absolute bound alone can be met by predicting nothing (on this
+    clip the rest pose's median bone error is 0.038 IOD, under the 0.04 bound)."""
     assert same["frames"] == 60 and same["frames_scored"] >= 55
     assert same["landmark_nme_iod"] < 0.08
+    # Bones: clearly better than the rest pose at the median and at the large motions
+    # (about 0.7 of it today; the 300-frame goal is 0.6 at p95).
     assert same["bone_error_iod_median"] < 0.04
-    assert same["bone_error_iod_p95"] < 0.10
-    # Better than predicting the rest pose where it matters (large motions) ...
-    assert same["bone_error_iod_p95"] < same["baseline_rest_bone_error_iod_p95"]
-    # ... and than all-zero influences, per vertex (what is rendered) and per bone.
-    assert same["wrinkle_influence_mae"] < 0.6 * same["baseline_zero_influence_mae"]
-    assert same["wrinkle_influence_mae_bone"] < 0.7 * same["baseline_zero_influence_mae_bone"]
-    assert same["blendweight_mae"] < 0.1
+    assert same["bone_error_iod_median_ratio"] < 0.85
+    assert same["bone_error_iod_p95_ratio"] < 0.85
+    assert same["bone_error_iod_mean_ratio"] < 0.85
+    # Influences: per vertex (what is rendered) and per bone, against all zeros.
+    assert same["wrinkle_influence_mae_ratio"] < 0.6
+    assert same["wrinkle_influence_mae_bone_ratio"] < 0.7
+    assert same["region_influence_mae_ratio"] < 0.6
+    # Blend weights. Over all morphs the solved weights are WORSE than all zeros today
+    # (blendweight_mae_ratio about 1.35: small weights spread over morphs the clip never
+    # uses, and eyeWide* anti-correlated with the truth), so an MAE bound would pass a
+    # broken solve. What holds and is a real check: on the morphs the clip moves, the
+    # solve is closer than all zeros and follows them (all zeros, or any constant, scores
+    # r = 0); jawOpen and mouthPucker are followed closely. Tighten to the goal (ratio < 1
+    # and active r >= 0.6) when the solve gets there.
+    assert same["blendweight_active_morphs"] >= 5
+    assert same["blendweight_active_mae_ratio"] < 0.95
+    assert same["blendweight_active_r"] > 0.15
+    per_morph = same["blendweight_active_r_per_morph"]
+    assert per_morph["jawOpen"] > 0.7 and per_morph["mouthPucker"] > 0.7
+    # The character's mouth opens with the truth's (the rest pose has gain 0, r 0).
+    assert same["mouth_open_r"] > 0.9
+    assert 0.4 < same["mouth_open_gain"] < 1.5
     assert same["neutral_bone_offset_cm"] == 0.0
     json.dumps(same)  # plain JSON types only
 
 
-def test_cross_character_neutral_and_scale(cross, same):
+def test_auto_neutral_block_and_goals(same, case):
+    clip, track = case
+    auto = same["auto_neutral"]
+    assert auto["neutral_frame"] == same["neutral_frame_auto"] == track.neutral_frame
+    assert same["neutral_frame"] == int(clip.truth.pose_frames("neutral")[0])
+    # Same keys, except what only the outer block reports.
+    assert set(same) - set(auto) == {"auto_neutral", "neutral_frame_auto", "neutral_frame_auto_offset_iod"}
+    # Here the tracker picks a frame the truth also holds at neutral, so starting from it
+    # costs little; a retarget from a wrong frame would show as a large difference.
+    assert same["neutral_frame_auto_offset_iod"] == 0.0
+    assert auto["bone_error_iod_p95"] < 1.15 * same["bone_error_iod_p95"]
+    assert auto["bone_error_iod_p95_ratio"] < 0.85
+    # Goals: judged on the figures, never assumed.
+    for block in (same, auto):
+        g = block["goals"]
+        assert g["bone_p95"]["met"] == (block["bone_error_iod_p95_ratio"] <= 0.6)
+        assert g["wrinkles"]["met"] == (block["wrinkle_influence_mae_ratio"] <= 0.5)
+        assert g["blendweights"]["met"] == (block["blendweight_mae_ratio"] < 1.0
+                                            and block["blendweight_active_r"] >= 0.6)
+        assert g["all_met"] == all(g[k]["met"] for k in ("bone_p95", "blendweights", "wrinkles"))
+        assert g["frames_as_stated"] is False  # 60 frames; the goals are stated for 300
+
+
+def test_cross_character_neutral_and_scale(cross):
     assert cross["target"] == "default_wide"
+    assert "auto_neutral" not in cross
     assert cross["neutral_bone_offset_cm"] == 0.0
-    assert cross["bone_error_iod_median"] < 0.04
-    assert cross["bone_error_iod_p95"] < cross["baseline_rest_bone_error_iod_p95"]
+    # The rest pose's median is 0.036 IOD here: judge against it, not an absolute bound.
+    assert cross["bone_error_iod_median_ratio"] < 0.85
+    assert cross["bone_error_iod_p95_ratio"] < 0.85
+    assert cross["wrinkle_influence_mae_ratio"] < 0.6
+    assert cross["mouth_open_r"] > 0.9 and cross["mouth_open_gain"] > 0.4
     # Motion on the larger face is not smaller than on the source.
     assert cross["motion_scale_ratio"] > 0.8
 
@@ -74,7 +121,12 @@ def test_cli_eval_synthetic_writes_json(tmp_path):
     out = tmp_path / "eval.json"
     assert main(["-q", "eval", "synthetic", "--frames", "40", "--size", "256", "--json", str(out)]) == 0
     result = json.loads(out.read_text())
-    for key in ("landmark_nme_iod", "bone_error_iod_median", "bone_error_iod_p95", "blendweight_mae",
-                "mediapipe_blendshape_mae", "wrinkle_influence_mae", "frames"):
-        assert np.isfinite(result[key]), key
+    keys = ("landmark_nme_iod", "bone_error_iod_median", "bone_error_iod_p95", "blendweight_mae",
+            "mediapipe_blendshape_mae", "wrinkle_influence_mae", "frames", "bone_error_iod_p95_ratio",
+            "blendweight_mae_ratio", "wrinkle_influence_mae_ratio", "blendweight_active_r",
+            "mouth_open_gain", "mouth_open_r")
+    for block in (result, result["auto_neutral"]):
+        for key in keys:
+            assert np.isfinite(block[key]), key
+        assert {"bone_p95", "blendweights", "wrinkles", "all_met"} <= set(block["goals"])
     assert result["frames"] == 40
