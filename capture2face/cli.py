@@ -101,6 +101,12 @@ def _cmd_eval(args: argparse.Namespace) -> int:
 
         write_text_atomic(args.json, text + "\n")
     print(text)
+    if not args.quiet:  # the ratios and goals at a glance; stdout stays plain JSON
+        from capture2face.evaluate import summary_line
+
+        print(summary_line(result, "truth's neutral"), file=sys.stderr)
+        if "auto_neutral" in result:
+            print(summary_line(result["auto_neutral"], "tracker's neutral"), file=sys.stderr)
     return 0
 
 
@@ -146,6 +152,12 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
         write_text_atomic(args.json, text + "\n")
     print(text)
+    if not args.quiet:  # the ratios and goals at a glance; stdout stays plain JSON
+        from capture2face.evaluate import summary_line
+
+        print(summary_line(result, "truth's neutral"), file=sys.stderr)
+        if "auto_neutral" in result:
+            print(summary_line(result["auto_neutral"], "tracker's neutral"), file=sys.stderr)
     return 0
 
 

@@ -172,6 +172,20 @@ def goals(result: dict) -> dict:
     return out
 
 
+def summary_line(result: dict, label: str = "") -> str:
+    """One line: the main figures as ratios to their trivial predictions, and the goals."""
+    g = result["goals"]
+    met = sum(g[k]["met"] for k in GOALS)
+    return (f"{label + ': ' if label else ''}neutral frame {result['neutral_frame']}; "
+            f"bone p95 {result['bone_error_iod_p95_ratio']:.2f}x rest, "
+            f"median {result['bone_error_iod_median_ratio']:.2f}x; "
+            f"weights MAE {result['blendweight_mae_ratio']:.2f}x zero, "
+            f"active r {result['blendweight_active_r']:.2f} ({result['blendweight_active_morphs']} morphs); "
+            f"wrinkles {result['wrinkle_influence_mae_ratio']:.2f}x zero; "
+            f"mouth gain {result['mouth_open_gain']:.2f} r {result['mouth_open_r']:.2f}; "
+            f"goals met {met}/{len(GOALS)}" + ("" if g["frames_as_stated"] else f" (stated for {GOAL_FRAMES} frames)"))
+
+
 def score(track, animation, truth, source, target) -> dict:
     """Compare a track and its retargeted animation with the synthetic truth.
 

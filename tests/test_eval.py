@@ -11,7 +11,7 @@ import json
 import numpy as np
 import pytest
 
-from capture2face.evaluate import evaluate_track, local_rest_maps, synthetic_case, truth_on_target
+from capture2face.evaluate import evaluate_track, local_rest_maps, summary_line, synthetic_case, truth_on_target
 from capture2face.rig.avatar import default_avatar
 
 
@@ -88,6 +88,9 @@ def test_auto_neutral_block_and_goals(same, case):
                                             and block["blendweight_active_r"] >= 0.6)
         assert g["all_met"] == all(g[k]["met"] for k in ("bone_p95", "blendweights", "wrinkles"))
         assert g["frames_as_stated"] is False  # 60 frames; the goals are stated for 300
+    line = summary_line(auto, "auto")
+    assert line.startswith(f"auto: neutral frame {track.neutral_frame};")
+    assert f"goals met {sum(auto['goals'][k]['met'] for k in ('bone_p95', 'blendweights', 'wrinkles'))}/3" in line
 
 
 def test_cross_character_neutral_and_scale(cross):
