@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import re
 
 import numpy as np
@@ -49,7 +50,8 @@ def rot_z(a):
 
 def make_animation(rig, frames=45, fps=30.0, seed=1, t0=0.0) -> Animation:
     """A performance built by hand: bones = rest + small sinusoids (head still), morph
-    weights in [0, 1], a head turning (yaw, pitch, roll), random MediaPipe scores."""
+    weights in [0, 1], a head turning (yaw, pitch, roll), random MediaPipe scores and
+    (different) random ARKit curves."""
     t = t0 + np.arange(frames) / fps
     B, M = rig.n_bones, rig.n_morphs
     phase = np.arange(B)[None, :, None] * 0.7 + np.arange(3)[None, None, :]
@@ -72,7 +74,8 @@ def make_animation(rig, frames=45, fps=30.0, seed=1, t0=0.0) -> Animation:
         zone_names=list(ZONE_NAMES), zone_weights=np.zeros((frames, 8), np.float32),
         mediapipe_blendshapes=rng.uniform(0, 1, (frames, len(MEDIAPIPE_NAMES))).astype(np.float32),
         mediapipe_blendshape_names=list(MEDIAPIPE_NAMES), presence=np.ones(frames, bool),
-        character=rig.name,
+        character=rig.name, arkit_names=list(MEDIAPIPE_NAMES),
+        arkit_weights=rng.uniform(0, 1, (frames, len(MEDIAPIPE_NAMES))).astype(np.float32),
     )
 
 
@@ -163,13 +166,13 @@ def test_livelink_csv_header_rows_and_values(avatar, performance, tmp_path):
     values = np.array([[float(v) for v in r[2:]] for r in rows])
     col = {n: i - 2 for i, n in enumerate(cols)}
     mp = {n: i for i, n in enumerate(MEDIAPIPE_NAMES)}
-    # By name: the character's morph where it has one, MediaPipe's score otherwise.
+    # By name, every blendshape column is the animation's ARKit curve, never the
+    # character's own morph weight of that name (which shares its motion with the bones).
     assert "jawOpen" in avatar.morph_names and "tongueOut" not in MEDIAPIPE_NAMES
-    np.testing.assert_allclose(values[:, col["JawOpen"]], performance.blend_weights[:, avatar.morph_index("jawOpen")], atol=1e-6)
-    lacking = [c for c in cols[2:54] if c[0].lower() + c[1:] not in avatar.morph_names and c != "TongueOut"]
-    assert lacking, "the avatar has every ARKit morph; pick a test with one it lacks"
-    for c in lacking:
-        np.testing.assert_allclose(values[:, col[c]], performance.mediapipe_blendshapes[:, mp[c[0].lower() + c[1:]]], atol=1e-6)
+    np.testing.assert_allclose(values[:, col["JawOpen"]], performance.arkit_weights[:, mp["jawOpen"]], atol=1e-6)
+    assert np.abs(values[:, col["JawOpen"]] - performance.blend_weights[:, avatar.morph_index("jawOpen")]).max() > 0.1
+    for c in cols[2:53]:
+        np.testing.assert_allclose(values[:, col[c]], performance.arkit_weights[:, mp[c[0].lower() + c[1:]]], atol=1e-6)
     assert np.all(values[:, col["TongueOut"]] == 0)
     # Head angles: normalized, 1 = 90 degrees.
     t = performance.times
@@ -187,13 +190,19 @@ def test_livelink_takes_scores_from_a_track_like_source(avatar, performance, tmp
     names = [n.upper() for n in MEDIAPIPE_NAMES]  # matching is case-insensitive
     scores = np.full((performance.n_frames, len(names)), 0.25, np.float32)
     path = tmp_path / "ll.csv"
+    cols = ISSUE_HEADER.split(",")
+    blend = list(range(2, 53))  # every column but TongueOut
+    # The scores drive the eye angles; the blendshape columns stay the ARKit curves.
     write_livelink_csv(performance, (scores, names), path)
     rows = list(csv.reader(path.read_text().splitlines()[1:]))
-    cols = ISSUE_HEADER.split(",")
-    lacking = [i for i, c in enumerate(cols[2:54], 2) if c[0].lower() + c[1:] not in avatar.morph_names
-               and c != "TongueOut"]
-    assert lacking
-    assert {r[i] for r in rows for i in lacking} == {"0.250000"}
+    assert {r[i] for r in rows for i in blend} != {"0.250000"}
+    assert {r[cols.index("LeftEyeYaw")] for r in rows} == {"0.000000"}
+    # An animation saved before it had ARKit curves: the given scores fill the columns,
+    # still never the character's morph weights.
+    old = dataclasses.replace(performance, arkit_names=[], arkit_weights=None)
+    write_livelink_csv(old, (scores, names), path)
+    rows = list(csv.reader(path.read_text().splitlines()[1:]))
+    assert {r[i] for r in rows for i in blend} == {"0.250000"}
     with pytest.raises(CaptureError, match="blendshape frames"):
         write_livelink_csv(performance, (scores[:3], names), path)
 

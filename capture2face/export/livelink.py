@@ -8,10 +8,13 @@ two eyes' yaw/pitch/roll. Each row: ``HH:MM:SS:FF.fff,61,<61 values>``.
 * **Timecode**: the frame's presentation time in the clip as hours:minutes:seconds:frame, the
   frame counted at the clip's nominal rate rounded to an integer (timecode rates are
   integers); ``.fff`` is the sub-frame fraction (0 for a constant-rate clip).
-* **Blendshapes** are matched by name, case-insensitively: the character's own morph
-  weights (``Animation.blend_weights``) where the character has that morph, else
-  MediaPipe's score for it, else 0 (MediaPipe has no ``tongueOut``). ``_neutral`` is
-  ignored.
+* **Blendshapes** are ARKit curves with ARKit meaning, matched by name case-insensitively:
+  ``Animation.arkit_weights`` (0 at the clip's rest, 1 at the full pose: JawOpen 1 = jaw
+  fully open, EyeBlink 1 = eye closed; see :mod:`capture2face.retarget.arkit`), else 0
+  (MediaPipe has no ``tongueOut``). Never the character's own morph weights: those share
+  the motion with its bones and do not mean what ARKit's names mean. An animation saved
+  before it had ARKit curves takes them from the clip's Track when one is given, else
+  MediaPipe's raw scores. ``_neutral`` is ignored.
 * **Angles** are normalized like the app's streamed values and the tools that read its
   CSVs (PyLiveLinkFace, the Blender Live Link Face add-on): -1..1, where 1 is a quarter
   turn (``ANGLE_UNIT_DEG`` = 90 degrees). Signs, in head coordinates (+x the subject's
@@ -91,21 +94,33 @@ def timecodes(times: np.ndarray, fps: float) -> list[str]:
             for s, f, x in zip(secs.tolist(), ff.tolist(), frac.tolist())]
 
 
+def _arkit(animation, track_or_blendshapes, scores, names) -> tuple[np.ndarray, list[str]]:
+    """(F, A) ARKit curves and their names: the animation's, else computed from a Track,
+    else (an old animation file and no Track) MediaPipe's raw scores."""
+    if getattr(animation, "arkit_weights", None) is not None:
+        return np.asarray(animation.arkit_weights, np.float64), list(animation.arkit_names)
+    if hasattr(track_or_blendshapes, "landmarks_head"):
+        from capture2face.retarget.arkit import arkit_curves
+
+        return arkit_curves(track_or_blendshapes).astype(np.float64), list(track_or_blendshapes.blendshape_names)
+    return scores.astype(np.float64), names
+
+
 def livelink_values(animation, track_or_blendshapes=None) -> np.ndarray:
     """(F, 61) values in the column order of ``COLUMNS``."""
     F = animation.n_frames
     scores, names = _scores(track_or_blendshapes, animation)
     if len(scores) != F:
         raise CaptureError(f"Live Link export: {len(scores)} blendshape frames for {F} animation frames")
-    morph = {n.lower(): i for i, n in enumerate(animation.blend_names)}
+    curves, curve_names = _arkit(animation, track_or_blendshapes, scores, names)
+    if len(curves) != F:
+        raise CaptureError(f"Live Link export: {len(curves)} ARKit curve frames for {F} animation frames")
+    arkit = {n.lower(): i for i, n in enumerate(curve_names) if n != "_neutral"}
     mp = {n.lower(): i for i, n in enumerate(names) if n != "_neutral"}
     out = np.zeros((F, len(COLUMNS)), np.float64)
     for c, col in enumerate(BLENDSHAPE_COLUMNS):
-        key = col.lower()
-        if key in morph:
-            out[:, c] = animation.blend_weights[:, morph[key]]
-        elif key in mp:
-            out[:, c] = scores[:, mp[key]]
+        if col.lower() in arkit:
+            out[:, c] = curves[:, arkit[col.lower()]]
     out[:, :52] = np.clip(np.nan_to_num(out[:, :52]), 0.0, 1.0)
 
     unit = np.radians(ANGLE_UNIT_DEG)
@@ -127,7 +142,8 @@ def livelink_values(animation, track_or_blendshapes=None) -> np.ndarray:
 def write_livelink_csv(animation, track_or_blendshapes, path: str | os.PathLike) -> None:
     """Write ``animation`` as a Live Link Face CSV (atomic). ``track_or_blendshapes``: the
     clip's :class:`~capture2face.tracking.track.Track`, a ``(scores (F, S), names)`` pair,
-    or None to use the animation's copy of MediaPipe's scores."""
+    or None to use the animation's copy of MediaPipe's scores (for the eye angles, and the
+    blendshapes of an animation saved without ARKit curves)."""
     values = livelink_values(animation, track_or_blendshapes)
     codes = timecodes(animation.times, animation.fps)
     prefix = f",{len(COLUMNS)},"

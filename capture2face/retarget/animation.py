@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -38,6 +38,10 @@ class Animation:
         mediapipe_blendshape_names: S names.
         presence: (F,) bool, the source frame had a face.
         character: name of the rig the animation was retargeted onto.
+        arkit_names: S names of the ARKit curves (MediaPipe's order and spelling).
+        arkit_weights: (F, S) float32 ARKit curves in [0, 1] with ARKit meaning (0 at rest,
+            1 at the full pose; :func:`capture2face.retarget.arkit.arkit_curves`), or None
+            in files written before they existed.
     """
 
     times: np.ndarray
@@ -58,6 +62,8 @@ class Animation:
     mediapipe_blendshape_names: list[str]
     presence: np.ndarray
     character: str = ""
+    arkit_names: list[str] = field(default_factory=list)
+    arkit_weights: np.ndarray | None = None
 
     @property
     def n_frames(self) -> int:

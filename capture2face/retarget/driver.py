@@ -13,6 +13,7 @@ from threadpoolctl import threadpool_limits
 from capture2face.errors import CaptureError
 from capture2face.retarget import influences as inf
 from capture2face.retarget.animation import Animation
+from capture2face.retarget.arkit import arkit_curves
 from capture2face.retarget.rbf import FeatureMap, fit_feature_map
 from capture2face.retarget.solve import LinearSolver, linear_rig_model
 from capture2face.retarget.windows import MappedPoints, SpilledMedian, frame_windows
@@ -340,6 +341,8 @@ def _retarget(track, rig, options: RetargetOptions) -> Animation:
         mediapipe_blendshape_names=list(track.blendshape_names),
         presence=np.asarray(track.presence, bool),
         character=rig.name,
+        arkit_names=list(track.blendshape_names),
+        arkit_weights=arkit_curves(track),
     )
 
 

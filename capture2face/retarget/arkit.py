@@ -1,0 +1,154 @@
+"""ARKit curves with ARKit meaning, from a :class:`~capture2face.tracking.track.Track`.
+
+MediaPipe's blendshape scores are ARKit-named but not ARKit-scaled: at a real clip's
+neutral they rest above 0 (jawOpen 0.3 on some clips), a fully open jaw or a closed eye
+often scores 0.6-0.8, and browInnerUp barely follows the brows. :func:`arkit_curves`
+gives each of the 52 curves ARKit's meaning (0 at rest, 1 at the full pose):
+
+* **every curve**: the score calibrated to the clip's rest, ``(s - s0) / (1 - s0)``
+  clipped to [0, 1], ``s0`` the score at the neutral frame. Subtracting alone would cap
+  the curve at ``1 - s0``; dividing by ``1 - s0`` keeps a saturated score at 1, so the
+  full range survives while the neutral lands on 0.
+* **jawOpen, eyeBlinkLeft/Right, browInnerUp** (:data:`GEOMETRIC`): the curve is the
+  face's geometry instead, per clip mapped to [0, 1]: mouth opening 13-14, eye closure
+  1 - opening / neutral opening (159-145, 386-374), brow height 105-33 / 334-263. The
+  tracker's landmark filter (One Euro, min cutoff 0.5 Hz) takes the fast part of blinks
+  and jaw snaps away, so the detail it removed is put back from the score (the score
+  mapped to centimetres by a per-clip fit, minus the same filter's output on it): the
+  slow part comes from the geometry, the fast part from the score. The gain from
+  geometry to curve is fitted per clip to the calibrated score, but never below an
+  anatomical full range (:data:`FULL_RANGE`): MediaPipe's scores are compressed, so the
+  fit alone would leave a wide-open jaw at 0.5.
+* then all curves pass a zero-phase One Euro filter tuned for [0, 1] scores
+  (:data:`SCORE_FILTER`) and are clipped to [0, 1].
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from capture2face.tracking.filtering import OneEuro, one_euro
+
+# curve -> landmark pairs whose distance is its geometric measure (two pairs: the mean).
+GEOMETRIC: dict[str, tuple[tuple[int, int], ...]] = {
+    "jawOpen": ((13, 14),),
+    "eyeBlinkLeft": ((386, 374),),
+    "eyeBlinkRight": ((159, 145),),
+    "browInnerUp": ((105, 33), (334, 263)),
+}
+IOD_PAIR = (33, 263)  # outer eye corners: the face's size
+# The geometric measure at which a curve reads 1: jaw and brows in inter-ocular distances
+# above rest (an inner-lip gap of ~2.7 cm on a 9 cm face is a wide-open jaw: the real
+# clips' wide-open jaws reach 0.33-0.52; brows rise ~0.7 cm), eyes as the fraction of the neutral opening closed (MediaPipe's mesh keeps the
+# lids ~0.2 apart when closed).
+FULL_RANGE = {"jawOpen": 0.3, "eyeBlinkLeft": 0.75, "eyeBlinkRight": 0.75, "browInnerUp": 0.08}
+# The fitted gain may exceed 1 / FULL_RANGE by this factor at most (a score that saturates
+# early would otherwise clip most of the motion at 1).
+MAX_GAIN_FACTOR = 2.0
+# Below this correlation with the geometry the score carries no trustworthy detail (e.g.
+# browInnerUp on a clip whose brows hardly move).
+MIN_DETAIL_R = 0.3
+# Scores move 0 -> 1 in ~0.1 s in a blink (speed ~10/s): beta 5 opens the cutoff to ~50 Hz
+# there, while a still score is smoothed at 1 Hz (its jitter is ~0.01).
+SCORE_FILTER = OneEuro(min_cutoff=1.0, beta=5.0, d_cutoff=1.0, zero_phase=True)
+# The tracker's landmark filter (TrackOptions defaults): what it took from the geometry is
+# what the score's detail restores.
+LANDMARK_FILTER = OneEuro(min_cutoff=0.5, beta=0.2, d_cutoff=1.0, zero_phase=True)
+# Rest of the geometric curves: the neutral frame, or the clip's 2% most-rested frames
+# where those go further. The automatic neutral frame has the least expression energy
+# overall, not closed lips and open eyes: on the real clips 38-80% of frames had the lips
+# more closed than it, and up to 73% the eyes wider; a curve clipped at 0 there loses that
+# motion (JawOpen r 0.73 instead of 0.95 on one clip).
+REST_PERCENTILE = 2.0
+
+
+def calibrate_scores(scores: np.ndarray, rest: np.ndarray) -> np.ndarray:
+    """(F, S) scores with ``rest`` (S,) mapped to 0 and 1 kept at 1, clipped to [0, 1]."""
+    rest = np.clip(np.asarray(rest, np.float64), 0.0, 0.99)  # a score resting at 1 has no range left
+    return np.clip((np.asarray(scores, np.float64) - rest) / (1.0 - rest), 0.0, 1.0)
+
+
+def geometric_measures(landmarks_head, neutral_frame: int, chunk: int = 4096) -> tuple[np.ndarray, float]:
+    """(F, 4) distances in cm of the :data:`GEOMETRIC` measures (columns in its order),
+    and the inter-ocular distance (cm) at the neutral frame.
+
+    Args:
+        landmarks_head: (F, L, 3) head-coordinate landmarks, cm (an array or a disk-backed
+            FrameArray: read a block of frames at a time).
+    """
+    pairs = [pair for pairs in GEOMETRIC.values() for pair in pairs]
+    ids = sorted({i for p in pairs for i in p} | set(IOD_PAIR))
+    col = {i: k for k, i in enumerate(ids)}
+    n = len(landmarks_head)
+    pts = np.empty((n, len(ids), 3))
+    for s in range(0, n, chunk):  # only ~10 landmarks of a long clip in memory
+        pts[s:s + chunk] = np.asarray(landmarks_head[s:s + chunk], np.float64)[:, ids]
+    out = np.empty((n, len(GEOMETRIC)))
+    for k, measure_pairs in enumerate(GEOMETRIC.values()):
+        out[:, k] = np.mean([np.linalg.norm(pts[:, col[a]] - pts[:, col[b]], axis=-1) for a, b in measure_pairs], 0)
+    iod = float(np.linalg.norm(pts[neutral_frame, col[IOD_PAIR[0]]] - pts[neutral_frame, col[IOD_PAIR[1]]]))
+    return out, max(iod, 1e-6)
+
+
+def _pearson(a: np.ndarray, b: np.ndarray) -> float:
+    a, b = a - a.mean(), b - b.mean()
+    den = np.sqrt((a * a).sum() * (b * b).sum())
+    return float((a * b).sum() / den) if den > 1e-12 else 0.0
+
+
+def restore_detail(distance: np.ndarray, score: np.ndarray, times: np.ndarray, sign: float) -> np.ndarray:
+    """(F,) ``distance`` (cm, landmark-filtered) plus the fast motion the landmark filter
+    removed, taken from ``score`` (F,) mapped to cm by a least-squares fit; ``sign``: +1
+    when the score rises with the distance, -1 when it falls (a blink closes the lids)."""
+    if len(distance) < 3 or sign * _pearson(score, distance) < MIN_DETAIL_R:
+        return distance
+    slope = np.polyfit(score, distance, 1)[0]
+    cm = slope * score  # the score in cm: the landmark filter's speed units apply
+    return distance + (cm - one_euro(cm, times, LANDMARK_FILTER))
+
+
+def arkit_curves(track) -> np.ndarray:
+    """(F, S) float32 ARKit curves in [0, 1], columns named and ordered as
+    ``track.blendshape_names`` (MediaPipe's 52: ``_neutral`` then the ARKit names).
+
+    Args:
+        track: a Track with ``blendshapes`` (F, S) raw scores, ``landmarks_head`` (F, 478, 3)
+            cm, ``times`` (F,), ``neutral_frame``.
+    """
+    names = list(track.blendshape_names)
+    scores = np.nan_to_num(np.asarray(track.blendshapes, np.float64))
+    times = np.asarray(track.times, np.float64)
+    n0 = int(track.neutral_frame)
+    curves = calibrate_scores(scores, scores[n0])
+    if "_neutral" in names:  # not an ARKit curve: MediaPipe's own "no expression" score, kept
+        curves[:, names.index("_neutral")] = scores[:, names.index("_neutral")]
+
+    wanted = [k for k, name in enumerate(GEOMETRIC) if name in names]
+    if wanted and len(scores) >= 3:
+        dist, iod = geometric_measures(track.landmarks_head, n0)
+        for k in wanted:
+            name = list(GEOMETRIC)[k]
+            c = names.index(name)
+            blink = name.startswith("eyeBlink")
+            d = restore_detail(dist[:, k], scores[:, c], times, -1.0 if blink else 1.0)
+            # Rest: the neutral frame, or the clip's own most-rested frames (widest eye,
+            # closest lips, lowest brows) where the face goes further than the neutral;
+            # taken from the filtered geometry (the restored detail can overshoot a step).
+            g = dist[:, k]
+            if blink:
+                rest = max(g[n0], np.percentile(g, 100.0 - REST_PERCENTILE))
+                m = 1.0 - d / max(rest, 1e-6)  # fraction of the rest opening closed
+            else:
+                rest = min(g[n0], np.percentile(g, REST_PERCENTILE))
+                m = (d - rest) / iod
+            score_rest = min(scores[n0, c], np.percentile(scores[:, c], REST_PERCENTILE))
+            target = calibrate_scores(scores[:, c], score_rest)
+            up = np.clip(m, 0.0, None)
+            # Per-clip gain: the calibrated score's scale, floored by the anatomical full
+            # range (the scores are compressed) and capped against early saturation.
+            fit = float((target * up).sum() / max((up * up).sum(), 1e-12))
+            floor = 1.0 / FULL_RANGE[name]
+            curves[:, c] = np.clip(m * np.clip(fit, floor, MAX_GAIN_FACTOR * floor), 0.0, 1.0)
+
+    curves = one_euro(curves, times, SCORE_FILTER)
+    return np.clip(curves, 0.0, 1.0).astype(np.float32)
