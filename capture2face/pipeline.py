@@ -37,11 +37,12 @@ import numpy as np
 from capture2face.errors import CaptureError
 from capture2face.io.atomic import write_text_atomic
 from capture2face.render.renderer import WRINKLE_DRIVERS
+from capture2face.report_html import poster_frames, write_report_html
 from capture2face.rig.face_rig import FaceRig
 from capture2face.runtime.heap import bound_heap, release_free_memory
 
 OUTPUT_FILES = ("avatar.mp4", "compare.mp4", "track.npz", "animation.npz", "animation.glb",
-                "livelink.csv", "report.json")
+                "livelink.csv", "report.html", "report.json")
 BUILTIN_CHARACTERS = ("default", "wide")
 
 log = logging.getLogger("capture2face")
@@ -197,15 +198,18 @@ def run_render_options(options: RunOptions):
 
 
 def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder: str | os.PathLike,
-                 options: RunOptions, progress: bool = True) -> dict:
+                 options: RunOptions, progress: bool = True, keep_frames=()) -> dict:
     """Pass 3: avatar.mp4 and compare.mp4 into ``folder``, stages overlapped.
 
     One draw per frame gives both the character and its wrinkle-influence view (a second
     colour attachment); the GL thread only draws and reads back, while worker threads
     decode the source again, compose compare.mp4 frames and run the two H.264 encoders.
 
+    Args:
+        keep_frames: indices of frames to hand back as images (report.html's poster
+            frames): compare.mp4's frames, or avatar.mp4's without ``options.compare``.
     Returns:
-        ``{"render_s": GL thread busy seconds, "frames": n}``.
+        ``{"render_s": GL thread busy seconds, "frames": n, "kept": {index: (H, W, 3) RGB}}``.
     """
     from tqdm import tqdm
 
@@ -226,6 +230,8 @@ def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder
     # x264's own thread pool would oversubscribe the cores the rasterizer needs (llvmpipe
     # runs one thread per core); two single-threaded encoders in their own threads suffice.
     threads = 1
+    keep = {int(i) for i in keep_frames}
+    kept: dict[int, np.ndarray] = {}
 
     def encode_avatar(frames) -> None:
         with VideoWriter(folder / "avatar.mp4", fps, (size, size), crf=options.crf, preset=options.preset,
@@ -243,8 +249,11 @@ def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder
         with VideoWriter(folder / "compare.mp4", fps, (3 * size, size), crf=options.crf,
                          preset=options.preset, threads=threads) as out:
             for i, (avatar, heat) in enumerate(panels):
-                out.write(compare_frame(fitter, next(src, None), track.landmarks_px[i],
-                                        bool(track.presence[i]), avatar, heat))
+                frame = compare_frame(fitter, next(src, None), track.landmarks_px[i], bool(track.presence[i]),
+                                      avatar, heat)
+                out.write(frame)
+                if i in keep:
+                    kept[i] = frame
             for _ in src:  # drain, so the decoder is never left blocked
                 pass
 
@@ -269,6 +278,8 @@ def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder
             else:
                 image = renderer.render(state)
             busy += time.perf_counter() - t0
+            if i in keep and not options.compare:
+                kept[i] = image.copy()
             avatar_q.put(image)
             if options.compare:
                 panel_q.put((image, heat))
@@ -276,7 +287,7 @@ def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder
         avatar_q.close()
         if options.compare:
             panel_q.close()
-    return {"render_s": busy, "frames": n}
+    return {"render_s": busy, "frames": n, "kept": kept}
 
 
 # ---- outputs ---------------------------------------------------------------------------
@@ -358,10 +369,26 @@ def _close_track_files(track) -> None:
             close()
 
 
+def _run_fidelity(track, animation, rig: FaceRig, name: str):
+    """The run's :class:`~capture2face.fidelity.ClipFidelity`, or None (with a warning in the
+    report) when it cannot be measured, e.g. a character without the measured landmarks."""
+    from capture2face.fidelity import clip_fidelity
+
+    if not np.any(np.asarray(track.presence, bool)):
+        return None
+    try:
+        return clip_fidelity(track, animation, rig, name)
+    except CaptureError as exc:
+        log.warning("no expression-fidelity figures: %s", exc)
+        return None
+
+
 def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions | None = None,
         progress: bool = True, name: str | None = None) -> dict:
     """Clip -> ``out_dir/<clip stem>/`` with avatar.mp4, compare.mp4, track.npz,
-    animation.npz, animation.glb, livelink.csv and report.json.
+    animation.npz, animation.glb, livelink.csv, report.json and report.html (the report as
+    a self-contained page: poster frames, curves, fidelity figures;
+    :mod:`capture2face.report_html`).
 
     Args:
         clip: the source video.
@@ -371,7 +398,8 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
         name: output folder name (default: the clip's stem).
     Returns:
         The report (also written as report.json): frames, tracked_frames, fps, seconds
-        per stage, warnings, outputs.
+        per stage, warnings, outputs, fidelity (:meth:`ClipFidelity.figures
+        <capture2face.fidelity.ClipFidelity.figures>`, None without a measurable face).
     Raises:
         CaptureError: unreadable clip, no face, bad character, output not writable, ...
             Nothing is left in ``out_dir`` then (nor on KeyboardInterrupt).
@@ -413,10 +441,15 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
         seconds["export"] = time.perf_counter() - t
 
         t = time.perf_counter()
-        rendered = render_stage(clip, track, animation, rig, tmp, options, progress)
+        posters = [i for i, _ in poster_frames(animation, track.neutral_frame)]  # report.html's
+        rendered = render_stage(clip, track, animation, rig, tmp, options, progress, keep_frames=posters)
         seconds["render_encode"] = time.perf_counter() - t
         seconds["render_gl"] = rendered["render_s"]
+
+        t = time.perf_counter()
+        fidelity = _run_fidelity(track, animation, rig, final.name)  # reads the track's landmark files
         _close_track_files(track)
+        seconds["fidelity"] = time.perf_counter() - t
 
         seconds["total"] = time.perf_counter() - t_start
         n = track.n_frames
@@ -438,6 +471,15 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
             "outputs": [f for f in OUTPUT_FILES if f != "compare.mp4" or options.compare],
             "options": _options_json(options),
             "video": {"codec": info.codec, "rotation": info.rotation},
+            "fidelity": fidelity.figures() if fidelity is not None else None,
         }
+        # report.html shows the seconds up to here; report.json adds its own and the total.
+        t = time.perf_counter()
+        write_report_html(tmp / "report.html", report, track, animation,
+                          tmp / ("compare.mp4" if options.compare else "avatar.mp4"), fidelity, rendered["kept"])
+        seconds["report_html"] = time.perf_counter() - t
+        seconds["total"] = time.perf_counter() - t_start
+        report["seconds"] = {k: round(v, 3) for k, v in seconds.items()}
+        report["fps_processing"] = n / seconds["total"]
         write_text_atomic(tmp / "report.json", json.dumps(report, indent=2) + "\n")
     return report

@@ -14,7 +14,8 @@ from capture2face.batch import expand_inputs
 from capture2face.errors import CaptureError
 
 ENV = dict(os.environ, GLOG_minloglevel="2", TF_CPP_MIN_LOG_LEVEL="2")
-OUTPUTS = {"avatar.mp4", "compare.mp4", "track.npz", "animation.npz", "animation.glb", "livelink.csv", "report.json"}
+OUTPUTS = {"avatar.mp4", "compare.mp4", "track.npz", "animation.npz", "animation.glb", "livelink.csv", "report.html",
+           "report.json"}
 
 
 def test_inputs_expand_from_folders_globs_and_lists(tmp_path):

@@ -25,7 +25,8 @@ LIVELINK_HEADER = (
     "CheekSquintLeft,CheekSquintRight,NoseSneerLeft,NoseSneerRight,TongueOut,HeadYaw,HeadPitch,HeadRoll,"
     "LeftEyeYaw,LeftEyePitch,LeftEyeRoll,RightEyeYaw,RightEyePitch,RightEyeRoll"
 )
-OUTPUTS = ["avatar.mp4", "compare.mp4", "track.npz", "animation.npz", "animation.glb", "livelink.csv", "report.json"]
+OUTPUTS = ["avatar.mp4", "compare.mp4", "track.npz", "animation.npz", "animation.glb", "livelink.csv", "report.html",
+           "report.json"]
 SIZE = 256
 
 
@@ -112,6 +113,33 @@ def test_run_writes_every_output_for_the_sample_clip(sample_run, sample_clip):
     face = np.abs(frames - background) > 20
     assert 0.15 < face.mean() < 0.8
     assert np.abs(np.diff(frames, axis=0)).mean() > 0.2
+
+
+@pytest.mark.slow
+def test_report_html_is_a_self_contained_page_of_the_run(sample_run):
+    import re
+
+    folder, report = sample_run
+    assert "report.html" in report["outputs"]
+    page = (folder / "report.html").read_text(encoding="utf-8")
+    assert page.startswith("<!DOCTYPE html>") and page.rstrip().endswith("</html>")
+    assert not re.search(r"https?://", page), "report.html must not reach the network"
+    assert "<script" not in page and "<link" not in page
+    # Poster frames of compare.mp4 as embedded JPEGs, plots as inline SVG.
+    assert 4 <= page.count('src="data:image/jpeg;base64,') <= 6
+    assert page.count("<svg") >= 6 + 3 + 2  # fidelity measures, ARKit groups, stretch/compress
+    # The fidelity table shows report.json's figures (same r values, same order).
+    fidelity = report["fidelity"]
+    assert fidelity["frames"] == report["tracked_frames"]
+    shown = re.findall(r'<td class="r">([-0-9.]+)</td>', page)
+    assert shown == [f"{m['r']:.3f}" for m in fidelity["measures"].values()]
+    assert f"{report['frames']} frames" in page and html_text(report["character"]) in page
+
+
+def html_text(text: str) -> str:
+    import html
+
+    return html.escape(str(text))
 
 
 @pytest.mark.slow
@@ -240,6 +268,8 @@ def test_run_with_a_glb_character(sample_clip, tmp_path):
     assert anim.character == wide.name and anim.n_frames == report["frames"]
     n, _, w, h = video_stats(folder / "avatar.mp4")
     assert (n, w, h) == (report["frames"], 128, 128)
+    assert "report.html" in report["outputs"]  # its posters are avatar.mp4's frames then
+    assert "data:image/jpeg" in (folder / "report.html").read_text(encoding="utf-8")
 
 
 @pytest.mark.slow
