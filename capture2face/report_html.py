@@ -299,7 +299,7 @@ th{background:#efefec;font-weight:600}td.l,th.l{text-align:left}
 .ok{color:#1a7f37;font-weight:600}.bad{color:#b42318;font-weight:600}.na{color:#999}
 .warn{background:#fff4e0;border:1px solid #f0c36d;padding:6px 12px;margin:6px 0}
 .warn ul{margin:2px 0;padding-left:20px}
-.posters{display:grid;grid-template-columns:repeat(2,1fr);gap:10px}
+.posters{display:grid;grid-template-columns:repeat(2,1fr);gap:10px}.posters.square{grid-template-columns:repeat(3,1fr)}
 figure{margin:0;background:#fff;border:1px solid #ddd;padding:4px}
 figure img{width:100%;display:block}figcaption{font-size:12px;color:#444;padding:2px 2px 0}
 .plots{display:grid;grid-template-columns:repeat(2,1fr);gap:8px}
@@ -394,16 +394,31 @@ def _fidelity_tables(fig: dict) -> str:
     return summary + f'<div class="cols"><div>{measures}</div><div>{arkit}</div></div>'
 
 
+def break_gaps(times: np.ndarray, *columns: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``times`` and ``columns`` (rows per time) with a NaN row inserted wherever the
+    times skip more than 1.5 frames (frames without a face), so that plots break there."""
+    times = np.asarray(times, np.float64)
+    if len(times) < 3:
+        return (times, *columns)
+    dt = np.diff(times)
+    at = np.flatnonzero(dt > 1.5 * np.median(dt)) + 1
+    if at.size == 0:
+        return (times, *columns)
+    out_t = np.insert(times, at, (times[at - 1] + times[at]) / 2)
+    return (out_t, *(np.insert(np.asarray(c, np.float64), at, np.nan, axis=0) for c in columns))
+
+
 def _fidelity_plots(fid, fig: dict) -> str:
     from capture2face.fidelity import EYE_MEASURES, MEASURES
 
+    times, source, character, direct = break_gaps(fid.times, fid.source, fid.character, fid.direct)
     plots = []
     for k, name in enumerate(MEASURES):
         m = fig.get("measures", {}).get(name, {})
         title = f"{name}  r {m.get('r', 0):.2f}  gain {m.get('gain', 0):.2f}"
-        plots.append(svg_plot(fid.times, [("source", fid.source[:, k], SOURCE_COLOUR),
-                                          ("character", fid.character[:, k], CHARACTER_COLOUR),
-                                          ("direct", fid.direct[:, k], DIRECT_COLOUR)], title=title,
+        plots.append(svg_plot(times, [("source", source[:, k], SOURCE_COLOUR),
+                                      ("character", character[:, k], CHARACTER_COLOUR),
+                                      ("direct", direct[:, k], DIRECT_COLOUR)], title=title,
                               y_label="× neutral opening" if name in EYE_MEASURES else "IOD"))
     return f'<div class="plots">{"".join(plots)}</div>'
 
@@ -453,10 +468,13 @@ def render_report_html(report: dict, track, animation, video: str | os.PathLike 
             t = float(times[i]) if i < len(times) else 0.0
             figs.append(f'<figure><img alt="frame {i}" src="{jpeg_data_uri(images[i])}">'
                         f"<figcaption>frame {i} · {t:.2f} s · {_e(why)}</figcaption></figure>")
-        what = Path(video).name if video is not None else "the video"
-        poster_html = (f'<p class="note">Frames of {_e(what)} (source | character | wrinkle '
-                       "influence) where the expression is strongest; dashed lines in the plots below.</p>"
-                       f'<div class="posters">{"".join(figs)}</div>')
+        what = Path(video).name if video is not None else "the run's video"
+        first = next(iter(images.values()))
+        wide = first.shape[1] >= 2 * first.shape[0]  # compare.mp4: three panels side by side
+        panels = " (source | character | wrinkle influence)" if wide else ""
+        poster_html = (f'<p class="note">Frames of {_e(what)}{panels} where the expression is strongest; '
+                       "dashed lines in the plots below.</p>"
+                       f'<div class="posters{"" if wide else " square"}">{"".join(figs)}</div>')
 
     arkit_plots = []
     for group, wanted in ARKIT_GROUPS:

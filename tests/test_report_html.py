@@ -89,3 +89,14 @@ def test_page_without_video_or_fidelity_still_renders():
     assert "&lt;odd&gt; &amp; name.mp4" in page and "no face in &lt;3&gt; frames" in page
     assert "<odd>" not in page and "data:image" not in page
     assert page.count("<svg") == 3 + 2  # three ARKit groups with curves, stretch and compress
+
+
+def test_break_gaps_inserts_a_nan_row_where_frames_are_missing():
+    from capture2face.report_html import break_gaps
+
+    t = np.array([0.0, 0.1, 0.2, 0.9, 1.0])
+    v = np.arange(10.0).reshape(5, 2)
+    bt, bv = break_gaps(t, v)
+    np.testing.assert_allclose(bt, [0.0, 0.1, 0.2, 0.55, 0.9, 1.0])
+    assert np.isnan(bv[3]).all() and np.isfinite(np.delete(bv, 3, 0)).all()
+    np.testing.assert_array_equal(break_gaps(t[:3], v[:3])[1], v[:3])  # no gap: unchanged
