@@ -215,8 +215,10 @@ def default_avatar(variant: str | None = None) -> FaceRig:
 _LIP_PAIRS = [(191, 95), (80, 88), (81, 178), (82, 87), (13, 14), (312, 317), (311, 402), (310, 318), (415, 324)]
 
 
-def _close_lips(v: np.ndarray) -> np.ndarray:
-    """The canonical face rests with its lips ~0.5 cm apart; a neutral face has them
+def close_lips(v: np.ndarray) -> np.ndarray:
+    """(N >= 468, 3) points indexed like MediaPipe's landmarks, with the lips closed.
+
+    The canonical face rests with its lips ~0.5 cm apart; a neutral face has them
     touching. Move the inner lip lines onto their common midline and let the rest of
     each lip follow, fading out over 1 cm."""
     v = v.copy()
@@ -591,7 +593,7 @@ def build_avatar(variant: str = "default") -> FaceRig:
     from capture2face.rig import maps
 
     mesh = canonical.load_canonical_mesh()
-    base = _variant_shape(_close_lips(mesh.vertices.astype(np.float64)), variant)
+    base = _variant_shape(close_lips(mesh.vertices.astype(np.float64)), variant)
     mirror = _mirror_map(mesh.vertices.astype(np.float64))
 
     # Open the eyes and the mouth, then subdivide once (original vertices keep their ids).

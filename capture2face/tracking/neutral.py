@@ -6,6 +6,13 @@ expression and does not deform the face). A moving head raises a frame's cost:
 ``energy * (1 + (speed / 10 cm/s)^2)``, so a still head (no motion blur, no lag) wins among
 equally calm faces, but a merely slow head never makes an expressive frame the neutral
 one (a hard speed gate did that on real clips). Only tracked frames are candidates.
+
+The scores alone let a face with its lips apart win (MediaPipe scores jawOpen 0.2-0.3 on
+a relaxed open mouth: on real clips the pick had the lips 0.17-0.22 inter-ocular
+distances apart), and the retargeting takes the neutral's lip gap as the character's
+closed mouth, so every later opening came out at a half. The lips' own gap (landmarks
+13-14, in inter-ocular distances, measured on the head-coordinate landmarks) is added to
+the energy: ``energy + (gap / CLOSED_GAP)^2``.
 """
 
 from __future__ import annotations
@@ -15,6 +22,7 @@ import numpy as np
 from capture2face.tracking.head_pose import split_pose
 
 STEADY_SPEED = 10.0  # cm/s of surface motion (head speed) that doubles a frame's cost
+CLOSED_GAP = 0.05  # lip gap (inter-ocular distances) that costs as much as a full expression
 
 
 def expression_energy(blendshapes: np.ndarray, names: list[str]) -> np.ndarray:
@@ -36,12 +44,28 @@ def head_speed(pose: np.ndarray, times: np.ndarray) -> np.ndarray:
     return np.concatenate([[step[0]], 0.5 * (step[1:] + step[:-1]), [step[-1]]])
 
 
+def mouth_gap(landmarks_head: np.ndarray) -> np.ndarray:
+    """(F,) distance between the inner lips (landmarks 13, 14) in inter-ocular distances
+    (33-263) of head-coordinate landmarks (F, L, 3)."""
+    pts = np.asarray(landmarks_head[:, [13, 14, 33, 263]], np.float64)
+    iod = np.linalg.norm(pts[:, 2] - pts[:, 3], axis=-1)
+    return np.linalg.norm(pts[:, 0] - pts[:, 1], axis=-1) / np.maximum(iod, 1e-9)
+
+
 def pick_neutral(blendshapes: np.ndarray, names: list[str], pose: np.ndarray,
-                 times: np.ndarray, valid: np.ndarray) -> int:
-    """Index of the neutral frame among ``valid`` (F,) bool frames (tracked, not filled)."""
+                 times: np.ndarray, valid: np.ndarray, mouth_gap: np.ndarray | None = None) -> int:
+    """Index of the neutral frame among ``valid`` (F,) bool frames (tracked, not filled).
+
+    Args:
+        mouth_gap: (F,) lip gap in inter-ocular distances (:func:`mouth_gap`); None
+            judges by the scores alone.
+    """
     valid = np.asarray(valid, bool)
     if not valid.any():
         valid = np.ones_like(valid)
-    cost = expression_energy(blendshapes, names) * (1.0 + (head_speed(pose, times) / STEADY_SPEED) ** 2)
+    energy = expression_energy(blendshapes, names)
+    if mouth_gap is not None:
+        energy = energy + (np.asarray(mouth_gap, np.float64) / CLOSED_GAP) ** 2
+    cost = energy * (1.0 + (head_speed(pose, times) / STEADY_SPEED) ** 2)
     pool = np.flatnonzero(valid)
     return int(pool[np.argmin(cost[pool])])
