@@ -1,0 +1,125 @@
+"""Expression fidelity on real clips (capture2face.fidelity, ``eval fidelity``)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from capture2face.fidelity import (
+    MEASURES, ClipFidelity, character_measures, compare, direct_weights, faithful, lowpass,
+    measures_from_points,
+)
+from capture2face.rig.avatar import default_avatar
+from tests.conftest import shared_clip
+
+
+def _face(frames: int, gap: np.ndarray, eye_scale: np.ndarray) -> np.ndarray:
+    """(F, 478, 3) a face with the measured landmarks placed by hand: IOD 6 cm, lips
+    ``gap`` cm apart, eyes 1 cm open times ``eye_scale``."""
+    pts = np.zeros((frames, 478, 3))
+    pts[:, 33] = [-3.0, 0.0, 0.0]
+    pts[:, 263] = [3.0, 0.0, 0.0]
+    pts[:, 105] = [-2.0, 1.5, 0.0]
+    pts[:, 334] = [2.0, 1.8, 0.0]
+    pts[:, 13, 1] = -4.0 + gap / 2
+    pts[:, 14, 1] = -4.0 - gap / 2
+    pts[:, 61] = [-2.5, -4.0, 0.0]
+    pts[:, 291] = [2.5, -4.0, 0.0]
+    for upper, lower in ((159, 145), (386, 374)):
+        pts[:, upper, 1] = 0.5 * eye_scale
+        pts[:, lower, 1] = -0.5 * eye_scale
+    return pts
+
+
+def test_measures_are_in_inter_ocular_units_and_eyes_relative_to_neutral():
+    gap = np.array([0.0, 0.6, 1.2])
+    eyes = np.array([1.0, 0.5, 0.0])
+    pts = _face(3, gap, eyes)
+    m = measures_from_points(pts, pts[0])
+    names = list(MEASURES)
+    np.testing.assert_allclose(m[:, names.index("mouth_open")], gap / 6.0)
+    np.testing.assert_allclose(m[:, names.index("mouth_width")], 5.0 / 6.0)
+    np.testing.assert_allclose(m[:, names.index("brow_right")], np.hypot(1.0, 1.5) / 6.0)
+    np.testing.assert_allclose(m[:, names.index("eye_left")], eyes)
+    np.testing.assert_allclose(m[:, names.index("eye_right")], eyes)
+
+
+def test_gain_and_correlation():
+    t = np.linspace(0, 4 * np.pi, 200)
+    src = np.sin(t)
+    r, gain = compare(src, 0.5 * src + 3.0)
+    assert r == pytest.approx(1.0) and gain == pytest.approx(0.5)
+    r, _ = compare(src, -src)
+    assert r == pytest.approx(-1.0)
+    assert faithful(0.95, 1.0) and not faithful(0.95, 0.5) and not faithful(0.85, 1.0)
+
+
+def test_lowpass_has_the_zero_phase_butterworth_response():
+    """Sinusoids come out in phase, scaled by 1 / (1 + (f / 8 Hz)^4)."""
+    fps = 30.0
+    t = np.arange(600) / fps
+    for hz in (1.0, 4.0, 12.0):
+        wave = np.sin(2 * np.pi * hz * t)
+        out = lowpass(np.stack([wave, 2 * wave], 1), fps)
+        expected = 1.0 / (1.0 + (hz / 8.0) ** 4)
+        np.testing.assert_allclose(out[60:-60, 0], expected * wave[60:-60], atol=0.01)
+        np.testing.assert_allclose(out[:, 1], 2 * out[:, 0])
+
+
+def test_character_at_rest_has_closed_lips_and_unit_eyes():
+    rig = default_avatar()
+    m = character_measures(rig, rig.bone_rest[None], np.zeros((1, rig.n_morphs)))[0]
+    names = list(MEASURES)
+    assert m[names.index("mouth_open")] < 0.01
+    assert m[names.index("eye_left")] == pytest.approx(1.0)
+    # jawOpen (the direct alternative's morph) opens the mouth and closes no eye.
+    scores = np.zeros((1, 2))
+    scores[0, 0] = 1.0
+    w = direct_weights(rig, scores, ["jawOpen", "eyeBlinkLeft"])
+    opened = character_measures(rig, rig.bone_rest[None], w)[0]
+    assert opened[names.index("mouth_open")] > 0.1
+    assert opened[names.index("eye_left")] == pytest.approx(1.0, abs=0.02)
+
+
+def test_figures_judge_only_measures_that_move():
+    n = 100
+    t = np.linspace(0, 2 * np.pi, n)
+    src = np.tile(np.sin(t)[:, None], (1, len(MEASURES))) * 0.1
+    src[:, list(MEASURES).index("mouth_width")] *= 0.01  # range 0.002 IOD: not judged
+    fid = ClipFidelity(name="x", times=t, source=src, character=src * 0.9, direct=src * 0.3,
+                       arkit=np.sin(t)[:, None], arkit_names=["jawOpen"], arkit_source="animation")
+    fig = fid.figures()
+    assert not fig["measures"]["mouth_width"]["judged"]
+    assert fig["measures"]["mouth_open"]["faithful"] and not fig["measures"]["mouth_open"]["direct_faithful"]
+    assert fig["summary"] == {"judged": 3, "faithful": 3, "not_worse_than_direct": 3}
+    assert fig["arkit"]["jawOpen"]["met"]
+
+
+@pytest.mark.slow
+@pytest.mark.shared_clips
+def test_eval_fidelity_on_a_real_clip(tmp_path):
+    """d18 (jaw open wide, pursed lips): the character opens its mouth as far as the actor,
+    where the direct alternative (the avatar's jawOpen morph from the tracker's score)
+    opens it about half as far."""
+    clip = shared_clip("d18.mp4")
+    out = tmp_path / "fidelity.json"
+    env = dict(os.environ, GLOG_minloglevel="2", TF_CPP_MIN_LOG_LEVEL="2")
+    result = subprocess.run([sys.executable, "-m", "capture2face", "-q", "eval", "fidelity", str(clip),
+                             "--json", str(out), "--plots", str(tmp_path)],
+                            capture_output=True, text=True, timeout=900, env=env)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "judged measures faithful" in result.stdout
+    figures = json.loads(out.read_text())["clips"][0]
+    assert (tmp_path / "d18.fidelity.png").stat().st_size > 10_000
+    mouth = figures["measures"]["mouth_open"]
+    assert mouth["judged"] and mouth["r"] >= 0.9 and 0.8 <= mouth["gain"] <= 1.25
+    assert mouth["direct_gain"] < 0.7  # the trivial alternative, for scale
+    for eye in ("eye_left", "eye_right"):
+        assert figures["measures"][eye]["r"] >= 0.9
+    assert figures["arkit_source"] == "animation"
+    assert figures["arkit"]["jawOpen"]["r"] >= 0.9 and figures["arkit"]["jawOpen"]["max"] >= 0.7
