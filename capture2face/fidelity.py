@@ -61,6 +61,24 @@ ARKIT_CHECKS: dict[str, tuple[str, float, float]] = {
 
 
 # ---- measures ----------------------------------------------------------------------------
+# The landmarks the measures use, and where each pair (and the IOD pair) sits among them.
+MEASURED = sorted({i for pair in MEASURES.values() for i in pair} | set(IOD_PAIR))
+_PAIRS = np.array([[MEASURED.index(a), MEASURED.index(b)] for a, b in [*MEASURES.values(), IOD_PAIR]])
+CHUNK = 512  # frames per block: temporaries stay bounded on long clips
+
+
+def _distances(points: np.ndarray) -> np.ndarray:
+    """(F, 7) the measured pairs' distances and the IOD of (F, len(MEASURED), 3) points."""
+    return np.linalg.norm(points[:, _PAIRS[:, 0]] - points[:, _PAIRS[:, 1]], axis=-1)
+
+
+def _normalise(dist: np.ndarray, neutral: np.ndarray) -> np.ndarray:
+    """(F, 6) measures from (F, 7) distances and the neutral's (7,): IOD units, eyes
+    relative to their own neutral opening."""
+    scale = np.array([neutral[k] if name in EYE_MEASURES else neutral[-1] for k, name in enumerate(MEASURES)])
+    return dist[:, :-1] / np.maximum(scale, 1e-9)
+
+
 def measures_from_points(points: np.ndarray, neutral: np.ndarray) -> np.ndarray:
     """(F, 6) the :data:`MEASURES` of landmark points.
 
@@ -68,15 +86,9 @@ def measures_from_points(points: np.ndarray, neutral: np.ndarray) -> np.ndarray:
         points: (F, L, 3) landmarks (or the rig's landmark vertices, indexed by landmark).
         neutral: (L, 3) the same face at its neutral: sets the IOD and the eyes' scale.
     """
-    pts = np.asarray(points, np.float64)
-    ref = np.asarray(neutral, np.float64)
-    iod = np.linalg.norm(ref[IOD_PAIR[0]] - ref[IOD_PAIR[1]])
-    out = np.empty((len(pts), len(MEASURES)))
-    for k, (name, (a, b)) in enumerate(MEASURES.items()):
-        value = np.linalg.norm(pts[:, a] - pts[:, b], axis=-1)
-        scale = np.linalg.norm(ref[a] - ref[b]) if name in EYE_MEASURES else iod
-        out[:, k] = value / max(scale, 1e-9)
-    return out
+    pts = np.asarray(points, np.float64)[:, MEASURED]
+    ref = np.asarray(neutral, np.float64)[None, MEASURED]
+    return _normalise(_distances(pts), _distances(ref)[0])
 
 
 def lowpass(x: np.ndarray, fps: float, cutoff_hz: float = LOWPASS_HZ) -> np.ndarray:
@@ -96,58 +108,60 @@ def lowpass(x: np.ndarray, fps: float, cutoff_hz: float = LOWPASS_HZ) -> np.ndar
     return out[pad:pad + len(x)]
 
 
-def raw_head_landmarks(track) -> np.ndarray:
-    """(F, L, 3) the tracker's unfiltered landmarks in head coordinates (cm), from the
-    track's raw pixel landmarks and depths, posed by MediaPipe's own geometry."""
+def raw_head_landmarks(track, start: int = 0, stop: int | None = None) -> np.ndarray:
+    """(F, L, 3) the tracker's unfiltered landmarks in head coordinates (cm) of frames
+    ``start:stop``, from the track's raw pixel landmarks and depths, posed by MediaPipe's
+    own geometry."""
     from capture2face.tracking.head_pose import head_landmarks
 
-    px = np.asarray(track.landmarks_px, np.float64)
-    norm = np.concatenate([px / np.array([track.width, track.height]),
-                           np.asarray(track.landmarks_depth, np.float64)[..., None] / track.width], -1)
-    out = np.empty(norm.shape)
-    for s in range(0, len(norm), 512):  # bounded temporaries on long clips
-        out[s:s + 512] = head_landmarks(norm[s:s + 512], track.width, track.height)[0]
-    return out
+    stop = track.n_frames if stop is None else stop
+    px = np.asarray(track.landmarks_px[start:stop], np.float64)
+    depth = np.asarray(track.landmarks_depth[start:stop], np.float64)
+    norm = np.concatenate([px / np.array([track.width, track.height]), depth[..., None] / track.width], -1)
+    return head_landmarks(norm, track.width, track.height)[0]
 
 
 def source_measures(track) -> np.ndarray:
-    """(F, 6) the actor's measures: raw landmarks, head rotation removed, 8 Hz low-pass."""
-    ids = sorted({i for pair in MEASURES.values() for i in pair} | set(IOD_PAIR))
-    head = raw_head_landmarks(track)
-    pts = np.zeros((len(head), 478, 3))
-    pts[:, ids] = head[:, ids]
-    m = measures_from_points(pts, pts[track.neutral_frame])
-    return lowpass(m, track.fps)
+    """(F, 6) the actor's measures: raw landmarks, head rotation removed, 8 Hz low-pass
+    (computed :data:`CHUNK` frames at a time: memory stays flat on long clips)."""
+    n = track.n_frames
+    dist = np.concatenate([_distances(raw_head_landmarks(track, s, min(n, s + CHUNK))[:, MEASURED])
+                           for s in range(0, n, CHUNK)])
+    return lowpass(_normalise(dist, dist[track.neutral_frame]), track.fps)
 
 
-def rig_landmark_points(rig, bone_positions: np.ndarray, blend_weights: np.ndarray) -> np.ndarray:
+def rig_landmark_points(rig, bone_positions: np.ndarray, blend_weights: np.ndarray,
+                        landmarks=None) -> np.ndarray:
     """(F, L, 3) the rig's landmark vertices deformed (morphs, then skinning); landmarks
-    without a vertex stay 0.
+    without a vertex stay 0. With ``landmarks`` (K,), only those: (F, K, 3).
 
     Args:
         bone_positions: (F, B, 3); blend_weights: (F, M).
     """
     lv = np.asarray(rig.landmark_vertices)
-    ids = np.flatnonzero(lv >= 0)
-    verts = lv[ids]
+    ids = np.arange(len(lv)) if landmarks is None else np.asarray(landmarks)
+    rows = np.flatnonzero(lv[ids] >= 0)
+    verts = lv[ids[rows]]
     weights = np.asarray(blend_weights, np.float64)
     pos = rig.vertices[verts].astype(np.float64) + np.einsum(
         "fm,mvc->fvc", weights, rig.morph_positions[:, verts].astype(np.float64))
     skin = rig.dense_skin_weights()[verts].astype(np.float64)  # (n, B)
     pos += np.einsum("vb,fbc->fvc", skin, np.asarray(bone_positions, np.float64) - rig.bone_rest)
-    out = np.zeros((len(pos), len(lv), 3))
-    out[:, ids] = pos
+    out = np.zeros((len(pos), len(ids), 3))
+    out[:, rows] = pos
     return out
 
 
 def character_measures(rig, bone_positions: np.ndarray, blend_weights: np.ndarray) -> np.ndarray:
     """(F, 6) the character's measures (its own rest pose is its neutral)."""
-    needed = {i for pair in MEASURES.values() for i in pair} | set(IOD_PAIR)
-    if np.any(np.asarray(rig.landmark_vertices)[sorted(needed)] < 0):
+    if np.any(np.asarray(rig.landmark_vertices)[MEASURED] < 0):
         raise CaptureError(f"character '{rig.name}' has no vertex for some measured landmarks")
-    pts = rig_landmark_points(rig, bone_positions, blend_weights)
-    rest = rig_landmark_points(rig, rig.bone_rest[None], np.zeros((1, rig.n_morphs)))[0]
-    return measures_from_points(pts, rest)
+    rest = _distances(rig_landmark_points(rig, rig.bone_rest[None], np.zeros((1, rig.n_morphs)), MEASURED))[0]
+    n = len(bone_positions)
+    dist = np.concatenate([
+        _distances(rig_landmark_points(rig, bone_positions[s:s + CHUNK], blend_weights[s:s + CHUNK], MEASURED))
+        for s in range(0, n, CHUNK)])
+    return _normalise(dist, rest)
 
 
 def direct_weights(rig, scores: np.ndarray, names: list[str]) -> np.ndarray:
