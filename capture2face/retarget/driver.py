@@ -48,6 +48,7 @@ class RetargetOptions:
         joint_solve: solve bones from all feature points through the skinning (True), or
             take each bone's mapped landmark directly (False; for comparison).
         oval_weight: a-priori weight of the face-oval (silhouette) feature points.
+        eye_corner_weight: a-priori weight of the outer eye corners (landmarks 33, 263).
         reweight_iterations: iteratively reweighted least squares: each pass weights
             every feature point by the inverse of its median squared residual over the
             clip (0 = one plain solve).
@@ -88,8 +89,11 @@ class RetargetOptions:
     # of it, bone_error_iod_p95 on seeds 0-4 (300 frames): 0.066/0.055/0.064/0.060/0.072
     # -> 0.062/0.051/0.063/0.057/0.068, median 0.027 -> 0.026, blend weights and
     # influences unchanged (0.0 is no better than 0.5). A perfect 3D track is recovered
-    # exactly with depth_motion=1.
-    depth_motion: float = 0.5
+    # exactly with depth_motion=1. With the eye corners weighted (eye_corner_weight) 0.6:
+    # on real clips the brow height above the eye over-expresses a little less (d11 gain
+    # 1.25 -> 1.23; at 0.75 1.21, 1.0 1.09 with brow r down) for p95 0.0645 -> 0.0646
+    # (seed 7); 0.75 costs 3-7% of p95 on seeds 7/0/1.
+    depth_motion: float = 0.6
     # The network pins each neutral pair; an actor's neutral lips are apart (0.1-1.2 cm
     # on real clips) where the character's touch, so an unclosed source squashes all
     # vertical motion between the lips (mouth-opening gain 0.21-0.66 on four of six
@@ -106,6 +110,22 @@ class RetargetOptions:
     # far from uniform: lip and chin landmarks err 2-3x more than eye and nose ones, and
     # the silhouette is a guess wherever there is no visible head outline.
     oval_weight: float = 0.1
+    # The outer eye corners are where the rig and the tracker disagree most about what a
+    # brow does: the avatar skins them partly to the outer and middle brow bones (0.28 +
+    # 0.05), so a raised brow drags the corner up, while the actor's corner stays put
+    # (and squints on its own). At weight 1 the solve trades the corner for the brow and
+    # the brow height above the eye (fidelity's |p105 - p33|, |p334 - p263|) loses
+    # correlation; weighting the corners lets the cheek bones hold them. Six real clips
+    # (eval fidelity, with depth_motion 0.6), weight 1 -> 20: faithful measures 28/33 ->
+    # 33/33, mean r 0.949 -> 0.967, worst brow r 0.74 -> 0.91, brow gains 0.85-1.24
+    # (10-30 all within one measure of that; weighting only the corners' y, or x and z,
+    # is not enough). Synthetic, seeds 7/0/1 (300 frames, with depth_motion 0.6):
+    # bone_error_iod_p95 0.0648/0.0654/0.0509 -> 0.0646/0.0660/0.0521, blendweight_mae
+    # 0.070/0.076/0.069 -> 0.070/0.079/0.072, wrinkle_influence_mae 0.079/0.080/0.060 ->
+    # 0.078/0.079/0.060; the cost is in which morph a brow-lowering goes to (browDown's
+    # active r 0.77-0.88 -> 0.38-0.51 on seeds 7 and 1, eyeSquint's up 0.31-0.43 ->
+    # 0.55 on seed 7). Any weight from 10 on costs the same there.
+    eye_corner_weight: float = 20.0
     reweight_iterations: int = 2
     reweight_floor: float = 0.01
     # Windows: memory stays flat whatever the clip's length; the overlap is many times
@@ -154,13 +174,18 @@ FACE_OVAL = np.array([10, 21, 54, 58, 67, 93, 103, 109, 127, 132, 136, 148, 149,
                       234, 251, 284, 288, 297, 323, 332, 338, 356, 361, 365, 377, 378, 379, 389, 397, 400, 454])
 
 
+# The outer eye corners (right, left): the reference the brows' height is seen against.
+EYE_CORNERS = np.array([33, 263])
+
 RELIABILITY_ADMM_ITERATIONS = 20
 
 
 def landmark_prior_weights(landmarks: np.ndarray, options: RetargetOptions) -> np.ndarray:
-    """(N,) a-priori reliability of each feature point (silhouette points down-weighted)."""
+    """(N,) a-priori weight of each feature point (silhouette points down-weighted, outer
+    eye corners up-weighted)."""
     w = np.ones(len(landmarks))
     w[np.isin(landmarks, FACE_OVAL)] = options.oval_weight
+    w[np.isin(landmarks, EYE_CORNERS)] = options.eye_corner_weight
     return w
 
 
