@@ -12,8 +12,8 @@ gives each of the 52 curves ARKit's meaning (0 at rest, 1 at the full pose):
 * **jawOpen, eyeBlinkLeft/Right, browInnerUp** (:data:`GEOMETRIC`): the curve is the
   face's geometry instead, per clip mapped to [0, 1]: mouth opening 13-14, eye closure
   1 - opening / neutral opening (159-145, 386-374), brow height 105-33 / 334-263. The
-  tracker's landmark filter (One Euro, min cutoff 0.5 Hz) takes the fast part of blinks
-  and jaw snaps away, so the detail it removed is put back from the score (the score
+  tracker's landmark filter (One Euro, :data:`LANDMARK_FILTER`) takes part of the fast
+  motion of blinks and jaw snaps away, so the detail it removed is put back from the score (the score
   mapped to centimetres by a per-clip fit, minus the same filter's output on it): the
   slow part comes from the geometry, the fast part from the score. The gain from
   geometry to curve is fitted per clip to the calibrated score, but never below an
@@ -28,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from capture2face.tracking.filtering import OneEuro, one_euro
+from capture2face.tracking.tracker import TrackOptions
 
 # curve -> landmark pairs whose distance is its geometric measure (two pairs: the mean).
 GEOMETRIC: dict[str, tuple[tuple[int, int], ...]] = {
@@ -53,7 +54,7 @@ MIN_DETAIL_R = 0.3
 SCORE_FILTER = OneEuro(min_cutoff=1.0, beta=5.0, d_cutoff=1.0, zero_phase=True)
 # The tracker's landmark filter (TrackOptions defaults): what it took from the geometry is
 # what the score's detail restores.
-LANDMARK_FILTER = OneEuro(min_cutoff=0.5, beta=0.2, d_cutoff=1.0, zero_phase=True)
+LANDMARK_FILTER = TrackOptions().landmark_filter()
 # Rest of the geometric curves: the neutral frame, or the clip's 2% most-rested frames
 # where those go further. The automatic neutral frame has the least expression energy
 # overall, not closed lips and open eyes: on the real clips 38-80% of frames had the lips
