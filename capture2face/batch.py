@@ -183,10 +183,18 @@ def run_batch(inputs: Iterable[str | os.PathLike], out: str | os.PathLike, optio
     out = Path(out)
     clips = expand_inputs(inputs)
     check_writable(out)
-    if options.character is not None:
-        from capture2face.pipeline import load_character
+    # Checked once for the whole batch, before any clip is tracked: the options and their
+    # limits, the face model, a drivable character (the default avatar is), and the GL
+    # context where the workers are local processes (a Ray worker may be another machine).
+    from capture2face.preflight import check_character, check_gl
+    from capture2face.tracking.model import find_face_model
 
-        load_character(options.character)  # a bad character fails the batch once, up front
+    options.validate()
+    find_face_model(options.face_model)
+    if options.character is not None:
+        check_character(options.character)
+    if not ray_address:
+        check_gl()
     report = _Report(out, clips, options)
     todo = []
     for i, c in enumerate(clips):

@@ -86,8 +86,9 @@ class RunOptions:
     def validate(self) -> None:
         if self.wrinkles not in WRINKLE_DRIVERS:
             raise CaptureError(f"unknown wrinkle driver '{self.wrinkles}'; choose one of {', '.join(WRINKLE_DRIVERS)}")
-        if not isinstance(self.size, (int, np.integer)) or self.size < 64 or self.size % 2:
-            raise CaptureError(f"--size must be an even number of pixels >= 64 (got {self.size})")
+        from capture2face.preflight import check_size
+
+        check_size(self.size)  # even, 64..4096
         if self.neutral_frame is not None and self.neutral_frame < 0:
             raise CaptureError(f"--neutral-frame must be >= 0 (got {self.neutral_frame})")
 
@@ -405,14 +406,14 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
             Nothing is left in ``out_dir`` then (nor on KeyboardInterrupt).
     """
     from capture2face.io.staging import staged_folder
-    from capture2face.tracking.video import open_video
+    from capture2face.preflight import preflight
 
     options = options or RunOptions()
-    options.validate()
     bound_heap()  # memory flat whatever the clip's length (see capture2face.runtime.heap)
     t_start = time.perf_counter()
-    info = open_video(clip)  # bad input fails here, before anything is written
-    rig = load_character(options.character)
+    # Bad input fails here, before anything is written or tracked: options and limits, the
+    # clip, the neutral frame, the face model, a drivable character, the GL context.
+    info, rig = preflight(clip, options)
     final = Path(out_dir) / (name or Path(clip).stem)
     seconds: dict[str, float] = {}
     with _collect_warnings() as warnings, staged_folder(final) as tmp, _work_folder(tmp) as work:

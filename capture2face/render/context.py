@@ -18,14 +18,37 @@ def gl_context() -> moderngl.Context:
     global _context
     with _lock:
         if _context is None:
+            missing = missing_gl_library()
+            if missing:
+                raise CaptureError(missing)
             try:
                 _context = moderngl.create_standalone_context(backend="egl", require=330)
             except Exception as exc:  # moderngl raises plain Exception for EGL failures
+                reason = " ".join(str(exc).split()) or exc.__class__.__name__
                 raise CaptureError(
-                    f"cannot create a headless OpenGL context through EGL ({exc}); "
-                    "install Mesa's EGL (libegl1, libgl1-mesa-dri) or a GPU driver"
+                    f"cannot create a headless OpenGL 3.3 context through EGL ({reason}); install "
+                    f"Mesa's drivers ({MESA_PACKAGES}) or a GPU driver"
                 ) from None
         return _context
+
+
+# Debian/Ubuntu packages of what the EGL backend loads: libEGL.so.1 (libegl1, which pulls
+# in Mesa's EGL vendor libegl-mesa0), libGL.so.1 (libgl1) and Mesa's software and
+# hardware drivers (libgl1-mesa-dri: llvmpipe).
+MESA_PACKAGES = "Debian/Ubuntu: apt-get install libegl1 libgl1 libgl1-mesa-dri"
+_GL_LIBRARIES = (("EGL", "libEGL.so.1", "libegl1"), ("GL", "libGL.so.1", "libgl1"))
+
+
+def missing_gl_library() -> str | None:
+    """One line naming the system library the EGL backend needs and cannot find (moderngl's
+    glcontext loads them by ``ctypes.util.find_library``), or None when both are there."""
+    from ctypes.util import find_library
+
+    for name, soname, package in _GL_LIBRARIES:
+        if not find_library(name):
+            return (f"cannot render: the system library {soname} is missing; install {package} "
+                    f"and Mesa's drivers ({MESA_PACKAGES}) or a GPU driver")
+    return None
 
 
 def gl_renderer() -> str:

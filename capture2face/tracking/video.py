@@ -47,6 +47,8 @@ class VideoInfo:
         duration: seconds.
         rotation: counter-clockwise degrees applied to decoded frames (0, 90, 180, 270).
         codec: decoder name, e.g. "h264".
+        n_frames_exact: True when ``n_frames`` is the container's own count, False when it
+            is estimated from the duration.
     """
 
     path: str
@@ -57,6 +59,7 @@ class VideoInfo:
     duration: float
     rotation: int
     codec: str
+    n_frames_exact: bool = True
 
 
 def _check_path(path: str | os.PathLike) -> Path:
@@ -151,6 +154,7 @@ def open_video(path: str | os.PathLike) -> VideoInfo:
         return VideoInfo(
             path=str(p), width=int(w), height=int(h), fps=fps, n_frames=n_frames,
             duration=duration, rotation=rotation, codec=stream.codec_context.name,
+            n_frames_exact=bool(stream.frames),
         )
     finally:
         container.close()

@@ -1,0 +1,100 @@
+"""Checks that run before a clip is tracked: everything that can fail without the clip's
+landmarks fails in seconds, not after minutes of tracking.
+
+:func:`preflight` is what :func:`capture2face.pipeline.run` calls first (and
+:func:`capture2face.batch.run_batch` once per batch for what all clips share): the options
+and their limits, the clip (it decodes; the neutral frame lies inside it), the face model,
+the character (it loads and the retargeting can drive it), and the OpenGL context.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+from capture2face.errors import CaptureError
+
+MIN_SIZE = 64
+MAX_SIZE = 4096  # 4096^2 renders at ~0.1 fps on a software GL; 8K textures break drivers
+# A frame count estimated from the duration (no count in the container) may be low by
+# a few percent on variable-frame-rate clips: only a neutral frame clearly past the end is
+# refused here; the tracker checks against the frames it decoded.
+_ESTIMATE_SLACK = 1.25
+
+
+def check_size(size: Any) -> None:
+    """The render size: an even number of pixels in MIN_SIZE..MAX_SIZE."""
+    if isinstance(size, bool) or not isinstance(size, int) and not hasattr(size, "__index__"):
+        raise CaptureError(f"--size must be an even number of pixels from {MIN_SIZE} to {MAX_SIZE} (got {size!r})")
+    size = int(size)
+    if not MIN_SIZE <= size <= MAX_SIZE or size % 2:
+        raise CaptureError(f"--size must be an even number of pixels from {MIN_SIZE} to {MAX_SIZE} (got {size})")
+
+
+def check_neutral_frame(neutral_frame: int | None, info) -> None:
+    """``--neutral-frame`` against the clip's frame count (a
+    :class:`~capture2face.tracking.video.VideoInfo`)."""
+    if neutral_frame is None:
+        return
+    n = int(info.n_frames)
+    limit = n if getattr(info, "n_frames_exact", True) else int(n * _ESTIMATE_SLACK) + 1
+    if not 0 <= int(neutral_frame) < limit:
+        about = "" if getattr(info, "n_frames_exact", True) else "about "
+        raise CaptureError(f"--neutral-frame {neutral_frame} is outside the clip "
+                           f"({info.path} has {about}{n} frames: 0..{n - 1})")
+
+
+def check_character(character: Any = None):
+    """Load the character and check that the retargeting can drive it.
+
+    Returns:
+        The :class:`~capture2face.rig.face_rig.FaceRig`.
+    Raises:
+        CaptureError: missing or corrupt file, or too few tracked feature points.
+    """
+    from capture2face.pipeline import load_character
+    from capture2face.retarget import feature_correspondence
+
+    rig = load_character(character)
+    feature_correspondence(rig)  # raises CaptureError for an undrivable character
+    return rig
+
+
+def check_gl() -> None:
+    """The headless OpenGL context can be created (one line naming the missing package
+    otherwise; see :mod:`capture2face.render.context`)."""
+    from capture2face.render.context import gl_context
+
+    gl_context()
+
+
+def check_shared(options) -> Any:
+    """What every clip of a run or a batch shares: the options, the face model and the
+    character (the GL context is checked apart: batch workers, e.g. Ray's, may be elsewhere).
+
+    Returns:
+        The character's FaceRig.
+    """
+    from capture2face.tracking.model import find_face_model
+
+    options.validate()
+    find_face_model(options.face_model)
+    return check_character(options.character)
+
+
+def preflight(clip: str | os.PathLike, options) -> tuple[Any, Any]:
+    """Every check :func:`capture2face.pipeline.run` can make before tracking ``clip``.
+
+    Returns:
+        ``(VideoInfo, FaceRig)``.
+    Raises:
+        CaptureError: the first problem found, as one line.
+    """
+    from capture2face.tracking.video import open_video
+
+    options.validate()
+    info = open_video(clip)
+    check_neutral_frame(options.neutral_frame, info)
+    rig = check_shared(options)
+    check_gl()
+    return info, rig
