@@ -79,7 +79,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     opts = RunOptions(
         character=args.character, wrinkles=args.wrinkles, size=args.size,
-        neutral_frame=args.neutral_frame, face_model=args.face_model,
+        neutral_frame=args.neutral_frame, face_model=args.face_model, audio=not args.no_audio,
     )
     opts.allow_truncated = args.allow_truncated
     report = run(args.clip, args.output, opts, progress=not args.quiet)
@@ -130,7 +130,7 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     from capture2face.pipeline import RunOptions
 
     opts = RunOptions(character=args.character, wrinkles=args.wrinkles, size=args.size,
-                      face_model=args.face_model)
+                      face_model=args.face_model, audio=not args.no_audio)
     opts.allow_truncated = args.allow_truncated
     report = run_batch(args.inputs, args.output, opts, jobs=args.jobs, resume=args.resume,
                        ray_address=args.ray, progress=not args.quiet)
@@ -232,6 +232,8 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--allow-truncated", action="store_true",
                        help="process the frames before the damage of a truncated or corrupt clip "
                             "(with a warning) instead of failing")
+        p.add_argument("--no-audio", action="store_true",
+                       help="leave the clip's audio out of avatar.mp4 and compare.mp4")
         face_model(p)
 
     p = sub.add_parser("run", parents=[common], help="clip -> animated, wrinkled character (video + exports)")

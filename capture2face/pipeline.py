@@ -69,6 +69,7 @@ class RunOptions:
         queue_frames: frames buffered between overlapped stages.
         allow_truncated: process the frames before the damage of a truncated or
             corrupt clip (with a warning) instead of failing.
+        audio: copy the clip's audio (if any) into avatar.mp4 and compare.mp4.
     """
 
     character: Any = None
@@ -82,6 +83,7 @@ class RunOptions:
     preset: str = "veryfast"
     queue_frames: int = 8
     allow_truncated: bool = False
+    audio: bool = True
 
     def validate(self) -> None:
         if self.wrinkles not in WRINKLE_DRIVERS:
@@ -233,10 +235,13 @@ def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder
     threads = 1
     keep = {int(i) for i in keep_frames}
     kept: dict[int, np.ndarray] = {}
+    # The source's frame times (a variable-rate clip keeps them) and its audio.
+    times = np.asarray(track.times[:n], np.float64)
+    audio_from = clip if options.audio else None
 
     def encode_avatar(frames) -> None:
         with VideoWriter(folder / "avatar.mp4", fps, (size, size), crf=options.crf, preset=options.preset,
-                         threads=threads) as out:
+                         threads=threads, times=times, audio_from=audio_from) as out:
             for frame in frames:
                 out.write(frame)
 
@@ -248,7 +253,7 @@ def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder
     def encode_compare(panels, sources) -> None:
         src = iter(sources)
         with VideoWriter(folder / "compare.mp4", fps, (3 * size, size), crf=options.crf,
-                         preset=options.preset, threads=threads) as out:
+                         preset=options.preset, threads=threads, times=times, audio_from=audio_from) as out:
             for i, (avatar, heat) in enumerate(panels):
                 frame = compare_frame(fitter, next(src, None), track.landmarks_px[i], bool(track.presence[i]),
                                       avatar, heat)
