@@ -283,6 +283,14 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def os_error_line(exc: OSError) -> str:
+    """``<path>: No space left on device``: an OSError as one line."""
+    text = exc.strerror or str(exc) or exc.__class__.__name__
+    paths = [str(f) for f in (exc.filename, exc.filename2) if f is not None]
+    line = f"{' -> '.join(paths)}: {text}" if paths else text
+    return " ".join(line.split())
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -294,6 +302,11 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"capture2face: error: {exc}", file=sys.stderr)
         return exc.exit_code
+    except OSError as exc:  # a full disk, a permission lost mid-run: staged outputs are gone
+        if args.debug:
+            raise
+        print(f"capture2face: error: {os_error_line(exc)}", file=sys.stderr)
+        return CaptureError.exit_code
     except KeyboardInterrupt:
         if args.debug:
             raise

@@ -410,7 +410,8 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
         CaptureError: unreadable clip, no face, bad character, output not writable, ...
             Nothing is left in ``out_dir`` then (nor on KeyboardInterrupt).
     """
-    from capture2face.io.staging import staged_folder
+    from capture2face.io.staging import check_output_folder, staged_folder
+    from capture2face.tracking.video import watch_damage
     from capture2face.preflight import preflight
 
     options = options or RunOptions()
@@ -421,17 +422,21 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
     info, rig = preflight(clip, options)
     final = Path(out_dir) / (name or Path(clip).stem)
     seconds: dict[str, float] = {}
-    with _collect_warnings() as warnings, staged_folder(final) as tmp, _work_folder(tmp) as work:
+    # Only the run's own files in ``final`` are replaced; the clip itself is never touched.
+    outputs = [f for f in OUTPUT_FILES if f != "compare.mp4" or options.compare]
+    check_output_folder(final, outputs, OUTPUT_FILES, protect=[clip])
+    with _collect_warnings() as warnings, \
+            staged_folder(final, OUTPUT_FILES, protect=[clip]) as tmp, _work_folder(tmp) as work:
         t = time.perf_counter()
-        try:
-            track = track_stage(clip, options, progress, workdir=work)
-        finally:
-            # The decoder keeps the frames before any damage; a run would silently lose
-            # the clip's tail, so that takes an explicit opt-in. (Checked even when
-            # tracking failed: a damaged file is the cause to report.)
-            damaged = [w for w in warnings if "truncated" in w]
-            if damaged and not options.allow_truncated:
-                raise CaptureError(damaged[0])
+        with watch_damage(clip) as damage:
+            try:
+                track = track_stage(clip, options, progress, workdir=work)
+            finally:
+                # The decoder keeps the frames before any damage; a run would silently lose
+                # the clip's tail, so that takes an explicit opt-in. (Checked even when
+                # tracking failed: a damaged file is the cause to report.)
+                if damage and not options.allow_truncated:
+                    raise CaptureError(damage[0].message)
         track.save(tmp / "track.npz")
         release_free_memory()
         seconds["track"] = time.perf_counter() - t
@@ -474,7 +479,7 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
             "fps_processing": n / seconds["total"],
             "track_fps": n / seconds["track"],
             "warnings": _track_warnings(track) + list(warnings),
-            "outputs": [f for f in OUTPUT_FILES if f != "compare.mp4" or options.compare],
+            "outputs": outputs,  # the run's manifest (capture2face.io.staging)
             "options": _options_json(options),
             "video": {"codec": info.codec, "rotation": info.rotation},
             "fidelity": fidelity.figures() if fidelity is not None else None,

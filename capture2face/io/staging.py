@@ -1,24 +1,65 @@
-"""All-or-nothing output folders: a run writes into a hidden temporary folder beside its
-final one and swaps it in only when every file is complete.
+"""All-or-nothing output folders that hold a user's own files too.
 
-An interrupted or failed run (bad input found late, SIGINT, SIGTERM, a full disk) thus
-leaves neither a half-written file nor a half-filled folder under the final name; folders
-the run had to create for it are removed again when they stay empty.
+A run writes its files into a hidden staging folder beside its output folder
+(``OUT/.tmp-<name>-*``) and moves them into ``OUT/<name>/`` only when every one of them is
+complete. It never replaces the output folder as a whole: the files the run writes, and
+the files an earlier run wrote there, are the only ones it replaces or removes; anything
+else in the folder (notes, the source clip itself) is left untouched.
+
+Which files a run owns (the *manifest*): the ``outputs`` listed in the folder's
+``report.json`` plus ``report.json`` itself (only names the caller declares as its
+outputs, so a hand-edited report cannot make a run delete a user's file). A name the run
+wants to write that exists in the folder but is owned by no run is a conflict (a
+:class:`CaptureError`, before any slow work): such a file is never overwritten. A path in
+``protect`` (the source clip) is never replaced nor removed, whatever its name.
+
+Moving in (the commit), in this order:
+
+1. ``.capture2face-run.json`` (the journal) is written atomically into the folder; it lists
+   the old run's files and the new run's;
+2. the old ``report.json`` is removed, so the folder no longer reads as a complete run
+   (:func:`capture2face.pipeline.outputs_complete`, ``batch --resume``);
+3. each new file is renamed in (``os.replace``, atomic per file), ``report.json`` last;
+4. the old run's files the new run did not write (e.g. compare.mp4 when the new run has
+   compare off) are removed;
+5. the journal is removed.
+
+A crash (power loss, SIGKILL) between two of these steps can leave the folder without
+``report.json`` holding a mix of old and new run files plus the journal, never a
+half-written file and never a change to a user's file; the folder then reads as
+incomplete, and the next run into it, which takes the journal's files as its own,
+replaces them. An exception (a full disk, SIGINT, SIGTERM) before step 3 leaves the
+folder as it was.
+
+Staging folders record their owner (``.owner``: pid, host, start time). A run removes the
+staging folders that a killed run left in ``OUT`` (owner process gone, started before this
+run; or, from versions that wrote no owner, untouched for :data:`UNOWNED_STALE_S`) and
+warns about it.
 """
 
 from __future__ import annotations
 
 import contextlib
+import json
+import logging
 import os
 import shutil
+import socket
 import tempfile
+import time
 from pathlib import Path
-from typing import Iterator
+from typing import Collection, Iterable, Iterator
 
 from capture2face.errors import CaptureError
-from capture2face.io.atomic import DIR_MODE
+from capture2face.io.atomic import DIR_MODE, write_text_atomic
 
 STAGING_PREFIX = ".tmp-"
+OWNER_FILE = ".owner"
+JOURNAL = ".capture2face-run.json"
+MANIFEST = "report.json"
+UNOWNED_STALE_S = 3600.0  # a staging folder without .owner, untouched this long, is stale
+
+log = logging.getLogger("capture2face")
 
 
 def _make_parents(folder: Path) -> list[Path]:
@@ -56,41 +97,215 @@ def _remove_empty(created: list[Path]) -> None:
             break  # not empty (someone else wrote there) or already gone
 
 
-@contextlib.contextmanager
-def staged_folder(final: str | os.PathLike) -> Iterator[Path]:
-    """Yield an empty temporary folder beside ``final``; on success it replaces ``final``.
+# ---- ownership ----------------------------------------------------------------------------
+def _read_json(path: Path):
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError, UnicodeDecodeError):
+        return None
 
-    An existing ``final`` folder is replaced as a whole (old outputs never mix with new
-    ones). On any exception, KeyboardInterrupt included, the temporary folder is deleted
-    and so are the parent folders this call created.
+
+def owned_files(folder: str | os.PathLike, known: Collection[str]) -> set[str]:
+    """Names of the files in ``folder`` that an earlier run wrote (see module doc): the
+    manifest's (report.json's ``outputs`` and report.json) and an interrupted commit's
+    journal's, restricted to ``known`` names."""
+    folder = Path(folder)
+    owned: set[str] = set()
+    report = _read_json(folder / MANIFEST)
+    if isinstance(report, dict) and isinstance(report.get("outputs"), list):
+        owned.add(MANIFEST)
+        owned.update(n for n in report["outputs"] if isinstance(n, str))
+    journal = _read_json(folder / JOURNAL)
+    if isinstance(journal, dict) and isinstance(journal.get("files"), list):
+        owned.update(n for n in journal["files"] if isinstance(n, str))
+    return {n for n in owned if n in known and "/" not in n and n not in (".", "..")}
+
+
+def _same_file(path: Path, others: Iterable[Path]) -> bool:
+    for other in others:
+        try:
+            if os.path.samefile(path, other):
+                return True
+        except OSError:
+            continue
+    return False
+
+
+def check_output_folder(final: str | os.PathLike, names: Iterable[str], known: Collection[str],
+                        protect: Iterable[str | os.PathLike] = ()) -> set[str]:
+    """Fail early when a run could not move ``names`` into ``final`` without touching a
+    file it does not own; returns the names an earlier run owns there.
 
     Raises:
-        CaptureError: ``final``'s parent cannot be created or written, or ``final`` is a
-            file.
+        CaptureError: ``final`` is a file; a name to write is a protected file (the source
+            clip), a folder, or a file no run owns.
     """
     final = Path(final)
     if final.exists() and not final.is_dir():
         raise CaptureError(f"cannot write outputs to {final}: it is a file, not a folder")
+    if not final.is_dir():
+        return set()
+    protect = [Path(p) for p in protect]
+    owned = owned_files(final, known)
+    for name in names:
+        target = final / name
+        if not os.path.lexists(target):
+            continue
+        if _same_file(target, protect):
+            raise CaptureError(f"{target}: the source clip would be overwritten by the output of the same name; "
+                               "move the clip or choose another output folder")
+        if target.is_dir() and not target.is_symlink():
+            raise CaptureError(f"{target}: a folder is in the way of an output file; move it or choose another "
+                               "output folder")
+        if name not in owned:
+            raise CaptureError(f"{target}: exists and no earlier run wrote it (it is not in {final / MANIFEST}); "
+                               "move it or choose another output folder")
+    return owned
+
+
+# ---- stale staging folders ----------------------------------------------------------------
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, ValueError):
+        return True  # someone else's process (or a nonsense pid: leave the folder alone)
+    return True
+
+
+def _newest_mtime(folder: Path) -> float:
+    newest = folder.lstat().st_mtime
+    for root, dirs, files in os.walk(folder):
+        for n in dirs + files:
+            with contextlib.suppress(OSError):
+                newest = max(newest, os.lstat(os.path.join(root, n)).st_mtime)
+    return newest
+
+
+def _tree_bytes(folder: Path) -> int:
+    total = 0
+    for root, _, files in os.walk(folder):
+        for n in files:
+            with contextlib.suppress(OSError):
+                total += os.lstat(os.path.join(root, n)).st_size
+    return total
+
+
+def _is_stale(folder: Path, now: float) -> bool:
+    owner = _read_json(folder / OWNER_FILE)
+    if isinstance(owner, dict):
+        try:
+            pid, host, started = int(owner["pid"]), str(owner["host"]), float(owner["started"])
+        except (KeyError, TypeError, ValueError):
+            return False
+        if host != socket.gethostname() or started >= now:
+            return False  # another machine's run (shared disk), or not older than this run
+        return not _pid_alive(pid)
+    try:
+        return now - _newest_mtime(folder) > UNOWNED_STALE_S
+    except OSError:
+        return False
+
+
+def clean_stale_staging(parent: str | os.PathLike, now: float | None = None) -> list[Path]:
+    """Remove the staging folders in ``parent`` that no live run holds (a killed run's),
+    with a warning naming them; returns them."""
+    parent = Path(parent)
+    now = time.time() if now is None else now
+    removed: list[tuple[Path, int]] = []
+    try:
+        entries = list(parent.glob(f"{STAGING_PREFIX}*"))
+    except OSError:
+        return []
+    for p in sorted(entries):
+        try:
+            if p.is_symlink() or not p.is_dir() or not _is_stale(p, now):
+                continue
+            size = _tree_bytes(p)
+            shutil.rmtree(p)
+        except OSError:
+            continue  # gone meanwhile, or not ours to remove: leave it
+        removed.append((p, size))
+    if removed:
+        listed = ", ".join(f"{p.name} ({size / 1e6:.1f} MB)" for p, size in removed)
+        log.warning("removed %d staging folder(s) left in %s by runs that were killed: %s",
+                    len(removed), parent, listed)
+    return [p for p, _ in removed]
+
+
+# ---- the staged run -----------------------------------------------------------------------
+def _commit(tmp: Path, final: Path, known: Collection[str], protect: list[Path]) -> None:
+    """Move the files of ``tmp`` into ``final`` (see the module doc for the order)."""
+    names = sorted((p.name for p in tmp.iterdir() if p.is_file() and p.name != OWNER_FILE),
+                   key=lambda n: (n == MANIFEST, n))  # the manifest last
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise ValueError(f"staged files not declared as outputs: {unknown}")
+    created = _make_parents(final)
+    try:
+        owned = check_output_folder(final, names, known, protect)
+        stale = sorted(n for n in owned - set(names)
+                       if os.path.lexists(final / n) and not _same_file(final / n, protect))
+        write_text_atomic(final / JOURNAL, json.dumps({"files": sorted(owned | set(names))}) + "\n")
+        if MANIFEST in owned:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(final / MANIFEST)
+    except BaseException:
+        _remove_empty(created)
+        raise
+    for n in names:
+        os.replace(tmp / n, final / n)
+    for n in stale:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(final / n)
+    with contextlib.suppress(FileNotFoundError):
+        os.unlink(final / JOURNAL)
+
+
+@contextlib.contextmanager
+def staged_folder(final: str | os.PathLike, known: Collection[str],
+                  protect: Iterable[str | os.PathLike] = ()) -> Iterator[Path]:
+    """Yield an empty staging folder beside ``final``; on success its files move into
+    ``final`` (see the module doc), replacing only what an earlier run wrote there.
+
+    Args:
+        final: the output folder (created if needed).
+        known: every name a run may write (its outputs); the staged files must be among
+            them (subfolders of the staging folder, such as scratch space, are dropped).
+        protect: files never to replace or remove (the source clip).
+
+    On any exception, KeyboardInterrupt included, the staging folder is deleted and so
+    are the parent folders this call created. Stale staging folders of killed runs in
+    ``final``'s parent are removed first (with a warning).
+
+    Raises:
+        CaptureError: ``final``'s parent cannot be created or written, ``final`` is a file,
+            or an output would overwrite a file no run wrote (:func:`check_output_folder`).
+    """
+    final = Path(final)
+    protect = [Path(p) for p in protect]
+    if final.exists() and not final.is_dir():
+        raise CaptureError(f"cannot write outputs to {final}: it is a file, not a folder")
+    started = time.time()
     created = _make_parents(final.parent)
+    clean_stale_staging(final.parent, now=started)
     try:
         tmp = Path(tempfile.mkdtemp(prefix=f"{STAGING_PREFIX}{final.name}-", dir=final.parent))
     except OSError as exc:
         _remove_empty(created)
         raise CaptureError(f"cannot write to output folder {final.parent}: {exc.strerror or exc}") from None
     try:
-        yield tmp
         os.chmod(tmp, DIR_MODE)  # mkdtemp made it owner-only
-        old = None
-        if final.exists():
-            old = Path(tempfile.mkdtemp(prefix=f"{STAGING_PREFIX}old-{final.name}-", dir=final.parent))
-            os.replace(final, old / final.name)
-        os.replace(tmp, final)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
+        (tmp / OWNER_FILE).write_text(json.dumps({"pid": os.getpid(), "host": socket.gethostname(),
+                                                  "started": started}) + "\n", encoding="utf-8")
+        yield tmp
+        _commit(tmp, final, known, protect)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         _remove_empty(created)
         raise
+    shutil.rmtree(tmp, ignore_errors=True)
 
 
 def check_writable(folder: str | os.PathLike) -> None:

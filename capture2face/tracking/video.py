@@ -13,13 +13,17 @@ Anything FFmpeg reads works (mp4, mov, mkv, avi, webm; H.264, HEVC, VP9, MJPEG, 
   frame decodes raises :class:`CaptureError`. When decoding fails part way (a truncated
   download), the frames before the damage are kept and a warning is logged on the
   ``capture2face`` logger naming how many frames were decoded: losing a clip's tail is
-  better than losing the clip, and the warning says it happened.
+  better than losing the clip, and the warning says it happened. Code that must decide on
+  damage (``run`` fails unless told to salvage) gets it as a typed :class:`ClipDamage`
+  event from :func:`watch_damage`, never by reading the warning's text.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
+import threading
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
@@ -60,6 +64,55 @@ class VideoInfo:
     rotation: int
     codec: str
     n_frames_exact: bool = True
+
+
+@dataclass(frozen=True)
+class ClipDamage:
+    """A clip whose decoding stopped early: the frames before the damage were yielded.
+
+    Attributes:
+        path: the clip.
+        frames_decoded: frames yielded before the damage.
+        frames_expected: the container's frame count (None when it does not say).
+        reason: "decode_error" (FFmpeg failed part way) or "short" (fewer frames than the
+            container lists).
+        message: the warning logged for it (one line, for the user).
+    """
+
+    path: str
+    frames_decoded: int
+    frames_expected: int | None
+    reason: str
+    message: str
+
+
+_damage_watchers: list[tuple[str | None, list[ClipDamage]]] = []
+_damage_lock = threading.Lock()
+
+
+@contextlib.contextmanager
+def watch_damage(path: str | os.PathLike | None = None) -> Iterator[list[ClipDamage]]:
+    """Collect the :class:`ClipDamage` events of :func:`iter_frames` (in any thread) while
+    the block runs; ``path`` limits them to one clip. Yields the list they are appended to."""
+    key = os.path.realpath(path) if path is not None else None
+    events: list[ClipDamage] = []
+    entry = (key, events)
+    with _damage_lock:
+        _damage_watchers.append(entry)
+    try:
+        yield events
+    finally:
+        with _damage_lock:
+            _damage_watchers.remove(entry)
+
+
+def _report_damage(damage: ClipDamage) -> None:
+    log.warning("%s", damage.message)
+    key = os.path.realpath(damage.path)
+    with _damage_lock:
+        for watched, events in _damage_watchers:
+            if watched is None or watched == key:
+                events.append(damage)
 
 
 def _check_path(path: str | os.PathLike) -> Path:
@@ -191,8 +244,10 @@ def iter_frames(path: str | os.PathLike, max_frames: int | None = None,
                 if count == 0:
                     raise CaptureError(f"{p}: no video frame could be decoded ({_reason(exc)}); "
                                        "the file is truncated or corrupt") from None
-                log.warning("%s: decoding stopped after %d frames (%s); the rest of the file "
-                            "is damaged or truncated and is ignored", p, count, _reason(exc))
+                _report_damage(ClipDamage(
+                    str(p), count, int(stream.frames or 0) or None, "decode_error",
+                    f"{p}: decoding stopped after {count} frames ({_reason(exc)}); the rest of the file "
+                    "is damaged or truncated and is ignored"))
                 break
             if rotation is None:
                 rotation = _rotation_of(frame, stream) if rotate else 0
@@ -209,8 +264,10 @@ def iter_frames(path: str | os.PathLike, max_frames: int | None = None,
             raise CaptureError(f"{p}: the video stream has no frames")
         expected = int(stream.frames or 0)
         if max_frames is None and expected and count < expected * 0.98 - 1:
-            log.warning("%s: decoded %d of the %d frames the container lists; the file is "
-                        "probably truncated", p, count, expected)
+            _report_damage(ClipDamage(
+                str(p), count, expected, "short",
+                f"{p}: decoded {count} of the {expected} frames the container lists; the file is "
+                "probably truncated"))
     finally:
         container.close()
 
