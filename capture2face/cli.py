@@ -59,8 +59,14 @@ def _track_options(args: argparse.Namespace):
 
 
 def _cmd_track(args: argparse.Namespace) -> int:
+    from capture2face.preflight import check_neutral_frame
     from capture2face.tracking import track_clip
+    from capture2face.tracking.model import find_face_model
+    from capture2face.tracking.video import open_video
 
+    # Before tracking: the clip decodes, the neutral frame lies inside it, the model exists.
+    check_neutral_frame(args.neutral_frame, open_video(args.clip))
+    find_face_model(args.face_model)
     track = track_clip(args.clip, _track_options(args), progress=not args.quiet)
     track.save(args.output)
     if args.overlay:

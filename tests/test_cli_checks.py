@@ -270,7 +270,7 @@ def test_allow_truncated_reaches_the_options(command, tmp_path, monkeypatch, cap
 
     def fake_batch(inputs, out, options, **kwargs):
         seen.append(options)
-        return {"clips": []}
+        return {"clips": [], "summary": {"ok": 0, "failed": 0, "skipped": 0, "pending": 0}}
 
     monkeypatch.setattr(pipeline, "run", fake_run)
     monkeypatch.setattr(batch, "run_batch", fake_batch)
@@ -278,3 +278,9 @@ def test_allow_truncated_reaches_the_options(command, tmp_path, monkeypatch, cap
         assert cli.main([command, str(SAMPLE), "-o", str(tmp_path), "-q", *flag]) == 0
     capsys.readouterr()
     assert [o.allow_truncated for o in seen] == [False, True]
+
+
+def test_track_checks_the_neutral_frame_before_tracking(tmp_path, no_tracking, capsys):
+    code, err = _main(capsys, "track", str(SAMPLE), "-o", str(tmp_path / "t.npz"), "--neutral-frame", "9999")
+    assert code == 2 and "outside the clip" in err and err.count("\n") == 1
+    assert not (tmp_path / "t.npz").exists()
