@@ -4,7 +4,10 @@ Clips run in parallel, each in a worker process of its own (MediaPipe and the GL
 are per process; a fresh process per clip also returns its memory). One failing clip
 never stops the others: its error is recorded and the batch goes on. ``OUT/batch_report.json``
 is rewritten (atomically) after every clip, so an interrupted batch still says what got
-done, and ``resume=True`` skips the clips whose outputs are complete.
+done, and ``resume=True`` skips the clips whose outputs are complete and were made with the
+same options (a clip whose report.json options differ is run again, the entry saying why).
+The report keeps the entries of an earlier batch into the same folder for clips not in
+this batch (marked ``"earlier": true``); this batch's entries replace theirs.
 
 With ``ray_address`` the clips become Ray tasks (``pip install capture2face[ray]``):
 ``"local"`` starts a local Ray instance, ``"auto"`` or ``"ray://host:10001"`` joins a
@@ -125,24 +128,99 @@ class _Report:
     def __init__(self, out: Path, clips: list[BatchClip], options: Any):
         self.path = out / REPORT_NAME
         self.t0 = time.perf_counter()
-        self.data = {
-            "output": str(out),
-            "options": _options_dict(options),
-            "clips": [{"path": c.path, "name": c.name, "status": "pending", "seconds": None, "error": None}
-                      for c in clips],
-        }
+        self.entries = [{"path": c.path, "name": c.name, "status": "pending", "seconds": None, "error": None}
+                        for c in clips]
+        # An earlier batch's entries stay; this batch's replace those of the same clip.
+        merged = [dict(e, earlier=True) for e in _earlier_entries(self.path)]
+        where = {e.get("name"): k for k, e in enumerate(merged)}
+        for e in self.entries:
+            if e["name"] in where:
+                merged[where[e["name"]]] = e
+            else:
+                merged.append(e)
+        self.data = {"output": str(out), "options": _options_dict(options), "clips": merged}
 
     def set(self, i: int, result: dict) -> None:
-        self.data["clips"][i].update(result)
+        self.entries[i].update(result)
         self.write()
 
     def write(self) -> None:
-        clips = self.data["clips"]
-        self.data["summary"] = {
-            s: sum(1 for c in clips if c["status"] == s) for s in ("ok", "failed", "skipped", "pending")
+        self.data["summary"] = {  # this batch's clips; "earlier": entries kept from before
+            s: sum(1 for c in self.entries if c["status"] == s) for s in ("ok", "failed", "skipped", "pending")
         }
+        self.data["summary"]["earlier"] = len(self.data["clips"]) - len(self.entries)
         self.data["seconds"] = round(time.perf_counter() - self.t0, 3)
         write_text_atomic(self.path, json.dumps(self.data, indent=2) + "\n")
+
+
+def _earlier_entries(path: Path) -> list[dict]:
+    """The clip entries of an existing batch_report.json ([] when there is none or it is
+    unreadable)."""
+    try:
+        clips = json.loads(path.read_text(encoding="utf-8")).get("clips")
+    except (OSError, ValueError, AttributeError):
+        return []
+    return [c for c in clips if isinstance(c, dict) and isinstance(c.get("name"), str)] \
+        if isinstance(clips, list) else []
+
+
+#: RunOptions that change no output (left out of the resume comparison).
+_RESUME_IGNORED = {"queue_frames"}
+
+
+def _option_key(name: str, value: Any) -> Any:
+    """An option value as compared by resume: characters and files by resolved path (the
+    default avatar also as None), numbers as numbers."""
+    if name == "character" and value in (None, "default"):
+        return "default"
+    if name in ("character", "face_model") and isinstance(value, str) and Path(value).exists():
+        return str(Path(value).resolve())
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    return value
+
+
+def resume_check(folder: str | os.PathLike, options: Any) -> tuple[bool, str | None]:
+    """Whether ``folder`` holds a complete run made with ``options`` (skip it), and if
+    not, why it is run again (None when there is no earlier run there).
+
+    The options stored in its report.json are compared with the requested ones, both
+    normalised as report.json writes them; an option missing from an older report counts
+    as its default.
+    """
+    from capture2face.pipeline import RunOptions, _options_json, outputs_complete
+
+    folder = Path(folder)
+    if not (folder / "report.json").exists():
+        return False, None
+    if not outputs_complete(folder):
+        return False, "outputs incomplete"
+    try:
+        stored = json.loads((folder / "report.json").read_text(encoding="utf-8")).get("options")
+    except (OSError, ValueError, AttributeError):
+        stored = None
+    if not isinstance(stored, dict):
+        return False, "no options in its report.json"
+    wanted = _options_json(options)
+    defaults = _options_json(RunOptions())
+    changed = []
+    for name, new in wanted.items():
+        if name in _RESUME_IGNORED:
+            continue
+        old = stored.get(name, defaults.get(name))
+        if _option_key(name, old) != _option_key(name, new):
+            changed.append(f"{name} {old} -> {new}")
+    if changed:
+        return False, "options changed: " + ", ".join(changed)
+    return True, None
+
+
+def _failure_line(path: str, error: str | None) -> str:
+    """``failed: <path>: <error>``, the path once (most errors start with it)."""
+    error = error or "failed"
+    if path in error or os.path.basename(path) in error:
+        return f"failed: {error}"
+    return f"failed: {path}: {error}"
 
 
 def _options_dict(options: Any) -> dict:
@@ -167,17 +245,20 @@ def run_batch(inputs: Iterable[str | os.PathLike], out: str | os.PathLike, optio
         options: a :class:`~capture2face.pipeline.RunOptions` shared by every clip.
         jobs: clips processed at once (default: the CPU count, at most the clip count).
             ``jobs=1`` runs the clips one after another in this process.
-        resume: skip clips whose ``out/<name>/`` holds a complete run.
+        resume: skip clips whose ``out/<name>/`` holds a complete run made with the same
+            options (:func:`resume_check`); the others run (again).
         ray_address: distribute the clips as Ray tasks ("local", "auto", "ray://...").
         progress: a progress bar over clips.
     Returns:
         The report written to ``out/batch_report.json``: ``clips`` (path, name, status
-        ok/failed/skipped, seconds, error), ``summary`` (counts), ``seconds``.
+        ok/failed/skipped, seconds, error, ``rerun``: why a resumed clip ran again; entries
+        of an earlier batch into ``out`` for other clips kept with ``"earlier": true``),
+        ``summary`` (this batch's counts, and ``earlier``), ``seconds``.
     Raises:
         CaptureError: no clips found, output folder not writable, Ray not installed.
     """
     from capture2face.io.staging import check_writable
-    from capture2face.pipeline import RunOptions, outputs_complete
+    from capture2face.pipeline import RunOptions
 
     options = options or RunOptions()
     out = Path(out)
@@ -198,9 +279,12 @@ def run_batch(inputs: Iterable[str | os.PathLike], out: str | os.PathLike, optio
     report = _Report(out, clips, options)
     todo = []
     for i, c in enumerate(clips):
-        if resume and outputs_complete(out / c.name):
-            report.data["clips"][i].update(status="skipped", seconds=0.0, error=None)
+        skip, why = resume_check(out / c.name, options) if resume else (False, None)
+        if skip:
+            report.entries[i].update(status="skipped", seconds=0.0, error=None)
         else:
+            if why:
+                report.entries[i]["rerun"] = why
             todo.append(i)
     report.write()
 
@@ -215,7 +299,7 @@ def run_batch(inputs: Iterable[str | os.PathLike], out: str | os.PathLike, optio
         if bar is not None:
             bar.update(1)
             if result["status"] == "failed":
-                bar.write(f"failed: {clips[i].path}: {result['error']}")
+                bar.write(_failure_line(clips[i].path, result["error"]))
 
     try:
         if not todo:

@@ -55,7 +55,8 @@ def _cmd_synth(args: argparse.Namespace) -> int:
 def _track_options(args: argparse.Namespace):
     from capture2face.tracking import TrackOptions
 
-    return TrackOptions(face_model=args.face_model, neutral_frame=args.neutral_frame)
+    return TrackOptions(face_model=args.face_model, neutral_frame=args.neutral_frame,
+                        faces=args.faces, face=args.face)
 
 
 def _cmd_track(args: argparse.Namespace) -> int:
@@ -86,6 +87,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     opts = RunOptions(
         character=args.character, wrinkles=args.wrinkles, size=args.size,
         neutral_frame=args.neutral_frame, face_model=args.face_model, audio=not args.no_audio,
+        faces=args.faces, face=args.face,
     )
     opts.allow_truncated = args.allow_truncated
     report = run(args.clip, args.output, opts, progress=not args.quiet)
@@ -136,12 +138,12 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     from capture2face.pipeline import RunOptions
 
     opts = RunOptions(character=args.character, wrinkles=args.wrinkles, size=args.size,
-                      face_model=args.face_model, audio=not args.no_audio)
+                      face_model=args.face_model, audio=not args.no_audio, faces=args.faces, face=args.face)
     opts.allow_truncated = args.allow_truncated
     report = run_batch(args.inputs, args.output, opts, jobs=args.jobs, resume=args.resume,
                        ray_address=args.ray, progress=not args.quiet)
-    failed = sum(1 for c in report["clips"] if c["status"] == "failed")
-    print(f"{len(report['clips'])} clips, {failed} failed; see {Path(args.output) / 'batch_report.json'}")
+    failed = report["summary"]["failed"]  # this batch's (the report also keeps earlier entries)
+    print(f"{sum(report['summary'][s] for s in ('ok', 'failed', 'skipped', 'pending'))} clips, {failed} failed; see {Path(args.output) / 'batch_report.json'}")
     return 1 if failed else 0
 
 
@@ -198,6 +200,14 @@ def build_parser() -> argparse.ArgumentParser:
                        help="MediaPipe face_landmarker.task (default: $CAPTURE2FACE_FACE_MODEL, "
                             "else the one bundled in capture2face/models)")
 
+    def face_choice(p):
+        p.add_argument("--faces", choices=("largest", "center"), default="largest",
+                       help="several faces in view: track the largest (default) or the one nearest "
+                            "the centre, then the one continuing it; report.json warns how many were seen")
+        p.add_argument("--face", type=int, default=None, metavar="N",
+                       help="instead, track face N (0-based, left to right) of the first frame with "
+                            "more than N faces, then the one continuing it")
+
     p = sub.add_parser("avatar", parents=[common], help="build the default avatar; write its maps or a .glb")
     p.add_argument("--maps", metavar="DIR", help="write textures and zone masks as PNGs")
     p.add_argument("--export", metavar="GLB", help="write the avatar as glTF binary (.glb)")
@@ -224,6 +234,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--overlay", metavar="MP4", help="also write the source with landmarks drawn")
     p.add_argument("--neutral-frame", type=int, default=None, metavar="N", help=NEUTRAL_HELP)
     face_model(p)
+    face_choice(p)
     p.set_defaults(func=_cmd_track)
 
     def run_args(p):
@@ -241,6 +252,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--no-audio", action="store_true",
                        help="leave the clip's audio out of avatar.mp4 and compare.mp4")
         face_model(p)
+        face_choice(p)
 
     p = sub.add_parser("run", parents=[common], help="clip -> animated, wrinkled character (video + exports)")
     p.add_argument("clip", help="the video of a face")

@@ -16,9 +16,11 @@ Memory does not grow with the clip's length beyond ~1.5 KB a frame (the Animatio
 track's per-frame scores and poses): whole-clip computations run window by window and
 malloc is kept from fragmenting (:mod:`capture2face.runtime.heap`).
 
-Every output is written into a hidden temporary folder that replaces ``OUT/<clip stem>/``
-only when all of it is complete (:mod:`capture2face.io.staging`), so a failure or an
-interrupt (SIGINT, SIGTERM) leaves nothing half-written behind.
+Every output is written into a hidden temporary folder whose files move into
+``OUT/<clip stem>/`` only when all of them are complete (:mod:`capture2face.io.staging`), so
+a failure or an interrupt (SIGINT, SIGTERM) leaves nothing half-written behind; only the
+run's own files there are replaced (report.json's ``outputs`` say which), never a user's
+file nor the source clip.
 """
 
 from __future__ import annotations
@@ -70,6 +72,10 @@ class RunOptions:
         allow_truncated: process the frames before the damage of a truncated or
             corrupt clip (with a warning) instead of failing.
         audio: copy the clip's audio (if any) into avatar.mp4 and compare.mp4.
+        faces: with several faces in view, the one that starts the track: "largest" or
+            "center" (nearest the image centre); the one continuing it is followed.
+        face: instead, the face with this index (0-based, left to right) in the first
+            frame where more than ``face`` faces are seen, then followed.
     """
 
     character: Any = None
@@ -84,6 +90,8 @@ class RunOptions:
     queue_frames: int = 8
     allow_truncated: bool = False
     audio: bool = True
+    faces: str = "largest"
+    face: int | None = None
 
     def validate(self) -> None:
         if self.wrinkles not in WRINKLE_DRIVERS:
@@ -93,6 +101,10 @@ class RunOptions:
         check_size(self.size)  # even, 64..4096
         if self.neutral_frame is not None and self.neutral_frame < 0:
             raise CaptureError(f"--neutral-frame must be >= 0 (got {self.neutral_frame})")
+        if self.faces not in ("largest", "center"):
+            raise CaptureError(f"--faces must be largest or center (got {self.faces!r})")
+        if self.face is not None and not 0 <= self.face < 16:
+            raise CaptureError(f"--face must be 0..15 (got {self.face})")
 
 
 # ---- character ------------------------------------------------------------------------
@@ -141,8 +153,8 @@ def track_stage(clip: str | os.PathLike, options: RunOptions, progress: bool = T
     its landmarks stay in files there: memory does not grow with the clip's length)."""
     from capture2face.tracking import TrackOptions, track_clip
 
-    return track_clip(clip, TrackOptions(face_model=options.face_model,
-                                         neutral_frame=options.neutral_frame), progress=progress,
+    return track_clip(clip, TrackOptions(face_model=options.face_model, neutral_frame=options.neutral_frame,
+                                         faces=options.faces, face=options.face), progress=progress,
                       workdir=workdir)
 
 
@@ -329,7 +341,7 @@ def _collect_warnings():
         log.removeHandler(handler)
 
 
-def _track_warnings(track) -> list[str]:
+def _track_warnings(track, options: RunOptions | None = None) -> list[str]:
     out = []
     missing = track.n_frames - track.tracked_frames
     if missing:
@@ -338,7 +350,11 @@ def _track_warnings(track) -> list[str]:
     if track.n_long_gaps:
         out.append(f"{track.n_long_gaps} gaps longer than the interpolation limit hold the last pose")
     if track.n_faces_max > 1:
-        out.append(f"up to {track.n_faces_max} faces in view; the one continuing the track was kept")
+        face, faces = (options.face, options.faces) if options is not None else (None, "largest")
+        start = (f"face {face} from the left" if face is not None
+                 else "the face nearest the centre" if faces == "center" else "the largest face")
+        out.append(f"{track.n_faces_max} faces in view (the most seen at once); tracked: {start} at the start, "
+                   "then the one continuing the track (choose with --face N or --faces largest|center)")
     return out
 
 
@@ -478,7 +494,7 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
             "seconds": {k: round(v, 3) for k, v in seconds.items()},
             "fps_processing": n / seconds["total"],
             "track_fps": n / seconds["track"],
-            "warnings": _track_warnings(track) + list(warnings),
+            "warnings": _track_warnings(track, options) + list(warnings),
             "outputs": outputs,  # the run's manifest (capture2face.io.staging)
             "options": _options_json(options),
             "video": {"codec": info.codec, "rotation": info.rotation},

@@ -2,9 +2,16 @@
 
 One call per frame gives the face that continues the track: 478 landmarks (normalized and
 in pixels), MediaPipe's relative depth, the 52 blendshape scores and the facial
-transformation matrix. With several faces in view, the face closest to the previous one
-(centre distance and size change, relative to the previous face size) is kept; the first
-face taken is the largest one.
+transformation matrix.
+
+Several faces: MediaPipe is asked for up to ``num_faces`` faces until the face to track is
+chosen (:attr:`LandmarkerOptions.faces`/:attr:`LandmarkerOptions.face`); from then on the
+face closest to the previous one (centre distance and size change, relative to the
+previous face size) is kept. Looking for several faces costs ~25-40% of the tracking speed
+(the face detector then runs on every frame where fewer are tracked), so once only one face
+has been seen for ``settle_frames`` frames a single-face landmarker tracks it and the
+several-face one looks again every ``probe_every`` frames (and whenever the face is lost
+or jumps); a second face seen there brings the several-face tracking back.
 """
 
 from __future__ import annotations
@@ -48,14 +55,23 @@ class LandmarkerOptions:
 
     Attributes:
         face_model: path of ``face_landmarker.task`` (None: ``find_face_model`` decides).
-        num_faces: faces MediaPipe looks for; >1 lets the tracker pick the one that
-            continues the track when several people are in view.
+        num_faces: the most faces MediaPipe looks for (and counts) at once; 1: a single
+            face, no choice, no count.
+        faces: which face starts the track: "largest" or "center" (nearest the image
+            centre); then the one continuing it is followed.
+        face: instead, the face with this index (0-based, left to right by face centre)
+            in the first frame with more than ``face`` faces; frames before it have none.
+        probe_every, settle_frames: see the module docstring.
         min_detection_confidence, min_presence_confidence, min_tracking_confidence:
             MediaPipe's thresholds.
     """
 
     face_model: str | os.PathLike | None = None
-    num_faces: int = 1
+    num_faces: int = 4
+    faces: str = "largest"
+    face: int | None = None
+    probe_every: int = 30
+    settle_frames: int = 15
     min_detection_confidence: float = 0.5
     min_presence_confidence: float = 0.5
     min_tracking_confidence: float = 0.5
@@ -72,7 +88,8 @@ class FaceObservation:
         depth: (478,) float32 relative depth in pixels (z * width), smaller = nearer.
         blendshapes: (52,) float32 scores, order :data:`BLENDSHAPE_NAMES`.
         matrix: (4, 4) float32 MediaPipe's facial transformation matrix (head -> camera, cm).
-        n_faces: faces MediaPipe saw in this frame.
+        n_faces: faces MediaPipe saw in this frame (1 in the frames tracked by the
+            single-face landmarker).
     """
 
     landmarks_norm: np.ndarray
@@ -107,47 +124,75 @@ def _quiet_stderr():
         os.close(devnull)
 
 
+FACE_CHOICES = ("largest", "center")
+_JUMP = 1.0  # a single-face result moving more than ~one face size in a frame is re-checked
+
+
+def _mediapipe_landmarker(model, options: LandmarkerOptions, num_faces: int):
+    from mediapipe.tasks.python import BaseOptions, vision
+
+    mp_options = vision.FaceLandmarkerOptions(
+        base_options=BaseOptions(model_asset_path=str(model)),
+        running_mode=vision.RunningMode.VIDEO,
+        num_faces=num_faces,
+        min_face_detection_confidence=options.min_detection_confidence,
+        min_face_presence_confidence=options.min_presence_confidence,
+        min_tracking_confidence=options.min_tracking_confidence,
+        output_face_blendshapes=True,
+        output_facial_transformation_matrixes=True,
+    )
+    try:
+        with _quiet_stderr():
+            return vision.FaceLandmarker.create_from_options(mp_options)
+    except (RuntimeError, ValueError) as exc:
+        raise CaptureError(f"{model}: not a usable MediaPipe face model ({exc})") from None
+
+
 class FaceLandmarker:
     """A MediaPipe Face Landmarker in VIDEO mode; use as a context manager.
 
     >>> with FaceLandmarker.create_from_options(LandmarkerOptions()) as lm:
     ...     obs = lm.detect(rgb, t_seconds)   # FaceObservation or None
+
+    After the frames: ``n_faces_max`` (most faces seen at once) and ``chosen`` (whether
+    the face to track was found).
     """
 
-    def __init__(self, landmarker, options: LandmarkerOptions):
-        self._lm = landmarker
+    def __init__(self, landmarker, options: LandmarkerOptions, model=None):
+        self._lm = landmarker  # looks for self.max_faces faces
+        self._single = None  # the single-face landmarker, made on first use
+        self._model = model
         self.options = options
+        self.max_faces = self.faces_wanted(options)
         self._last_ms = -1
         self._prev_centre: np.ndarray | None = None
         self._prev_size = 0.0
+        self.chosen = False
+        self.n_faces_max = 0
+        self._one_face_run = 0  # consecutive several-face looks that saw one face
+        self._since_probe = 0
+        self._use_single = self.max_faces == 1
+
+    @staticmethod
+    def faces_wanted(options: LandmarkerOptions) -> int:
+        n = max(1, int(options.num_faces))
+        return max(n, int(options.face) + 1) if options.face is not None else n
 
     @classmethod
     def create_from_options(cls, options: LandmarkerOptions | None = None) -> "FaceLandmarker":
         options = options or LandmarkerOptions()
+        if options.faces not in FACE_CHOICES:
+            raise CaptureError(f"--faces must be one of {', '.join(FACE_CHOICES)} (got {options.faces!r})")
+        if options.face is not None and int(options.face) < 0:
+            raise CaptureError(f"--face must be >= 0 (got {options.face})")
         model = find_face_model(options.face_model)
-        from mediapipe.tasks.python import BaseOptions, vision
-
-        mp_options = vision.FaceLandmarkerOptions(
-            base_options=BaseOptions(model_asset_path=str(model)),
-            running_mode=vision.RunningMode.VIDEO,
-            num_faces=max(1, int(options.num_faces)),
-            min_face_detection_confidence=options.min_detection_confidence,
-            min_face_presence_confidence=options.min_presence_confidence,
-            min_tracking_confidence=options.min_tracking_confidence,
-            output_face_blendshapes=True,
-            output_facial_transformation_matrixes=True,
-        )
-        try:
-            with _quiet_stderr():
-                landmarker = vision.FaceLandmarker.create_from_options(mp_options)
-        except (RuntimeError, ValueError) as exc:
-            raise CaptureError(f"{model}: not a usable MediaPipe face model ({exc})") from None
-        return cls(landmarker, options)
+        return cls(_mediapipe_landmarker(model, options, cls.faces_wanted(options)), options, model)
 
     def close(self) -> None:
-        if self._lm is not None:
-            self._lm.close()
-            self._lm = None
+        for lm in (self._lm, self._single):
+            if lm is not None:
+                lm.close()
+        self._lm = self._single = None
 
     def __enter__(self) -> "FaceLandmarker":
         return self
@@ -156,7 +201,8 @@ class FaceLandmarker:
         self.close()
 
     def detect(self, rgb: np.ndarray, t_seconds: float) -> FaceObservation | None:
-        """Landmarks of the face that continues the track in ``rgb`` (H, W, 3) uint8."""
+        """Landmarks of the tracked face in ``rgb`` (H, W, 3) uint8 (None: no face, or the
+        face asked for by index not chosen yet)."""
         import mediapipe as mp
 
         if self._lm is None:
@@ -165,13 +211,50 @@ class FaceLandmarker:
         ms = max(int(round(t_seconds * 1000.0)), self._last_ms + 1)
         self._last_ms = ms
         image = mp.Image(image_format=mp.ImageFormat.SRGB, data=np.ascontiguousarray(rgb))
-        result = self._lm.detect_for_video(image, ms)
-        faces = result.face_landmarks
-        if not faces:
-            return None
         h, w = rgb.shape[:2]
-        norms = [np.array([(p.x, p.y, p.z) for p in face], np.float32) for face in faces]
+        if self._use_single:
+            if self._single is None:
+                self._single = (self._lm if self.max_faces == 1
+                                else _mediapipe_landmarker(self._model, self.options, 1))
+            result = self._single.detect_for_video(image, ms)
+            self._since_probe += 1
+            norms = self._norms(result)
+            if self.max_faces == 1:
+                self.n_faces_max = max(self.n_faces_max, len(norms))
+                return self._observation(result, norms, w, h, self._choose(norms, w, h)) if norms else None
+            probe = self._since_probe >= max(1, int(self.options.probe_every))
+            if norms and not probe and self._continues(norms[0], w, h):
+                return self._observation(result, norms, w, h, self._choose(norms, w, h))
+            # Lost, jumped or time to look again: the several-face landmarker decides.
+            self._since_probe = 0
+            self._one_face_run = 0
+            self._use_single = False
+            several = self._lm.detect_for_video(image, ms)
+            n = len(several.face_landmarks)
+            self.n_faces_max = max(self.n_faces_max, n)
+            if norms and n <= 1 and self._continues(norms[0], w, h):
+                self._use_single = True  # still alone: stay on the single-face landmarker
+                return self._observation(result, norms, w, h, self._choose(norms, w, h))
+            result = several
+        else:
+            result = self._lm.detect_for_video(image, ms)
+        norms = self._norms(result)
+        n = len(norms)
+        self.n_faces_max = max(self.n_faces_max, n)
+        self._one_face_run = self._one_face_run + 1 if n == 1 and self.chosen else 0
+        if self._one_face_run >= max(1, int(self.options.settle_frames)):
+            self._use_single, self._since_probe = True, 0
+        if not norms:
+            return None
         k = self._choose(norms, w, h)
+        return None if k is None else self._observation(result, norms, w, h, k)
+
+    @staticmethod
+    def _norms(result) -> list[np.ndarray]:
+        return [np.array([(p.x, p.y, p.z) for p in face], np.float32) for face in result.face_landmarks or []]
+
+    @staticmethod
+    def _observation(result, norms: list[np.ndarray], w: int, h: int, k: int) -> FaceObservation:
         norm = norms[k]
         if result.face_blendshapes and len(result.face_blendshapes) > k:
             scores = np.array([c.score for c in result.face_blendshapes[k]], np.float32)
@@ -184,16 +267,43 @@ class FaceLandmarker:
         px = norm[:, :2] * np.array([w, h], np.float32)
         return FaceObservation(
             landmarks_norm=norm, landmarks_px=px, depth=norm[:, 2] * w,
-            blendshapes=scores, matrix=matrix, n_faces=len(faces),
+            blendshapes=scores, matrix=matrix, n_faces=len(norms),
         )
 
-    def _choose(self, norms: list[np.ndarray], w: int, h: int) -> int:
-        """Index of the face continuing the track (largest face when there is no track)."""
+    @staticmethod
+    def _boxes(norms: list[np.ndarray], w: int, h: int) -> tuple[np.ndarray, np.ndarray]:
         scale = np.array([w, h], np.float32)
         centres = np.array([n[:, :2].mean(0) * scale for n in norms])
         sizes = np.array([np.ptp(n[:, :2] * scale, axis=0).max() for n in norms])
-        if self._prev_centre is None or len(norms) == 1:
-            k = int(np.argmax(sizes)) if self._prev_centre is None else 0
+        return centres, sizes
+
+    def _continues(self, norm: np.ndarray, w: int, h: int) -> bool:
+        """Whether a single-face result is plausibly the face tracked in the frame before."""
+        if self._prev_centre is None:
+            return False
+        centres, sizes = self._boxes([norm], w, h)
+        ref = max(self._prev_size, 1.0)
+        return float(np.linalg.norm(centres[0] - self._prev_centre) / ref
+                     + abs(np.log(max(sizes[0], 1e-3) / ref))) < _JUMP
+
+    def _choose(self, norms: list[np.ndarray], w: int, h: int) -> int | None:
+        """Index of the tracked face among ``norms``: before the choice, the one the
+        options ask for (None while the face asked for by index is not in view); after,
+        the one continuing the track."""
+        centres, sizes = self._boxes(norms, w, h)
+        if not self.chosen:
+            face = self.options.face
+            if face is not None:
+                if len(norms) <= int(face):
+                    return None
+                k = int(np.argsort(centres[:, 0], kind="stable")[int(face)])
+            elif self.options.faces == "center":
+                k = int(np.argmin(np.linalg.norm(centres - np.array([w / 2, h / 2]), axis=1)))
+            else:
+                k = int(np.argmax(sizes))
+            self.chosen = True
+        elif len(norms) == 1:
+            k = 0
         else:
             ref = max(self._prev_size, 1.0)
             cost = (np.linalg.norm(centres - self._prev_centre, axis=1) / ref

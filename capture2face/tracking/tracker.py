@@ -33,8 +33,12 @@ class TrackOptions:
         face_model: ``face_landmarker.task`` path (None: $CAPTURE2FACE_FACE_MODEL, else the
             copy bundled in capture2face/models).
         neutral_frame: index of the neutral frame (None: picked automatically).
-        num_faces: faces MediaPipe looks for; with more than one, the face that continues
-            the track is kept.
+        num_faces: the most faces MediaPipe looks for (and counts) at once; 1: one face,
+            no choice, no count. Several cost little: see :mod:`.landmarker`.
+        faces: which face starts the track when several are in view: "largest" or
+            "center" (nearest the image centre); the one continuing it is followed.
+        face: instead, the face with this index (0-based, left to right) in the first
+            frame with more than ``face`` faces (earlier frames count as faceless).
         min_detection_confidence, min_presence_confidence, min_tracking_confidence:
             MediaPipe's thresholds.
         max_gap_seconds: gaps up to this long are interpolated; longer ones hold.
@@ -57,7 +61,9 @@ class TrackOptions:
 
     face_model: str | os.PathLike | None = None
     neutral_frame: int | None = None
-    num_faces: int = 1
+    num_faces: int = 4
+    faces: str = "largest"
+    face: int | None = None
     min_detection_confidence: float = 0.5
     min_presence_confidence: float = 0.5
     min_tracking_confidence: float = 0.5
@@ -72,7 +78,7 @@ class TrackOptions:
 
     def landmarker_options(self) -> LandmarkerOptions:
         return LandmarkerOptions(
-            face_model=self.face_model, num_faces=self.num_faces,
+            face_model=self.face_model, num_faces=self.num_faces, faces=self.faces, face=self.face,
             min_detection_confidence=self.min_detection_confidence,
             min_presence_confidence=self.min_presence_confidence,
             min_tracking_confidence=self.min_tracking_confidence,
@@ -321,7 +327,14 @@ class Tracker:
         Raises:
             CaptureError: no frame, or no face in any frame.
         """
-        self._landmarker.close()
+        lm = self._landmarker
+        lm.close()
+        self._builder._n_faces_max = max(self._builder._n_faces_max, lm.n_faces_max)
+        if self.options.face is not None and not lm.chosen and self.n_frames:
+            self._builder.close()
+            raise CaptureError(f"{self.info.path}: --face {self.options.face}: never more than "
+                               f"{lm.n_faces_max} face(s) in view at once (faces are numbered from 0, "
+                               "left to right)")
         return self._builder.finish(progress)
 
 
