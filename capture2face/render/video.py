@@ -184,6 +184,7 @@ class VideoWriter:
         if times is not None and not is_constant_rate(times, self.rate):
             self.times = np.asarray(times, np.float64) - float(times[0])
         self._durations: dict[int, int] = {}  # pts -> duration of frames inside the encoder
+        self._last_pts = -1
         self.audio_from = audio_from
         self.has_audio = False
         self._audio: _AudioCopy | None = None
@@ -234,10 +235,12 @@ class VideoWriter:
         if self.times is not None:
             if i >= len(self.times):
                 raise ValueError(f"frame {i} has no presentation time ({len(self.times)} given)")
-            video_frame.pts = int(round(self.times[i] / VFR_TIME_BASE))
+            # strictly increasing (the decoder nudges a repeated pts by 1 us, less than a tick)
+            video_frame.pts = max(int(round(self.times[i] / VFR_TIME_BASE)), self._last_pts + 1)
+            self._last_pts = video_frame.pts
             video_frame.time_base = VFR_TIME_BASE
             # libx264 gives every packet one nominal frame's duration; MP4 keeps the last's
-            self._durations[video_frame.pts] = int(round(self._frame_duration(i) / VFR_TIME_BASE))
+            self._durations[video_frame.pts] = max(1, int(round(self._frame_duration(i) / VFR_TIME_BASE)))
         for packet in self._stream.encode(video_frame):
             self._mux_video(packet)
         self.frames_written += 1
