@@ -118,8 +118,8 @@ class _AudioCopy:
                 self.pending = packet
                 return
             end = t + float((packet.duration or 0) * self.in_tb)
-            if end <= 0 and packet.duration:
-                continue  # wholly before the first video frame
+            if end < 0 and packet.duration:
+                continue  # wholly before the first video frame (one ending at 0 is the codec's priming)
             self._write(packet)
 
     def _write(self, packet) -> None:
