@@ -309,5 +309,6 @@ def test_real_full_disk_is_one_line_and_leaves_nothing(sample_clip, small_tmpfs)
     out = small_tmpfs / "out"
     result = subprocess.run([sys.executable, "-m", "capture2face", "-q", "run", str(sample_clip), "-o", str(out),
                              "--size", "256"], capture_output=True, text=True, env=ENV, timeout=600)
-    _one_line_error(result, "No space left on device")
+    _one_line_error(result, ": No space left on device")
+    assert str(out) in result.stderr  # the path: the output folder at least
     assert sorted(p.relative_to(small_tmpfs).as_posix() for p in small_tmpfs.rglob("*")) == []

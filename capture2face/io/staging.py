@@ -40,6 +40,7 @@ warns about it.
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import logging
 import os
@@ -57,6 +58,7 @@ STAGING_PREFIX = ".tmp-"
 OWNER_FILE = ".owner"
 JOURNAL = ".capture2face-run.json"
 MANIFEST = "report.json"
+_NO_ROOM = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS}
 UNOWNED_STALE_S = 3600.0  # a staging folder without .owner, untouched this long, is stale
 
 log = logging.getLogger("capture2face")
@@ -301,7 +303,9 @@ def staged_folder(final: str | os.PathLike, known: Collection[str],
                                                   "started": started}) + "\n", encoding="utf-8")
         yield tmp
         _commit(tmp, final, known, protect)
-    except BaseException:
+    except BaseException as exc:
+        if isinstance(exc, OSError) and exc.filename is None and exc.errno in _NO_ROOM:
+            exc.filename = str(final)  # a write by fd (pwrite, an encoder): name the folder
         shutil.rmtree(tmp, ignore_errors=True)
         _remove_empty(created)
         raise
