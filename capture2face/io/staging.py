@@ -28,8 +28,8 @@ A crash (power loss, SIGKILL) between two of these steps can leave the folder wi
 ``report.json`` holding a mix of old and new run files plus the journal, never a
 half-written file and never a change to a user's file; the folder then reads as
 incomplete, and the next run into it, which takes the journal's files as its own,
-replaces them. An exception (a full disk, SIGINT, SIGTERM) before step 3 leaves the
-folder as it was.
+replaces them. An exception (a full disk, SIGINT, SIGTERM) before step 2 leaves the
+folder as it was; one from a failing rename in step 3 leaves the state a crash would.
 
 Staging folders record their owner (``.owner``: pid, host, start time). A run removes the
 staging folders that a killed run left in ``OUT`` (owner process gone, started before this
