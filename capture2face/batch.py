@@ -145,10 +145,10 @@ class _Report:
         self.write()
 
     def write(self) -> None:
-        self.data["summary"] = {  # this batch's clips; "earlier": entries kept from before
+        self.data["summary"] = {  # this batch's clips
             s: sum(1 for c in self.entries if c["status"] == s) for s in ("ok", "failed", "skipped", "pending")
         }
-        self.data["summary"]["earlier"] = len(self.data["clips"]) - len(self.entries)
+        self.data["earlier"] = len(self.data["clips"]) - len(self.entries)  # entries kept from before
         self.data["seconds"] = round(time.perf_counter() - self.t0, 3)
         write_text_atomic(self.path, json.dumps(self.data, indent=2) + "\n")
 
@@ -253,7 +253,7 @@ def run_batch(inputs: Iterable[str | os.PathLike], out: str | os.PathLike, optio
         The report written to ``out/batch_report.json``: ``clips`` (path, name, status
         ok/failed/skipped, seconds, error, ``rerun``: why a resumed clip ran again; entries
         of an earlier batch into ``out`` for other clips kept with ``"earlier": true``),
-        ``summary`` (this batch's counts, and ``earlier``), ``seconds``.
+        ``summary`` (this batch's counts), ``earlier`` (entries kept), ``seconds``.
     Raises:
         CaptureError: no clips found, output folder not writable, Ray not installed.
     """
