@@ -172,3 +172,23 @@ def test_failure_lines_name_the_clip_once():
     assert _failure_line(path, f"{path}: not a video FFmpeg can read") == f"failed: {path}: not a video FFmpeg can read"
     assert _failure_line(path, "the worker process crashed on this clip") == \
         f"failed: {path}: the worker process crashed on this clip"
+
+
+def _face(cx: float, cy: float, size: float) -> np.ndarray:
+    """A fake landmark set: a square of ``size`` (normalised) around (cx, cy)."""
+    g = np.linspace(-0.5, 0.5, 5)
+    xy = np.array([(cx + size * a, cy + size * b) for a in g for b in g], np.float32)
+    return np.column_stack([xy, np.zeros(len(xy), np.float32)])
+
+
+@pytest.mark.parametrize("kw, first", [(dict(faces="largest"), 0), (dict(faces="center"), 1),
+                                       (dict(face=0), 2), (dict(face=2), 0)])
+def test_the_choice_then_continuity(kw, first):
+    from capture2face.tracking.landmarker import FaceLandmarker, LandmarkerOptions
+
+    lm = FaceLandmarker(None, LandmarkerOptions(**kw))
+    # Big face right, a small one at the centre, another at the left.
+    faces = [_face(0.8, 0.5, 0.3), _face(0.5, 0.5, 0.1), _face(0.15, 0.5, 0.12)]
+    assert lm._choose(faces, 400, 400) == first
+    moved = [f + np.array([0.02, 0.0, 0.0], np.float32) for f in faces]
+    assert lm._choose(moved[::-1], 400, 400) == 2 - first  # the same face, listed in another order
