@@ -3,6 +3,7 @@ process set-up that makes interruptions clean."""
 
 import os
 import signal
+import sys
 
 
 class CaptureError(Exception):
@@ -14,13 +15,40 @@ class CaptureError(Exception):
     exit_code = 2
 
 
+_interrupted = False
+
+
 def _raise_interrupt(signum, frame):
+    global _interrupted
+    _interrupted = True
     raise KeyboardInterrupt
 
 
+def raise_if_interrupted() -> None:
+    """Raise KeyboardInterrupt if SIGINT or SIGTERM has arrived.
+
+    Python drops an exception raised inside a finalizer or a weakref callback ("Exception
+    ignored in ..."), so a signal that lands there would be lost and the run would finish
+    as if nothing had happened. The handler also sets a flag, and the stages call this
+    between frames and between stages.
+    """
+    if _interrupted:
+        raise KeyboardInterrupt
+
+
+def _unraisable(info) -> None:
+    """An interrupt swallowed by a finalizer is not an error to print: the flag keeps it."""
+    if isinstance(info.exc_value, KeyboardInterrupt):
+        return
+    sys.__unraisablehook__(info)
+
+
 def install_process_defaults() -> None:
-    """For the CLI and each batch worker: SIGTERM unwinds like Ctrl-C, so staged and atomic
-    writers delete their temporary files; MediaPipe's and TFLite's C++ logs stay quiet."""
+    """For the CLI and each batch worker: SIGINT and SIGTERM unwind like Ctrl-C (and are
+    remembered, see :func:`raise_if_interrupted`), so staged and atomic writers delete their
+    temporary files; MediaPipe's and TFLite's C++ logs stay quiet."""
+    signal.signal(signal.SIGINT, _raise_interrupt)
     signal.signal(signal.SIGTERM, _raise_interrupt)
+    sys.unraisablehook = _unraisable
     os.environ.setdefault("GLOG_minloglevel", "2")
     os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")

@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from capture2face.errors import CaptureError
+from capture2face.errors import CaptureError, raise_if_interrupted
 from capture2face.io.atomic import write_text_atomic
 from capture2face.render.renderer import WRINKLE_DRIVERS
 from capture2face.report_html import poster_frames, write_report_html
@@ -286,6 +286,7 @@ def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder
         renderer = stack.enter_context(Renderer.create_from_options(rig, render_opts))
         bar = stack.enter_context(tqdm(total=n, disable=not progress, unit="frame", desc="rendering", leave=False))
         for i in range(n):
+            raise_if_interrupted()
             t0 = time.perf_counter()
             state = FrameState(
                 bone_positions=animation.bone_positions[i], blend_weights=animation.blend_weights[i],
@@ -456,22 +457,26 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
         track.save(tmp / "track.npz")
         release_free_memory()
         seconds["track"] = time.perf_counter() - t
+        raise_if_interrupted()
 
         t = time.perf_counter()
         animation = retarget_stage(track, rig)
         release_free_memory()
         seconds["retarget"] = time.perf_counter() - t
+        raise_if_interrupted()
 
         t = time.perf_counter()
         export_stage(rig, animation, tmp, track)
         release_free_memory()
         seconds["export"] = time.perf_counter() - t
+        raise_if_interrupted()
 
         t = time.perf_counter()
         posters = [i for i, _ in poster_frames(animation, track.neutral_frame)]  # report.html's
         rendered = render_stage(clip, track, animation, rig, tmp, options, progress, keep_frames=posters)
         seconds["render_encode"] = time.perf_counter() - t
         seconds["render_gl"] = rendered["render_s"]
+        raise_if_interrupted()
 
         t = time.perf_counter()
         fidelity = _run_fidelity(track, animation, rig, final.name)  # reads the track's landmark files
@@ -508,5 +513,6 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
         seconds["total"] = time.perf_counter() - t_start
         report["seconds"] = {k: round(v, 3) for k, v in seconds.items()}
         report["fps_processing"] = n / seconds["total"]
+        raise_if_interrupted()  # the last moment before the outputs replace the old ones
         write_text_atomic(tmp / "report.json", json.dumps(report, indent=2) + "\n")
     return report

@@ -245,3 +245,30 @@ def test_truncated_clip_can_be_salvaged_on_request(sample_clip, tmp_path):
     assert any("truncated" in w for w in report["warnings"])
     with av.open(str(tmp_path / "out" / "cut" / "avatar.mp4")) as c:
         assert sum(1 for _ in c.decode(video=0)) == report["frames"]
+
+
+def test_an_interrupt_swallowed_by_a_finalizer_is_not_lost(monkeypatch):
+    """A signal that lands in a weakref callback is dropped by Python ("Exception ignored");
+    the handler's flag makes the next stage boundary raise it again, and the ignored
+    exception is not printed as a traceback."""
+    import gc
+    import weakref
+
+    from capture2face import errors
+
+    monkeypatch.setattr(errors, "_interrupted", False)
+    errors.raise_if_interrupted()  # nothing pending: no-op
+
+    class Thing:
+        pass
+
+    seen = []
+    monkeypatch.setattr(sys, "unraisablehook", errors._unraisable)
+    monkeypatch.setattr(sys, "__unraisablehook__", lambda info: seen.append(info))
+    thing = Thing()
+    weakref.finalize(thing, errors._raise_interrupt, signal.SIGINT, None)
+    del thing
+    gc.collect()
+    assert seen == []  # swallowed quietly ...
+    with pytest.raises(KeyboardInterrupt):  # ... but remembered
+        errors.raise_if_interrupted()

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from capture2face.errors import CaptureError
+from capture2face.errors import CaptureError, raise_if_interrupted
 from capture2face.io.framestore import FrameArray
 from capture2face.tracking.filtering import CausalOneEuro, OneEuro, filter_pose
 from capture2face.tracking.gaps import fill_pose, plan_gaps
@@ -368,6 +368,7 @@ def track_clip(clip: str | os.PathLike, options: TrackOptions | None = None, pro
                                                   desc="tracking", leave=False) as bar:
         try:
             for t, rgb in frames:
+                raise_if_interrupted()
                 tracker.process(t, rgb)
                 bar.update(1)
         finally:
