@@ -69,7 +69,7 @@ def calibrate_scores(scores: np.ndarray, rest: np.ndarray) -> np.ndarray:
     return np.clip((np.asarray(scores, np.float64) - rest) / (1.0 - rest), 0.0, 1.0)
 
 
-def geometric_measures(landmarks_head, neutral_frame: int, chunk: int = 4096) -> tuple[np.ndarray, float]:
+def geometric_measures(landmarks_head, neutral_frame: int, chunk: int = 512) -> tuple[np.ndarray, float]:
     """(F, 4) distances in cm of the :data:`GEOMETRIC` measures (columns in its order),
     and the inter-ocular distance (cm) at the neutral frame.
 
@@ -82,8 +82,8 @@ def geometric_measures(landmarks_head, neutral_frame: int, chunk: int = 4096) ->
     col = {i: k for k, i in enumerate(ids)}
     n = len(landmarks_head)
     pts = np.empty((n, len(ids), 3))
-    for s in range(0, n, chunk):  # only ~10 landmarks of a long clip in memory
-        pts[s:s + chunk] = np.asarray(landmarks_head[s:s + chunk], np.float64)[:, ids]
+    for s in range(0, n, chunk):  # one block of frames read, ~10 landmarks of it kept
+        pts[s:s + chunk] = np.asarray(landmarks_head[s:s + chunk])[:, ids]
     out = np.empty((n, len(GEOMETRIC)))
     for k, measure_pairs in enumerate(GEOMETRIC.values()):
         out[:, k] = np.mean([np.linalg.norm(pts[:, col[a]] - pts[:, col[b]], axis=-1) for a, b in measure_pairs], 0)
