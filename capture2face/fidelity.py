@@ -231,7 +231,8 @@ class ClipFidelity:
             if entry["judged"]:
                 judged += 1
                 passed += ok
-                # Worse than direct: lower r, or a gain further from 1 (in log terms).
+                # Not worse than direct: r at least as high, or a gain at least as close to 1
+                # (in log terms); worse means behind it on both.
                 beats += r >= dr - 1e-3 or abs(np.log(max(g, 1e-6))) <= abs(np.log(max(dg, 1e-6)))
         brow = self.source[:, [list(MEASURES).index("brow_right"), list(MEASURES).index("brow_left")]].mean(1)
         for name, (measure, sign, goal) in ARKIT_CHECKS.items():
