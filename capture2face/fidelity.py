@@ -64,7 +64,7 @@ ARKIT_CHECKS: dict[str, tuple[str, float, float]] = {
 # The landmarks the measures use, and where each pair (and the IOD pair) sits among them.
 MEASURED = sorted({i for pair in MEASURES.values() for i in pair} | set(IOD_PAIR))
 _PAIRS = np.array([[MEASURED.index(a), MEASURED.index(b)] for a, b in [*MEASURES.values(), IOD_PAIR]])
-CHUNK = 512  # frames per block: temporaries stay bounded on long clips
+CHUNK = 128  # frames per block: temporaries stay small (~8 MB) whatever the clip's length
 
 
 def _distances(points: np.ndarray) -> np.ndarray:
@@ -167,7 +167,7 @@ def character_measures(rig, bone_positions: np.ndarray, blend_weights: np.ndarra
 def direct_weights(rig, scores: np.ndarray, names: list[str]) -> np.ndarray:
     """(F, M) the rig's morphs driven by the tracker's scores of the same (ARKit) name."""
     index = {n.lower(): i for i, n in enumerate(names)}
-    out = np.zeros((len(scores), rig.n_morphs))
+    out = np.zeros((len(scores), rig.n_morphs), np.float32)
     for m, name in enumerate(rig.morph_names):
         if name.lower() in index:
             out[:, m] = np.clip(scores[:, index[name.lower()]], 0.0, 1.0)
@@ -253,16 +253,16 @@ def clip_fidelity(track, animation, rig, name: str = "") -> ClipFidelity:
     keep = np.asarray(track.presence, bool)
     source = source_measures(track)
     character = character_measures(rig, animation.bone_positions, animation.blend_weights)
-    scores = np.asarray(track.blendshapes, np.float64)
-    direct = character_measures(rig, np.repeat(rig.bone_rest[None], len(scores), 0),
-                                direct_weights(rig, scores, track.blendshape_names))
+    scores = np.asarray(track.blendshapes)
+    rest = np.broadcast_to(rig.bone_rest[None], (len(scores),) + rig.bone_rest.shape)  # a view, no copy
+    direct = character_measures(rig, rest, direct_weights(rig, scores, track.blendshape_names))
     if getattr(animation, "arkit_weights", None) is not None:
         arkit, names, which = np.asarray(animation.arkit_weights), list(animation.arkit_names), "animation"
     else:
         arkit, names, which = scores, list(track.blendshape_names), "tracker"
     return ClipFidelity(name=name or Path(str(track.source)).stem, times=np.asarray(track.times)[keep],
                         source=source[keep], character=character[keep], direct=direct[keep],
-                        arkit=np.asarray(arkit, np.float64)[keep], arkit_names=names, arkit_source=which)
+                        arkit=np.asarray(arkit[keep], np.float64), arkit_names=names, arkit_source=which)
 
 
 # ---- clips and run folders -----------------------------------------------------------------

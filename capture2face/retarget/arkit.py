@@ -52,6 +52,7 @@ MIN_DETAIL_R = 0.3
 # Scores move 0 -> 1 in ~0.1 s in a blink (speed ~10/s): beta 5 opens the cutoff to ~50 Hz
 # there, while a still score is smoothed at 1 Hz (its jitter is ~0.01).
 SCORE_FILTER = OneEuro(min_cutoff=1.0, beta=5.0, d_cutoff=1.0, zero_phase=True)
+FILTER_COLUMNS = 8  # curves filtered together (memory of the filter's temporaries)
 # The tracker's landmark filter (TrackOptions defaults): what it took from the geometry is
 # what the score's detail restores.
 LANDMARK_FILTER = TrackOptions().landmark_filter()
@@ -151,5 +152,9 @@ def arkit_curves(track) -> np.ndarray:
             floor = 1.0 / FULL_RANGE[name]
             curves[:, c] = np.clip(m * np.clip(fit, floor, MAX_GAIN_FACTOR * floor), 0.0, 1.0)
 
-    curves = one_euro(curves, times, SCORE_FILTER)
-    return np.clip(curves, 0.0, 1.0).astype(np.float32)
+    # Each curve is filtered on its own speed, so a few columns at a time give the same
+    # result with a fraction of the filter's float64 temporaries (long clips).
+    out = np.empty(curves.shape, np.float32)
+    for c in range(0, curves.shape[1], FILTER_COLUMNS):
+        out[:, c:c + FILTER_COLUMNS] = np.clip(one_euro(curves[:, c:c + FILTER_COLUMNS], times, SCORE_FILTER), 0, 1)
+    return out
