@@ -199,11 +199,10 @@ def arkit_curves(animation, track=None) -> tuple[np.ndarray, list[str], str]:
     retargeted ``Animation.arkit_weights``; else "tracker": MediaPipe's scores)."""
     weights = getattr(animation, "arkit_weights", None)
     if weights is not None:
-        return np.asarray(weights, np.float64), list(animation.arkit_names), "animation"
+        return np.asarray(weights), list(animation.arkit_names), "animation"
     if animation is not None and getattr(animation, "mediapipe_blendshapes", None) is not None:
-        return (np.asarray(animation.mediapipe_blendshapes, np.float64), list(animation.mediapipe_blendshape_names),
-                "tracker")
-    return np.asarray(track.blendshapes, np.float64), list(track.blendshape_names), "tracker"
+        return np.asarray(animation.mediapipe_blendshapes), list(animation.mediapipe_blendshape_names), "tracker"
+    return np.asarray(track.blendshapes), list(track.blendshape_names), "tracker"
 
 
 def choose_poster_frames(curves: np.ndarray, names: Sequence[str], presence: np.ndarray | None = None,
@@ -211,7 +210,7 @@ def choose_poster_frames(curves: np.ndarray, names: Sequence[str], presence: np.
     """Up to ``count`` (frame, reason) pairs, sorted by frame: the neutral frame, then the
     frame where each :data:`POSTER_CUES` curve peaks (frames closer than 1/12 of the clip
     to one already chosen are skipped), filled with evenly spread frames to at least 4."""
-    curves = np.asarray(curves, np.float64)
+    curves = np.asarray(curves)  # (F, A) as stored (float32): no whole-clip float64 copy
     n = len(curves)
     if n == 0:
         return []
