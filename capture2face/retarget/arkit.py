@@ -52,7 +52,7 @@ MIN_DETAIL_R = 0.3
 # Scores move 0 -> 1 in ~0.1 s in a blink (speed ~10/s): beta 5 opens the cutoff to ~50 Hz
 # there, while a still score is smoothed at 1 Hz (its jitter is ~0.01).
 SCORE_FILTER = OneEuro(min_cutoff=1.0, beta=5.0, d_cutoff=1.0, zero_phase=True)
-FILTER_COLUMNS = 8  # curves filtered together (memory of the filter's temporaries)
+FILTER_COLUMNS = 8  # curves calibrated and filtered together (memory of the temporaries)
 # The tracker's landmark filter (TrackOptions defaults): what it took from the geometry is
 # what the score's detail restores.
 LANDMARK_FILTER = TrackOptions().landmark_filter()
@@ -118,21 +118,19 @@ def arkit_curves(track) -> np.ndarray:
             cm, ``times`` (F,), ``neutral_frame``.
     """
     names = list(track.blendshape_names)
-    scores = np.nan_to_num(np.asarray(track.blendshapes, np.float64))
+    raw = np.asarray(track.blendshapes)  # (F, S) float32: read a few columns at a time
     times = np.asarray(track.times, np.float64)
     n0 = int(track.neutral_frame)
-    curves = calibrate_scores(scores, scores[n0])
-    if "_neutral" in names:  # not an ARKit curve: MediaPipe's own "no expression" score, kept
-        curves[:, names.index("_neutral")] = scores[:, names.index("_neutral")]
-
+    geometric = {}  # column -> its curve from the geometry (F,)
     wanted = [k for k, name in enumerate(GEOMETRIC) if name in names]
-    if wanted and len(scores) >= 3:
+    if wanted and len(raw) >= 3:
         dist, iod = geometric_measures(track.landmarks_head, n0)
         for k in wanted:
             name = list(GEOMETRIC)[k]
             c = names.index(name)
+            score = np.nan_to_num(raw[:, c].astype(np.float64))
             blink = name.startswith("eyeBlink")
-            d = restore_detail(dist[:, k], scores[:, c], times, -1.0 if blink else 1.0)
+            d = restore_detail(dist[:, k], score, times, -1.0 if blink else 1.0)
             # Rest: the neutral frame, or the clip's own most-rested frames (widest eye,
             # closest lips, lowest brows) where the face goes further than the neutral;
             # taken from the filtered geometry (the restored detail can overshoot a step).
@@ -143,18 +141,26 @@ def arkit_curves(track) -> np.ndarray:
             else:
                 rest = min(g[n0], np.percentile(g, REST_PERCENTILE))
                 m = (d - rest) / iod
-            score_rest = min(scores[n0, c], np.percentile(scores[:, c], REST_PERCENTILE))
-            target = calibrate_scores(scores[:, c], score_rest)
+            score_rest = min(score[n0], np.percentile(score, REST_PERCENTILE))
+            target = calibrate_scores(score, score_rest)
             up = np.clip(m, 0.0, None)
             # Per-clip gain: the calibrated score's scale, floored by the anatomical full
             # range (the scores are compressed) and capped against early saturation.
             fit = float((target * up).sum() / max((up * up).sum(), 1e-12))
             floor = 1.0 / FULL_RANGE[name]
-            curves[:, c] = np.clip(m * np.clip(fit, floor, MAX_GAIN_FACTOR * floor), 0.0, 1.0)
+            geometric[c] = np.clip(m * np.clip(fit, floor, MAX_GAIN_FACTOR * floor), 0.0, 1.0)
 
-    # Each curve is filtered on its own speed, so a few columns at a time give the same
-    # result with a fraction of the filter's float64 temporaries (long clips).
-    out = np.empty(curves.shape, np.float32)
-    for c in range(0, curves.shape[1], FILTER_COLUMNS):
-        out[:, c:c + FILTER_COLUMNS] = np.clip(one_euro(curves[:, c:c + FILTER_COLUMNS], times, SCORE_FILTER), 0, 1)
+    # A few columns at a time: each curve is calibrated and filtered on its own, so this is
+    # the same as the whole (F, S) at once with a fraction of the float64 temporaries.
+    out = np.empty(raw.shape, np.float32)
+    for c0 in range(0, raw.shape[1], FILTER_COLUMNS):
+        cols = range(c0, min(c0 + FILTER_COLUMNS, raw.shape[1]))
+        scores = np.nan_to_num(raw[:, c0:cols.stop].astype(np.float64))
+        curves = calibrate_scores(scores, scores[n0])
+        for j, c in enumerate(cols):
+            if names[c] == "_neutral":  # not an ARKit curve: MediaPipe's own "no expression" score, kept
+                curves[:, j] = scores[:, j]
+            elif c in geometric:
+                curves[:, j] = geometric[c]
+        out[:, c0:cols.stop] = np.clip(one_euro(curves, times, SCORE_FILTER), 0.0, 1.0)
     return out
