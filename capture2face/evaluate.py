@@ -56,6 +56,7 @@ from pathlib import Path
 
 import numpy as np
 
+from capture2face.fidelity import pearson
 from capture2face.retarget import RetargetOptions, retarget, shared_blendshapes
 from capture2face.retarget.influences import region_influence, rig_influences, vertex_influences
 
@@ -126,14 +127,6 @@ def truth_on_target(bone_positions: np.ndarray, source, target) -> np.ndarray:
 
 def _face_bones(rig) -> np.ndarray:
     return np.flatnonzero((np.arange(rig.n_bones) > 0) & (np.asarray(rig.bone_landmarks) >= 0))
-
-
-def _pearson(a: np.ndarray, b: np.ndarray) -> float:
-    """Pearson r; 0 when either side is constant (a constant prediction explains nothing)."""
-    a = np.asarray(a, np.float64) - np.mean(a)
-    b = np.asarray(b, np.float64) - np.mean(b)
-    den = np.sqrt((a * a).sum() * (b * b).sum())
-    return float((a * b).sum() / den) if den > 1e-12 else 0.0
 
 
 def _mouth_open(rig, bone_positions: np.ndarray, blend_weights: np.ndarray) -> np.ndarray:
@@ -228,7 +221,7 @@ def score(track, animation, truth, source, target) -> dict:
         }
     # Morphs active in the clip: does the solve follow them (r), and by how much (MAE)?
     active = np.flatnonzero(w_true.std(0) > ACTIVE_STD)
-    per_morph = {str(target.morph_names[m]): _pearson(w_pred[:, m], w_true[:, m]) for m in active}
+    per_morph = {str(target.morph_names[m]): pearson(w_pred[:, m], w_true[:, m]) for m in active}
     result_active = {
         "blendweight_active_morphs": int(len(active)),
         "blendweight_active_r": float(np.mean(list(per_morph.values()))) if len(active) else float("nan"),
@@ -243,7 +236,7 @@ def score(track, animation, truth, source, target) -> dict:
     s_true = float(np.std(mouth_true))
     result_mouth = {
         "mouth_open_gain": float(np.std(mouth_pred) / s_true) if s_true > 1e-12 else float("nan"),
-        "mouth_open_r": _pearson(mouth_pred, mouth_true),
+        "mouth_open_r": pearson(mouth_pred, mouth_true),
         "mouth_open_true_std_iod": s_true,
     }
 

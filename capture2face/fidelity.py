@@ -175,8 +175,10 @@ def direct_weights(rig, scores: np.ndarray, names: list[str]) -> np.ndarray:
 
 
 # ---- figures -----------------------------------------------------------------------------
-def _pearson(a: np.ndarray, b: np.ndarray) -> float:
-    a, b = a - a.mean(), b - b.mean()
+def pearson(a: np.ndarray, b: np.ndarray) -> float:
+    """Pearson r of two series; 0 when either is constant (a constant explains nothing)."""
+    a = np.asarray(a, np.float64) - np.mean(a)
+    b = np.asarray(b, np.float64) - np.mean(b)
     den = np.sqrt((a * a).sum() * (b * b).sum())
     return float((a * b).sum() / den) if den > 1e-12 else 0.0
 
@@ -184,7 +186,7 @@ def _pearson(a: np.ndarray, b: np.ndarray) -> float:
 def compare(source: np.ndarray, other: np.ndarray) -> tuple[float, float]:
     """(r, gain) of one measure over frames."""
     s_std = float(np.std(source))
-    return _pearson(source, other), (float(np.std(other)) / s_std if s_std > 1e-12 else 0.0)
+    return pearson(source, other), (float(np.std(other)) / s_std if s_std > 1e-12 else 0.0)
 
 
 def faithful(r: float, gain: float) -> bool:
@@ -240,7 +242,7 @@ class ClipFidelity:
                 continue
             geo = brow if measure == "brow" else self.source[:, list(MEASURES).index(measure)]
             curve = self.arkit[:, self.arkit_names.index(name)]
-            r = sign * _pearson(geo, curve)
+            r = sign * pearson(geo, curve)
             out["arkit"][name] = {"against": measure, "r": round(r, 3), "goal": goal, "max": round(float(curve.max()), 3),
                                   "met": bool(r >= goal)}
         out["arkit_source"] = self.arkit_source

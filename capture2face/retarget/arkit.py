@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from capture2face.fidelity import pearson
 from capture2face.tracking.filtering import OneEuro, one_euro
 from capture2face.tracking.tracker import TrackOptions
 
@@ -92,17 +93,11 @@ def geometric_measures(landmarks_head, neutral_frame: int, chunk: int = 512) -> 
     return out, max(iod, 1e-6)
 
 
-def _pearson(a: np.ndarray, b: np.ndarray) -> float:
-    a, b = a - a.mean(), b - b.mean()
-    den = np.sqrt((a * a).sum() * (b * b).sum())
-    return float((a * b).sum() / den) if den > 1e-12 else 0.0
-
-
 def restore_detail(distance: np.ndarray, score: np.ndarray, times: np.ndarray, sign: float) -> np.ndarray:
     """(F,) ``distance`` (cm, landmark-filtered) plus the fast motion the landmark filter
     removed, taken from ``score`` (F,) mapped to cm by a least-squares fit; ``sign``: +1
     when the score rises with the distance, -1 when it falls (a blink closes the lids)."""
-    if len(distance) < 3 or sign * _pearson(score, distance) < MIN_DETAIL_R:
+    if len(distance) < 3 or sign * pearson(score, distance) < MIN_DETAIL_R:
         return distance
     slope = np.polyfit(score, distance, 1)[0]
     cm = slope * score  # the score in cm: the landmark filter's speed units apply
