@@ -211,10 +211,8 @@ class TrackBuilder:
             neutral = int(options.neutral_frame)
             if not 0 <= neutral < n:
                 raise CaptureError(f"--neutral-frame {neutral} is outside the clip (0..{n - 1})")
-        landmarks = self._landmark_passes(t, gaps, width, height, progress)
+        landmarks, gap = self._landmark_passes(t, gaps, width, height, progress)
         if options.neutral_frame is None:
-            head = landmarks["head"]
-            gap = np.concatenate([mouth_gap(head[s:s + WINDOW_FRAMES]) for s in range(0, n, WINDOW_FRAMES)])
             neutral = pick_neutral(scores, BLENDSHAPE_NAMES, pose_f, t, presence, mouth_gap=gap)
 
         return Track(
@@ -239,10 +237,13 @@ class TrackBuilder:
             camera_fov_y=FOV_Y_DEGREES,
         )
 
-    def _landmark_passes(self, t: np.ndarray, gaps, width: int, height: int, progress: bool) -> dict:
+    def _landmark_passes(self, t: np.ndarray, gaps, width: int, height: int,
+                         progress: bool) -> tuple[dict, np.ndarray]:
         """Gap-fill and filter the landmarks on disk window by window: a forward pass
         (pixels, depth, causal filter of the head-coordinate landmarks) and, for the
-        zero-phase filter, a backward one. Returns the three landmark arrays."""
+        zero-phase filter, a backward one. Returns the three landmark arrays and the
+        filtered landmarks' lip gap (F,) (:func:`~capture2face.tracking.neutral.mouth_gap`,
+        taken from each window as it is written: the neutral pick needs no second read)."""
         from tqdm import tqdm
 
         n = len(t)
@@ -255,6 +256,7 @@ class TrackBuilder:
         params = self.options.landmark_filter()
         windows = [(s, min(n, s + WINDOW_FRAMES)) for s in range(0, n, WINDOW_FRAMES)]
         scale = np.array([width, height], np.float64)
+        gap = np.empty(n)
         bar = tqdm(total=len(windows) * (2 if zero_phase else 1), disable=not progress or len(windows) < 4,
                    desc="filtering", unit="window", leave=False)
         with bar:
@@ -263,12 +265,17 @@ class TrackBuilder:
                 norm = gaps.fill_window(self._norm.read_rows, s, e)
                 px.write(s, norm[..., :2] * scale)
                 depth.write(s, norm[..., 2] * width)
-                forward.write(s, causal(gaps.fill_window(self._head.read_rows, s, e), t[s:e]))
+                filtered = causal(gaps.fill_window(self._head.read_rows, s, e), t[s:e])
+                forward.write(s, filtered)
+                if not zero_phase:
+                    gap[s:e] = mouth_gap(filtered.astype(np.float32))  # as stored
                 bar.update(1)
             if zero_phase:  # the same filter run backward in time over the forward result
                 causal = CausalOneEuro(params, speed_axis=-1)
                 for s, e in reversed(windows):
-                    head.write(s, causal(forward.read(s, e)[::-1], -t[s:e][::-1])[::-1])
+                    filtered = causal(forward.read(s, e)[::-1], -t[s:e][::-1])[::-1]
+                    head.write(s, filtered)
+                    gap[s:e] = mouth_gap(filtered.astype(np.float32))  # as stored
                     bar.update(1)
         for f in (self._norm, self._head, forward if zero_phase else None):
             if f is not None:
@@ -279,7 +286,7 @@ class TrackBuilder:
         result = {k: np.asarray(v) if self._own_dir else v.reopen_readonly() for k, v in out.items()}
         for v in out.values():
             v.close()
-        return result
+        return result, gap
 
 
 class Tracker:
