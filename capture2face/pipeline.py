@@ -428,8 +428,8 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
             Nothing is left in ``out_dir`` then (nor on KeyboardInterrupt).
     """
     from capture2face.io.staging import check_output_folder, staged_folder
-    from capture2face.tracking.video import watch_damage
     from capture2face.preflight import preflight
+    from capture2face.tracking.video import watch_damage
 
     options = options or RunOptions()
     bound_heap()  # memory flat whatever the clip's length (see capture2face.runtime.heap)

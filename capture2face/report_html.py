@@ -194,7 +194,7 @@ def _curve_index(names: Sequence[str]) -> dict[str, int]:
     return {str(n).lower(): i for i, n in enumerate(names)}
 
 
-def arkit_curves(animation, track=None) -> tuple[np.ndarray, list[str], str]:
+def report_curves(animation, track=None) -> tuple[np.ndarray, list[str], str]:
     """(F, A) ARKit curves, their names and where they come from ("animation": the
     retargeted ``Animation.arkit_weights``; else "tracker": MediaPipe's scores)."""
     weights = getattr(animation, "arkit_weights", None)
@@ -247,7 +247,7 @@ def choose_poster_frames(curves: np.ndarray, names: Sequence[str], presence: np.
 
 def poster_frames(animation, neutral: int | None = None, count: int = 6) -> list[tuple[int, str]]:
     """:func:`choose_poster_frames` of a run's animation (what ``run`` keeps while rendering)."""
-    curves, names, _ = arkit_curves(animation)
+    curves, names, _ = report_curves(animation)
     return choose_poster_frames(curves, names, animation.presence, neutral, count)
 
 
@@ -448,7 +448,7 @@ def render_report_html(report: dict, track, animation, video: str | os.PathLike 
     """
     times = np.asarray(animation.times, np.float64)
     presence = np.asarray(animation.presence, bool)
-    curves, names, curve_source = arkit_curves(animation, track)
+    curves, names, curve_source = report_curves(animation, track)
     index = _curve_index(names)
     title = Path(str(report.get("clip", "clip"))).name
 
