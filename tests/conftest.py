@@ -37,3 +37,21 @@ def synthetic_clip(tmp_path_factory):
 
     path = tmp_path_factory.mktemp("synthetic") / "clip.mp4"
     return synthesize(path, SynthOptions(frames=60, size=512, seed=0), progress=False)
+
+
+def truncated_copy(clip: Path, folder: Path) -> Path:
+    """``clip`` remuxed with its index first (faststart), then cut at 60% of its bytes: a
+    clip whose decoding fails part way, the way a download cut short does."""
+    import av
+
+    faststart = folder / "faststart.mp4"
+    with av.open(str(clip)) as src, av.open(str(faststart), "w", options={"movflags": "faststart"}) as dst:
+        stream = dst.add_stream_from_template(src.streams.video[0])
+        for packet in src.demux(src.streams.video[0]):
+            if packet.size:
+                packet.stream = stream
+                dst.mux(packet)
+    data = faststart.read_bytes()
+    cut = folder / "cut.mp4"
+    cut.write_bytes(data[: len(data) * 6 // 10])
+    return cut

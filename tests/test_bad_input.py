@@ -13,6 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.conftest import truncated_copy
+
 ENV = dict(os.environ, GLOG_minloglevel="2", TF_CPP_MIN_LOG_LEVEL="2", PYTHONUNBUFFERED="1")
 
 
@@ -230,16 +232,7 @@ def test_truncated_clip_can_be_salvaged_on_request(sample_clip, tmp_path):
 
     from capture2face.pipeline import RunOptions, run
 
-    faststart = tmp_path / "faststart.mp4"
-    with av.open(str(sample_clip)) as src, av.open(str(faststart), "w", options={"movflags": "faststart"}) as dst:
-        stream = dst.add_stream_from_template(src.streams.video[0])
-        for packet in src.demux(src.streams.video[0]):
-            if packet.size:
-                packet.stream = stream
-                dst.mux(packet)
-    data = faststart.read_bytes()
-    cut = tmp_path / "cut.mp4"
-    cut.write_bytes(data[: len(data) * 6 // 10])
+    cut = truncated_copy(sample_clip, tmp_path)
     report = run(cut, tmp_path / "out", RunOptions(size=128, compare=False, allow_truncated=True), progress=False)
     assert 10 < report["frames"] < 90
     assert any("truncated" in w for w in report["warnings"])

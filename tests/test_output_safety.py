@@ -20,6 +20,7 @@ import pytest
 from capture2face.errors import CaptureError
 from capture2face.io import staging
 from capture2face.io.staging import JOURNAL, OWNER_FILE, check_output_folder, clean_stale_staging, staged_folder
+from tests.conftest import truncated_copy
 
 KNOWN = ("avatar.mp4", "compare.mp4", "track.npz", "report.json")
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
@@ -164,20 +165,9 @@ def test_stale_staging_of_a_killed_run_is_removed_with_a_warning(tmp_path, caplo
 
 # ---- typed damage signal ------------------------------------------------------------------
 def test_damage_is_a_typed_event(sample_clip, tmp_path):
-    import av
-
     from capture2face.tracking.video import ClipDamage, iter_frames, watch_damage
 
-    faststart = tmp_path / "faststart.mp4"
-    with av.open(str(sample_clip)) as src, av.open(str(faststart), "w", options={"movflags": "faststart"}) as dst:
-        stream = dst.add_stream_from_template(src.streams.video[0])
-        for packet in src.demux(src.streams.video[0]):
-            if packet.size:
-                packet.stream = stream
-                dst.mux(packet)
-    data = faststart.read_bytes()
-    cut = tmp_path / "cut.mp4"
-    cut.write_bytes(data[: len(data) * 6 // 10])
+    cut = truncated_copy(sample_clip, tmp_path)
     with watch_damage(sample_clip) as other, watch_damage(cut) as damage:
         n = sum(1 for _ in iter_frames(cut))
     assert other == []
