@@ -29,6 +29,13 @@ dimensionless) and how each is measured:
   rig's own rest inter-ocular units, ``fidelity.character_measures``) of the target rig
   deformed by the solved bones and weights, against the source rig deformed by the true
   ones: std(solved) / std(true), and Pearson r. The rest pose has gain 0.
+* ``measures``: where expression amplitude is lost, per fidelity measure (mouth opening
+  and width, brows, eyes; :data:`capture2face.fidelity.MEASURES`): ``tracker``: the
+  tracker's own raw landmarks (as ``eval fidelity`` measures an actor) against the truth;
+  ``character``: the solved character against the truth; ``character_vs_tracker``: the
+  solved character against the tracker (what ``eval fidelity`` reports on real clips).
+  Each is ``{"r", "gain"}``. The character cannot be expected to move more faithfully
+  than the tracker sees: the tracker's figure is its floor.
 * Retargeting starts from a frame the truth holds at neutral, and again from the
   tracker's own pick (``neutral_frame_auto``; one tracking pass, two retargets): the
   second set of figures, same keys, is the nested ``auto_neutral`` block, so the cost of a
@@ -136,6 +143,21 @@ def _mouth_open(rig, bone_positions: np.ndarray, blend_weights: np.ndarray) -> n
     return character_measures(rig, bone_positions, blend_weights)[:, list(MEASURES).index("mouth_open")]
 
 
+def measure_chain(track, animation, truth, source, target, use: np.ndarray) -> dict:
+    """Per fidelity measure, (r, gain) of the tracker and of the solved character against
+    the truth, and of the character against the tracker, over the frames ``use`` (F,)."""
+    from capture2face.fidelity import MEASURES, character_measures, compare, source_measures
+
+    true = character_measures(source, truth.bone_positions, truth.blend_weights)[use]
+    seen = source_measures(track)[use]
+    solved = character_measures(target, animation.bone_positions, animation.blend_weights)[use]
+    out = {}
+    for k, name in enumerate(MEASURES):
+        pairs = {"tracker": (true, seen), "character": (true, solved), "character_vs_tracker": (seen, solved)}
+        out[name] = {key: dict(zip(("r", "gain"), compare(a[:, k], b[:, k]))) for key, (a, b) in pairs.items()}
+    return out
+
+
 def add_ratios(result: dict) -> dict:
     """Add ``<figure>_ratio`` = figure / trivial prediction for each of :data:`RATIOS`
     present in ``result`` (NaN where the trivial figure is 0). Returns ``result``."""
@@ -175,7 +197,8 @@ def summary_line(result: dict, label: str = "") -> str:
             f"weights MAE {result['blendweight_mae_ratio']:.2f}x zero, "
             f"active r {result['blendweight_active_r']:.2f} ({result['blendweight_active_morphs']} morphs); "
             f"wrinkles {result['wrinkle_influence_mae_ratio']:.2f}x zero; "
-            f"mouth gain {result['mouth_open_gain']:.2f} r {result['mouth_open_r']:.2f}; "
+            f"mouth gain {result['mouth_open_gain']:.2f} r {result['mouth_open_r']:.2f} "
+            f"(tracker's own {result['measures']['mouth_open']['tracker']['gain']:.2f}); "
             f"goals met {met}/{len(GOALS)}" + ("" if g["frames_as_stated"] else f" (stated for {GOAL_FRAMES} frames)"))
 
 
@@ -280,6 +303,7 @@ def score(track, animation, truth, source, target) -> dict:
         "baseline_zero_influence_mae": float(np.abs(vertex_influences(inf_true[use], skin)).mean()),
         "baseline_zero_influence_mae_bone": float(np.abs(inf_true[use][:, :, moving]).mean()),
         "baseline_zero_region_influence_mae": float(np.abs(region_true[use]).mean()),
+        "measures": measure_chain(track, animation, truth, source, target, use),
         "neutral_frame": int(neutral),
         "neutral_bone_offset_cm": float(np.abs(animation.bone_positions[neutral] - target.bone_rest).max()),
         "target": target.name,

@@ -69,6 +69,22 @@ def test_same_character_figures(same):
     json.dumps(same)  # plain JSON types only
 
 
+def test_measure_chain_locates_amplitude_loss(same, case):
+    """The per-measure chain: the tracker against the truth, the character against both.
+    Gains compose (character/truth = character/tracker x tracker/truth, since every std
+    is over the same frames), the chain's mouth figure is the headline one, and every
+    measure is followed (r well above 0, which the rest pose scores)."""
+    chain = same["measures"]
+    assert set(chain) == {"mouth_open", "mouth_width", "brow_right", "brow_left", "eye_right", "eye_left"}
+    for name, entry in chain.items():
+        composed = entry["character_vs_tracker"]["gain"] * entry["tracker"]["gain"]
+        assert entry["character"]["gain"] == pytest.approx(composed, rel=1e-9), name
+        assert entry["tracker"]["r"] > 0.7 and entry["character"]["r"] > 0.7, name
+    assert chain["mouth_open"]["character"]["r"] == pytest.approx(same["mouth_open_r"], abs=1e-9)
+    assert chain["mouth_open"]["character"]["gain"] == pytest.approx(same["mouth_open_gain"], rel=1e-9)
+    assert f"(tracker's own {chain['mouth_open']['tracker']['gain']:.2f})" in summary_line(same)
+
+
 def test_auto_neutral_block_and_goals(same, case):
     clip, track = case
     auto = same["auto_neutral"]
