@@ -192,10 +192,23 @@ def avatar_head_poses(rig: FaceRig, head_pose: np.ndarray, fov_y_degrees: float)
     # there whatever the rotation.
     target = framing_pose(rig, fov_y_degrees=fov_y_degrees)[:3, 3] + centre
     rot = np.asarray(head_pose, np.float64)[:, :3, :3]
+    if getattr(rig, "head_weights", None) is not None:
+        # The head joint turns (avatar_head_rotations), the camera and the body stay.
+        rot = np.broadcast_to(np.eye(3), rot.shape)
     poses = np.tile(np.eye(4), (len(rot), 1, 1))
     poses[:, :3, :3] = rot
     poses[:, :3, 3] = target - rot @ centre
     return poses
+
+
+def avatar_head_rotations(rig: FaceRig, head_pose: np.ndarray) -> np.ndarray | None:
+    """(F, 3, 3) float32 head-joint rotations for a character with a head joint
+    (``FaceRig.head_weights``; :attr:`FrameState.head_rotation
+    <capture2face.render.renderer.FrameState.head_rotation>`), else None: the head
+    rotation turns the whole character (:func:`avatar_head_poses`)."""
+    if getattr(rig, "head_weights", None) is None:
+        return None
+    return np.ascontiguousarray(np.asarray(head_pose, np.float32)[:, :3, :3])
 
 
 def run_render_options(options: RunOptions):
@@ -240,6 +253,7 @@ def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder
     fps = float(track.fps)
     render_opts = run_render_options(options)
     poses = avatar_head_poses(rig, animation.head_pose, render_opts.fov_y_degrees).astype(np.float32)
+    turns = avatar_head_rotations(rig, animation.head_pose)
     fitter = SourceFitter(track.width, track.height, size)
     q = max(2, int(options.queue_frames))
     # x264's own thread pool would oversubscribe the cores the rasterizer needs (llvmpipe
@@ -291,6 +305,7 @@ def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder
             state = FrameState(
                 bone_positions=animation.bone_positions[i], blend_weights=animation.blend_weights[i],
                 head_pose=poses[i], influences=animation.influences[i], zone_weights=animation.zone_weights[i],
+                head_rotation=None if turns is None else turns[i],
             )
             if options.compare:
                 image, heat = renderer.render_with_influence(state)

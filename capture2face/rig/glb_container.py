@@ -140,6 +140,31 @@ class GlbBuilder:
         return b"".join(parts)  # one copy of the binary chunk (tens of MB for a long clip)
 
 
+# Required extensions the reader honours: quantized attributes are read like any other
+# accessor (the node's transform dequantizes them); material extensions only change
+# the shading, which the renderer does its own way.
+SUPPORTED_REQUIRED = ("KHR_mesh_quantization",)
+SHADING_ONLY_PREFIX = "KHR_materials_"
+_HINTS = {
+    "EXT_meshopt_compression": "decompress it first, e.g. gltfpack -noq or gltf-transform copy",
+    "KHR_draco_mesh_compression": "decompress it first, e.g. gltf-transform dedup/copy without draco",
+    "KHR_texture_basisu": "convert its textures to PNG/JPEG first, e.g. gltf-transform png",
+    "EXT_texture_webp": "convert its textures to PNG/JPEG first, e.g. gltf-transform png",
+}
+
+
+def check_required_extensions(gltf: dict, path: str) -> None:
+    """A file that requires an extension this reader cannot honour fails here, in one
+    line naming it (instead of a confusing error about its buffers later)."""
+    required = gltf.get("extensionsRequired") or []
+    missing = [str(e) for e in required
+               if e not in SUPPORTED_REQUIRED and not str(e).startswith(SHADING_ONLY_PREFIX)]
+    if missing:
+        hint = next((_HINTS[e] for e in missing if e in _HINTS), "")
+        raise CaptureError(f"{path}: requires the glTF extension{'s' if len(missing) > 1 else ''} "
+                           f"{', '.join(missing)}, which capture2face cannot read" + (f" ({hint})" if hint else ""))
+
+
 class GlbReader:
     """Parses a .glb (or a .gltf whose buffers are embedded as data URIs) and reads accessors."""
 
@@ -156,6 +181,7 @@ class GlbReader:
         version = str(self.gltf.get("asset", {}).get("version", ""))
         if not version.startswith("2."):
             raise CaptureError(f"{self.path}: glTF version {version or '?'} is not supported (need 2.0)")
+        check_required_extensions(self.gltf, self.path)
         self._cache: dict[int, np.ndarray] = {}
 
     @staticmethod

@@ -1,0 +1,227 @@
+"""A user's own ARKit character, driven with no mapping file: morph names in any spelling,
+every mesh imported and moved, the head joint turned, textures packed, checked before
+tracking. The characters are built in code from the default avatar
+(capture2face.rig.arkit_export); no third-party asset."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from test_arkit import NAMES, synthetic_track
+
+from capture2face.errors import CaptureError
+from capture2face.rig.arkit_export import export_arkit_character
+from capture2face.rig.arkit_names import arkit_morphs, canonical_arkit, drive_mode
+from capture2face.rig.avatar import default_avatar
+from capture2face.rig.glb_container import ARRAY_BUFFER, GlbBuilder, GlbReader
+from capture2face.rig.gltf import import_glb
+
+
+@pytest.fixture(scope="module")
+def avatar():
+    return default_avatar()
+
+
+@pytest.mark.parametrize("name, arkit", [
+    ("eyeBlinkLeft", "eyeBlinkLeft"), ("EyeBlinkLeft", "eyeBlinkLeft"), ("eyeBlink_L", "eyeBlinkLeft"),
+    ("eyeBlink.R", "eyeBlinkRight"), ("blendShape1.jawOpen", "jawOpen"), ("head:eyeBlink_R", "eyeBlinkRight"),
+    ("blendShape1.eyeBlink.L", "eyeBlinkLeft"), ("Mouth_Smile_L", "mouthSmileLeft"), ("JAWOPEN", "jawOpen"),
+    ("mouthLeft", "mouthLeft"), ("mouth_R", "mouthRight"), ("eyeLookIn_L", "eyeLookInLeft"),
+    ("EyeBlink_Left", "eyeBlinkLeft"), ("tongueOut", "tongueOut"),
+    ("Fcl_MTH_A", None), ("viseme_aa", None), ("jaw", None), ("eyeBlink", None), ("browInnerUp_L", None),
+])
+def test_arkit_names_in_every_spelling(name, arkit):
+    assert canonical_arkit(name) == arkit
+
+
+def _by_arkit(rig):
+    return {a: m for m, a in arkit_morphs(rig.morph_names).items()}
+
+
+@pytest.mark.parametrize("naming", ["_L", ".L", "blendShape1.", "Left_"])
+def test_multi_mesh_arkit_character_imports_every_mesh_and_merges_morphs(tmp_path, avatar, naming):
+    path = tmp_path / "head.glb"
+    export_arkit_character(avatar, path, naming=naming)
+    rig = import_glb(path)  # no mapping file
+    # Head, eyes and mouth interior: three meshes, all of them in, in the avatar's order.
+    assert rig.n_vertices == avatar.n_vertices
+    np.testing.assert_allclose(rig.vertices, avatar.vertices, atol=1e-5)
+    np.testing.assert_array_equal(rig.material, avatar.material)
+    assert drive_mode(rig) == "arkit"
+    mine = _by_arkit(rig)
+    assert set(mine) == set(avatar.morph_names)  # every ARKit morph, found under its spelling
+    spans = 0
+    for name, m in mine.items():
+        # One morph per name over every mesh that carries it (eyes and teeth move with the face).
+        np.testing.assert_allclose(rig.morph_positions[m], avatar.morph_positions[avatar.morph_index(name)],
+                                   atol=1e-5)
+        moved = np.abs(rig.morph_positions[m]).max(1) > 1e-4
+        spans += len(np.unique(rig.material[moved])) >= 2
+    assert spans >= 3  # some morphs (jawOpen: chin and teeth) span meshes
+
+
+def test_quantized_character_reads_within_its_step(tmp_path, avatar):
+    path = tmp_path / "q.glb"
+    export_arkit_character(avatar, path, naming="_L", quantize=True)
+    assert GlbReader._parse(path.read_bytes())[0]["extensionsRequired"] == ["KHR_mesh_quantization"]
+    rig = import_glb(path)
+    step_cm = 2e-3  # 0.02 mm
+    assert np.abs(rig.vertices - avatar.vertices).max() <= step_cm / 2 + 1e-5
+    jaw = _by_arkit(rig)["jawOpen"]
+    assert np.abs(rig.morph_positions[jaw] - avatar.morph_positions[avatar.morph_index("jawOpen")]).max() <= \
+        step_cm / 2 + 1e-5
+
+
+def test_arkit_character_is_driven_by_the_arkit_curves(tmp_path, avatar):
+    from capture2face.retarget import retarget
+    from capture2face.retarget.arkit import arkit_curves
+
+    path = tmp_path / "head.glb"
+    export_arkit_character(avatar, path, naming="_L")
+    rig = import_glb(path)
+    track, truth = synthetic_track()
+    anim = retarget(track, rig)
+    curves = arkit_curves(track)
+    for name, m in _by_arkit(rig).items():
+        expect = curves[:, NAMES.index(name)] if name in NAMES else 0.0
+        np.testing.assert_allclose(anim.blend_weights[:, m], expect, atol=1e-6)
+    # The geometry follows: the lower lip's vertex (largest jawOpen delta) moves with the
+    # curve, and the curve with the synthetic jaw.
+    jaw = _by_arkit(rig)["jawOpen"]
+    v = int(np.argmax(np.linalg.norm(rig.morph_positions[jaw], axis=1)))
+    from capture2face.rig.deform import deform
+
+    pos, _ = deform(rig, anim.bone_positions, anim.blend_weights)
+    drop = np.linalg.norm(pos[:, v] - rig.vertices[v], axis=1)
+    assert np.corrcoef(drop, truth["jawOpen"])[0, 1] > 0.95
+    assert drop.max() > 0.8 * np.linalg.norm(rig.morph_positions[jaw, v])  # a full opening reaches ~1
+    np.testing.assert_array_equal(anim.bone_positions, np.repeat(rig.bone_rest[None], track.n_frames, 0))
+
+
+def test_head_joint_turns_the_head_and_not_the_body(tmp_path, avatar):
+    from capture2face.render.camera import face_centre_and_height, rotation_matrix
+    from capture2face.render.skinning import Deformer
+
+    path = tmp_path / "body.glb"
+    export_arkit_character(avatar, path, naming="_L", skeleton=True, body=True)
+    rig = import_glb(path)
+    assert rig.bone_names[0] == "head" and {"Hips", "Neck"} <= set(rig.bone_names)
+    face = rig.material != 0
+    face[: avatar.n_vertices] = True
+    np.testing.assert_allclose(rig.head_weights[face], 1.0)
+    np.testing.assert_allclose(rig.head_weights[~face], 0.0)  # the body hangs on the hips
+    rot = rotation_matrix(30.0, 0.0, 0.0)
+    d = Deformer(rig)
+    zero = np.zeros(rig.n_morphs)
+    turned = d.positions(rig.bone_rest, zero, rot)
+    pivot = rig.bone_rest[0].astype(np.float64)
+    np.testing.assert_allclose(turned[face], (rig.vertices[face] - pivot) @ rot.T + pivot, atol=1e-4)
+    np.testing.assert_allclose(turned[~face], rig.vertices[~face], atol=1e-6)
+    # The camera frames the face (what the morphs move), not the body under it.
+    centre, height = face_centre_and_height(rig)
+    a_centre, a_height = face_centre_and_height(avatar)
+    assert abs(centre[1] - a_centre[1]) < 0.1 * a_height and height < 1.2 * a_height
+
+
+def test_atlas_keeps_each_mesh_texture(tmp_path, avatar):
+    path = tmp_path / "body.glb"
+    export_arkit_character(avatar, path, naming="_L", body=True)
+    rig = import_glb(path)
+    body = np.arange(avatar.n_vertices, rig.n_vertices)
+    h, w = rig.albedo.shape[:2]
+    assert w == 2 * h  # two tiles: the face's texture and the outfit's
+
+    def sample(uv):
+        return rig.albedo[np.clip((uv[:, 1] * h).astype(int), 0, h - 1), np.clip((uv[:, 0] * w).astype(int), 0, w - 1)]
+
+    centre = rig.uvs[body].mean(0, keepdims=True)  # the middle of the outfit's tile
+    assert np.abs(sample(centre).astype(int) - [50, 80, 160]).max() < 25
+    # Face UVs land in the face tile and read the avatar's albedo there.
+    face = np.arange(avatar.n_vertices)[avatar.material == 0][::50]
+    ah, aw = avatar.albedo.shape[:2]
+    expect = avatar.albedo[np.clip((avatar.uvs[face, 1] * ah).astype(int), 0, ah - 1),
+                           np.clip((avatar.uvs[face, 0] * aw).astype(int), 0, aw - 1)]
+    assert np.median(np.abs(sample(rig.uvs[face]).astype(int) - expect).max(1)) < 12
+
+
+def test_mapping_json_maps_other_names(tmp_path, avatar):
+    path = tmp_path / "vroid.glb"
+    export_arkit_character(avatar, path, naming="_L")
+    gltf, binary = GlbReader._parse(path.read_bytes())
+    for mesh in gltf["meshes"]:  # a VRoid-like set: Fcl_ names
+        names = mesh.get("extras", {}).get("targetNames", [])
+        mesh.get("extras", {})["targetNames"] = [
+            t.replace("jawOpen", "Fcl_MTH_A").replace("eyeBlink_L", "Fcl_EYE_Close_L") for t in names]
+    out = tmp_path / "fcl.glb"
+    _write_glb(out, gltf, binary)
+    assert "jawOpen" not in _by_arkit(import_glb(out))
+    (tmp_path / "fcl.json").write_text(json.dumps({"morphs": {"Fcl_MTH_A": "jawOpen", "Fcl_EYE_Close_L": "eyeBlink_L"}}))
+    rig = import_glb(out)
+    mine = _by_arkit(rig)
+    assert "jawOpen" in mine and "eyeBlinkLeft" in mine
+    np.testing.assert_allclose(rig.morph_positions[mine["jawOpen"]],
+                               avatar.morph_positions[avatar.morph_index("jawOpen")], atol=1e-5)
+    (tmp_path / "fcl.json").write_text(json.dumps({"morphs": {"Fcl_MTH_A": "mouthWide"}}))
+    with pytest.raises(CaptureError, match="mouthWide.*not an ARKit"):
+        import_glb(out)
+
+
+def _write_glb(path, gltf: dict, binary: bytes) -> None:
+    bld = GlbBuilder()
+    bld.gltf, bld.bin = gltf, bytearray(binary)
+    path.write_bytes(bld.to_bytes())
+
+
+def _static_morph_glb(path, names, extensions=()):
+    """A triangle with morph targets of the given names, no skin."""
+    bld = GlbBuilder()
+    pos = np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0]], np.float32)
+    targets = [{"POSITION": bld.accessor(np.full((3, 3), 0.01, np.float32), ARRAY_BUFFER, minmax=True)}
+               for _ in names]
+    bld.add("meshes", {"primitives": [{"attributes": {"POSITION": bld.accessor(pos, ARRAY_BUFFER, minmax=True)},
+                                       "targets": targets}], "extras": {"targetNames": list(names)}})
+    bld.add("nodes", {"mesh": 0})
+    bld.gltf["scenes"] = [{"nodes": [0]}]
+    if extensions:
+        bld.gltf["extensionsUsed"] = bld.gltf["extensionsRequired"] = list(extensions)
+    path.write_bytes(bld.to_bytes())
+    return path
+
+
+def test_undrivable_character_says_what_is_missing(tmp_path):
+    from capture2face.preflight import check_character
+
+    bad = _static_morph_glb(tmp_path / "visemes.glb", ["viseme_aa", "viseme_O"])
+    with pytest.raises(CaptureError, match="no ARKit names and no face bones") as err:
+        check_character(bad)
+    assert "\n" not in str(err.value)
+    ok = _static_morph_glb(tmp_path / "jaw.glb", ["Jaw_Open"])
+    assert drive_mode(check_character(ok)) == "arkit"
+
+
+@pytest.mark.parametrize("ext", ["EXT_meshopt_compression", "KHR_draco_mesh_compression"])
+def test_unsupported_required_extension_is_named(tmp_path, ext):
+    path = _static_morph_glb(tmp_path / "x.glb", ["jawOpen"], extensions=[ext])
+    with pytest.raises(CaptureError, match=ext) as err:
+        import_glb(path)
+    assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("kind", ["undrivable", "meshopt"])
+def test_cli_refuses_a_bad_character_before_tracking(tmp_path, sample_clip, kind):
+    path = _static_morph_glb(tmp_path / "c.glb", ["viseme_aa"] if kind == "undrivable" else ["jawOpen"],
+                             extensions=["EXT_meshopt_compression"] if kind == "meshopt" else ())
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "capture2face", "run", str(sample_clip), "-o", str(tmp_path / "out"),
+                           "--character", str(path)], capture_output=True, text=True, timeout=120)
+    took = time.perf_counter() - t0
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and ("no ARKit names" in lines[0] if kind == "undrivable" else "EXT_meshopt" in lines[0])
+    assert not (tmp_path / "out" / sample_clip.stem).exists()  # nothing tracked, nothing written
+    print(f"refused in {took:.1f} s")
