@@ -165,17 +165,34 @@ def retarget_stage(track, rig: FaceRig):
     return retarget(track, rig, RetargetOptions())
 
 
-def export_stage(rig: FaceRig, animation, folder: str | os.PathLike, track=None) -> None:
+def export_stage(rig: FaceRig, animation, folder: str | os.PathLike, track=None, character: Any = None) -> None:
     """animation.npz, animation.glb and livelink.csv into ``folder`` (``track``: the
     clip's Track, whose MediaPipe scores fill Live Link columns the rig has no morph for;
-    None uses the animation's copy of them)."""
+    None uses the animation's copy of them). ``character``: the :attr:`RunOptions.character`
+    the rig came from; a user's ARKit .glb gets its own file back, animated
+    (:mod:`capture2face.export.character_glb`), any other rig the FaceRig's export."""
     from capture2face.export.livelink import write_livelink_csv
+    from capture2face.rig.arkit_names import drive_mode
     from capture2face.rig.gltf import export_glb
 
     folder = Path(folder)
     animation.save(folder / "animation.npz")
-    export_glb(rig, folder / "animation.glb", animation=animation)
+    source = _character_file(character)
+    if source is not None and drive_mode(rig) == "arkit":
+        from capture2face.export.character_glb import export_character_animation
+
+        export_character_animation(source, rig, animation, folder / "animation.glb")
+    else:
+        export_glb(rig, folder / "animation.glb", animation=animation)
     write_livelink_csv(animation, track, folder / "livelink.csv")
+
+
+def _character_file(character: Any) -> Path | None:
+    """The .glb / .gltf a character option names, or None (built-in, .npz, a FaceRig)."""
+    if character is None or isinstance(character, FaceRig):
+        return None
+    path = Path(os.fspath(character))
+    return path if path.suffix.lower() in (".glb", ".gltf") and path.is_file() else None
 
 
 def avatar_head_poses(rig: FaceRig, head_pose: np.ndarray, fov_y_degrees: float) -> np.ndarray:
@@ -481,7 +498,7 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
         raise_if_interrupted()
 
         t = time.perf_counter()
-        export_stage(rig, animation, tmp, track)
+        export_stage(rig, animation, tmp, track, character=options.character)
         release_free_memory()
         seconds["export"] = time.perf_counter() - t
         raise_if_interrupted()

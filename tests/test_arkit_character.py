@@ -225,3 +225,89 @@ def test_cli_refuses_a_bad_character_before_tracking(tmp_path, sample_clip, kind
     assert len(lines) == 1 and ("no ARKit names" in lines[0] if kind == "undrivable" else "EXT_meshopt" in lines[0])
     assert not (tmp_path / "out" / sample_clip.stem).exists()  # nothing tracked, nothing written
     print(f"refused in {took:.1f} s")
+
+
+# ---- animation.glb for the user's character ---------------------------------------------------
+def _accessor(gltf, binary: bytes, index: int) -> np.ndarray:
+    acc = gltf.accessors[index]
+    view = gltf.bufferViews[acc.bufferView]
+    width = {"SCALAR": 1, "VEC3": 3, "VEC4": 4}[acc.type]
+    return np.frombuffer(binary, np.float32, acc.count * width, view.byteOffset + (acc.byteOffset or 0)).reshape(
+        acc.count, width)
+
+
+@pytest.mark.parametrize("skeleton", [True, False])
+def test_animation_glb_of_the_users_character(tmp_path, avatar, skeleton):
+    import pygltflib
+
+    from capture2face.export.animation_glb import head_rotations
+    from capture2face.export.character_glb import export_character_animation
+    from capture2face.render.camera import face_centre_and_height, rotation_ypr
+    from capture2face.retarget import retarget
+
+    src = tmp_path / "char.glb"
+    export_arkit_character(avatar, src, naming="_L", skeleton=skeleton, body=skeleton)
+    rig = import_glb(src)
+    track, _ = synthetic_track()
+    angles = np.zeros((track.n_frames, 3))
+    angles[:, 0] = 25 * np.sin(np.linspace(0, 3, track.n_frames))  # yaw
+    track.head_pose[:, :3, :3] = rotation_ypr(angles)
+    anim = retarget(track, rig)
+    out = tmp_path / "animation.glb"
+    export_character_animation(src, rig, anim, out)
+    before, after = pygltflib.GLTF2().load(str(src)), pygltflib.GLTF2().load(str(out))
+    binary = after.binary_blob()
+    assert len(after.meshes) == len(before.meshes) and len(after.materials) == len(before.materials)
+    (a,) = after.animations
+    assert a.extras["fps"] == pytest.approx(track.fps) and a.extras["frames"] == track.n_frames
+    channels = {(c.target.node, c.target.path): a.samplers[c.sampler].output for c in a.channels}
+    times = _accessor(after, binary, a.samplers[0].input)[:, 0]
+    np.testing.assert_allclose(times, np.arange(track.n_frames) / track.fps, atol=1e-5)
+    morph_nodes = [i for i, n in enumerate(after.nodes) if n.mesh is not None and after.meshes[n.mesh].extras]
+    assert len(morph_nodes) >= 2  # head and teeth carry morphs
+    by = _by_arkit(rig)
+    for i in morph_nodes:
+        names = after.meshes[after.nodes[i].mesh].extras["targetNames"]
+        w = _accessor(after, binary, channels[(i, "weights")]).reshape(track.n_frames, len(names))
+        for t, name in enumerate(names):
+            np.testing.assert_allclose(w[:, t], anim.blend_weights[:, by[canonical_arkit(name)]], atol=1e-6)
+    expect = head_rotations(track.head_pose)
+    if skeleton:  # the head joint turns (its rest rotation is the identity here)
+        head = next(j for j in after.skins[0].joints if after.nodes[j].name == "Head")
+        q = _accessor(after, binary, channels[(head, "rotation")])
+        assert not any(path == "rotation" for (node, path) in channels if node != head)  # the body stays
+    else:  # a root over the scene turns the character about its face centre
+        root = next(i for i, n in enumerate(after.nodes) if n.name == "capture2face_root")
+        assert after.scenes[0].nodes == [root]
+        q = _accessor(after, binary, channels[(root, "rotation")])
+        shift = _accessor(after, binary, channels[(root, "translation")])
+        centre = face_centre_and_height(rig)[0] / 100.0
+        turned = np.einsum("fij,j->fi", track.head_pose[:, :3, :3].astype(np.float64), centre) + shift
+        np.testing.assert_allclose(turned, np.broadcast_to(centre, turned.shape), atol=1e-5)
+    np.testing.assert_allclose(np.abs(np.einsum("fi,fi->f", q, expect)), 1.0, atol=1e-5)
+    from gltf_validator import validate
+
+    report = validate(out)
+    assert report["issues"]["numErrors"] == 0, report["issues"]["messages"][:5]
+
+
+def test_run_drives_an_arkit_character_with_no_mapping_file(tmp_path, avatar, sample_clip):
+    import av
+    import pygltflib
+
+    from capture2face.pipeline import RunOptions, run
+
+    char = tmp_path / "char.glb"
+    export_arkit_character(avatar, char, naming=".L", skeleton=True, body=True)
+    report = run(sample_clip, tmp_path / "out", RunOptions(character=char, size=128), progress=False)
+    folder = tmp_path / "out" / sample_clip.stem
+    with av.open(str(folder / "avatar.mp4")) as c:
+        frames = [f.to_ndarray(format="rgb24") for f in c.decode(video=0)]
+    assert len(frames) == report["frames"] == 90
+    # The face, not a blank frame: the middle of every frame differs from the background.
+    bg = frames[0][1, 1].astype(int)
+    middle = np.stack([f[40:88, 40:88] for f in frames]).astype(int)
+    assert np.abs(middle - bg).max(-1).mean(axis=(1, 2)).min() > 30
+    glb = pygltflib.GLTF2().load(str(folder / "animation.glb"))
+    assert [m.name for m in glb.meshes] == ["Head", "Eyes", "Teeth", "Body"]  # the user's own file
+    assert glb.animations[0].extras["frames"] == 90

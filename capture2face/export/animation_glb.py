@@ -10,6 +10,8 @@ one time accessor (seconds from the first frame):
 * a ``rotation`` channel on the skeleton root node ``capture2face_root``: the head's
   rotation from the track's head pose (rotation only, so the face turns in place).
 
+glTF has no frame rate: the animation's ``extras`` carry ``{"fps": ..., "frames": F}``.
+
 :func:`read_glb_animation` reads such an animation back (tests, tools);
 :func:`read_animation_keyframe_count` is what the end-to-end check uses.
 """
@@ -143,7 +145,9 @@ def add_animation(builder: GlbBuilder, rig, animation, nodes: dict, fps: float |
         q = head_rotations(animation.head_pose).astype(np.float32)
         channel(builder.accessor(q), nodes["root"], "rotation")
 
-    return builder.add("animations", {"name": name, "samplers": samplers, "channels": channels})
+    # glTF keeps seconds, not frames: the rate goes along for tools that need one (Blender).
+    extras = {"fps": float(fps or animation.fps), "frames": int(F)}
+    return builder.add("animations", {"name": name, "samplers": samplers, "channels": channels, "extras": extras})
 
 
 @dataclass

@@ -146,10 +146,10 @@ class GlbBuilder:
 SUPPORTED_REQUIRED = ("KHR_mesh_quantization",)
 SHADING_ONLY_PREFIX = "KHR_materials_"
 _HINTS = {
-    "EXT_meshopt_compression": "decompress it first, e.g. gltfpack -noq or gltf-transform copy",
-    "KHR_draco_mesh_compression": "decompress it first, e.g. gltf-transform dedup/copy without draco",
-    "KHR_texture_basisu": "convert its textures to PNG/JPEG first, e.g. gltf-transform png",
-    "EXT_texture_webp": "convert its textures to PNG/JPEG first, e.g. gltf-transform png",
+    "EXT_meshopt_compression": "export it again without mesh compression",
+    "KHR_draco_mesh_compression": "export it again without Draco compression",
+    "KHR_texture_basisu": "export it again with PNG or JPEG textures",
+    "EXT_texture_webp": "export it again with PNG or JPEG textures",
 }
 
 
