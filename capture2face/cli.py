@@ -24,12 +24,12 @@ def _cmd_avatar(args: argparse.Namespace) -> int:
         write_maps(rig, args.maps)
         print(f"wrote the textures and masks of '{rig.name}' to {args.maps}")
     if args.export:
-        from capture2face.rig.gltf import export_glb
+        from capture2face.gltf import export_glb
 
         export_glb(rig, args.export)
         print(f"wrote {args.export}")
     if args.export_arkit:
-        from capture2face.rig.arkit_export import export_arkit_character
+        from capture2face.gltf.arkit_export import export_arkit_character
 
         export_arkit_character(rig, args.export_arkit, naming=args.naming, quantize=args.quantize,
                                skeleton=args.skeleton, body=args.body)

@@ -132,16 +132,15 @@ def load_character(character: Any = None) -> FaceRig:
         if suffix == ".npz":
             return FaceRig.load(path)
         if suffix in (".glb", ".gltf"):
-            from capture2face.rig.gltf import import_glb
+            from capture2face.gltf import import_glb
 
             mapping = path.with_suffix(".json")
             return import_glb(path, mapping if mapping.is_file() else None)
     except CaptureError as exc:
+        # The readers turn a malformed file into CaptureError; anything else is a bug of
+        # ours and keeps its traceback (--debug) instead of blaming the user's file.
         msg = str(exc)
         raise CaptureError(msg if msg.startswith(("character", str(path))) else f"character {path}: {msg}") from None
-    except Exception as exc:  # noqa: BLE001 - any parse failure of a user's file is their input
-        raise CaptureError(f"character {path}: not a readable {suffix[1:]} character "
-                           f"({exc.__class__.__name__}: {exc})".rstrip()) from None
     raise CaptureError(f"character {path}: unsupported format '{suffix}'; "
                        "use a FaceRig .npz or a .glb with its mapping .json")
 
@@ -170,16 +169,16 @@ def export_stage(rig: FaceRig, animation, folder: str | os.PathLike, track=None,
     clip's Track, whose MediaPipe scores fill Live Link columns the rig has no morph for;
     None uses the animation's copy of them). ``character``: the :attr:`RunOptions.character`
     the rig came from; a user's ARKit .glb gets its own file back, animated
-    (:mod:`capture2face.export.character_glb`), any other rig the FaceRig's export."""
+    (:mod:`capture2face.gltf.character`), any other rig the FaceRig's export."""
     from capture2face.export.livelink import write_livelink_csv
     from capture2face.rig.arkit_names import drive_mode
-    from capture2face.rig.gltf import export_glb
+    from capture2face.gltf import export_glb
 
     folder = Path(folder)
     animation.save(folder / "animation.npz")
     source = _character_file(character)
     if source is not None and drive_mode(rig) == "arkit":
-        from capture2face.export.character_glb import export_character_animation
+        from capture2face.gltf.character import export_character_animation
 
         export_character_animation(source, rig, animation, folder / "animation.glb")
     else:

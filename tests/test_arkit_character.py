@@ -1,7 +1,7 @@
 """A user's own ARKit character, driven with no mapping file: morph names in any spelling,
 every mesh imported and moved, the head joint turned, textures packed, checked before
 tracking. The characters are built in code from the default avatar
-(capture2face.rig.arkit_export); no third-party asset."""
+(capture2face.gltf.arkit_export); no third-party asset."""
 
 from __future__ import annotations
 
@@ -15,11 +15,11 @@ import pytest
 from test_arkit import NAMES, synthetic_track
 
 from capture2face.errors import CaptureError
-from capture2face.rig.arkit_export import export_arkit_character
+from capture2face.gltf.arkit_export import export_arkit_character
 from capture2face.rig.arkit_names import arkit_morphs, canonical_arkit, drive_mode
 from capture2face.rig.avatar import default_avatar
-from capture2face.rig.glb_container import ARRAY_BUFFER, GlbBuilder, GlbReader
-from capture2face.rig.gltf import import_glb
+from capture2face.gltf.container import ARRAY_BUFFER, GlbBuilder, GlbReader
+from capture2face.gltf import import_glb
 
 
 @pytest.fixture(scope="module")
@@ -204,7 +204,7 @@ def test_undrivable_character_says_what_is_missing(tmp_path):
     assert drive_mode(check_character(ok)) == "arkit"
 
 
-@pytest.mark.parametrize("ext", ["EXT_meshopt_compression", "KHR_draco_mesh_compression"])
+@pytest.mark.parametrize("ext", ["KHR_draco_mesh_compression", "KHR_texture_basisu", "KHR_texture_transform"])
 def test_unsupported_required_extension_is_named(tmp_path, ext):
     path = _static_morph_glb(tmp_path / "x.glb", ["jawOpen"], extensions=[ext])
     with pytest.raises(CaptureError, match=ext) as err:
@@ -212,17 +212,25 @@ def test_unsupported_required_extension_is_named(tmp_path, ext):
     assert "\n" not in str(err.value)
 
 
-@pytest.mark.parametrize("kind", ["undrivable", "meshopt"])
+def test_meshopt_without_its_package_is_named(tmp_path, monkeypatch):
+    path = _static_morph_glb(tmp_path / "x.glb", ["jawOpen"], extensions=["EXT_meshopt_compression"])
+    monkeypatch.setitem(sys.modules, "meshoptimizer", None)  # as where the sdist could not build
+    with pytest.raises(CaptureError, match="EXT_meshopt_compression.*pip install meshoptimizer") as err:
+        import_glb(path)
+    assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("kind", ["undrivable", "draco"])
 def test_cli_refuses_a_bad_character_before_tracking(tmp_path, sample_clip, kind):
     path = _static_morph_glb(tmp_path / "c.glb", ["viseme_aa"] if kind == "undrivable" else ["jawOpen"],
-                             extensions=["EXT_meshopt_compression"] if kind == "meshopt" else ())
+                             extensions=["KHR_draco_mesh_compression"] if kind == "draco" else ())
     t0 = time.perf_counter()
     proc = subprocess.run([sys.executable, "-m", "capture2face", "run", str(sample_clip), "-o", str(tmp_path / "out"),
                            "--character", str(path)], capture_output=True, text=True, timeout=120)
     took = time.perf_counter() - t0
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and ("no ARKit names" in lines[0] if kind == "undrivable" else "EXT_meshopt" in lines[0])
+    assert len(lines) == 1 and ("no ARKit names" in lines[0] if kind == "undrivable" else "KHR_draco_mesh_compression" in lines[0])
     assert not (tmp_path / "out" / sample_clip.stem).exists()  # nothing tracked, nothing written
     print(f"refused in {took:.1f} s")
 
@@ -240,8 +248,8 @@ def _accessor(gltf, binary: bytes, index: int) -> np.ndarray:
 def test_animation_glb_of_the_users_character(tmp_path, avatar, skeleton):
     import pygltflib
 
-    from capture2face.export.animation_glb import head_rotations
-    from capture2face.export.character_glb import export_character_animation
+    from capture2face.gltf.animation import head_rotations
+    from capture2face.gltf.character import export_character_animation
     from capture2face.render.camera import face_centre_and_height, rotation_ypr
     from capture2face.retarget import retarget
 
@@ -311,3 +319,92 @@ def test_run_drives_an_arkit_character_with_no_mapping_file(tmp_path, avatar, sa
     glb = pygltflib.GLTF2().load(str(folder / "animation.glb"))
     assert [m.name for m in glb.meshes] == ["Head", "Eyes", "Teeth", "Body"]  # the user's own file
     assert glb.animations[0].extras["frames"] == 90
+
+
+# ---- compressed and WebP files ------------------------------------------------------------------
+def _meshopt_compressed(src, dst) -> int:
+    """``src`` with every vertex-attribute and index view stored as an
+    EXT_meshopt_compression stream (what gltfpack -c writes); returns how many views."""
+    meshoptimizer = pytest.importorskip("meshoptimizer")
+    gltf, binary = GlbReader._parse(src.read_bytes())
+    sizes = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
+    comp = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5125: 4, 5126: 4}
+    kind = {}
+    for acc in gltf["accessors"]:
+        v = acc.get("bufferView")
+        if v is not None and acc["type"] in sizes:
+            kind[v] = sizes[acc["type"]] * comp[acc["componentType"]]
+    out, fallback, n = bytearray(), 0, 0
+    for i, view in enumerate(gltf["bufferViews"]):
+        data = binary[view.get("byteOffset", 0): view.get("byteOffset", 0) + view["byteLength"]]
+        target, stride = view.get("target"), view.get("byteStride") or kind.get(i)
+        out.extend(b"\0" * (-len(out) % 4))
+        if target == 34962 and stride and stride % 4 == 0:
+            count = len(data) // stride
+            enc = meshoptimizer.encode_vertex_buffer(np.frombuffer(data, np.uint8).reshape(count, stride), count, stride)
+            ext = {"buffer": 0, "byteOffset": len(out), "byteLength": len(enc), "byteStride": stride, "count": count,
+                   "mode": "ATTRIBUTES"}
+        elif target == 34963 and stride == 4:
+            idx = np.frombuffer(data, np.uint32)
+            enc = meshoptimizer.encode_index_buffer(idx, len(idx), int(idx.max()) + 1)
+            ext = {"buffer": 0, "byteOffset": len(out), "byteLength": len(enc), "byteStride": 4, "count": len(idx),
+                   "mode": "TRIANGLES"}
+        else:
+            view["byteOffset"] = len(out)
+            out.extend(data)
+            continue
+        out.extend(enc)
+        view.update(buffer=1, byteOffset=fallback, extensions={"EXT_meshopt_compression": ext})
+        if target == 34962:
+            view["byteStride"] = stride
+        fallback += len(data) + (-len(data) % 4)
+        n += 1
+    gltf["buffers"] = [{"byteLength": len(out)},
+                       {"byteLength": fallback, "extensions": {"EXT_meshopt_compression": {"fallback": True}}}]
+    gltf["extensionsUsed"] = gltf["extensionsRequired"] = ["EXT_meshopt_compression"]
+    text = json.dumps(gltf).encode()
+    text += b" " * (-len(text) % 4)
+    out.extend(b"\0" * (-len(out) % 4))
+    total = 12 + 8 + len(text) + 8 + len(out)
+    dst.write_bytes(b"glTF" + (2).to_bytes(4, "little") + total.to_bytes(4, "little") + len(text).to_bytes(4, "little")
+                    + b"JSON" + text + len(out).to_bytes(4, "little") + b"BIN\0" + bytes(out))
+    return n
+
+
+def test_meshopt_compressed_character_reads_like_the_plain_one(tmp_path, avatar):
+    plain = tmp_path / "plain.glb"
+    export_arkit_character(avatar, plain, naming="_L")
+    packed = tmp_path / "packed.glb"
+    assert _meshopt_compressed(plain, packed) >= 10
+    assert packed.stat().st_size < plain.stat().st_size
+    a, b = import_glb(plain), import_glb(packed)
+    np.testing.assert_array_equal(b.vertices, a.vertices)
+    # The index codec keeps each triangle and its winding but may start it at another corner.
+    def rolled(t):
+        k = np.argmin(t, axis=1)
+        return np.stack([t[np.arange(len(t)), (k + i) % 3] for i in range(3)], 1)
+
+    np.testing.assert_array_equal(rolled(b.triangles), rolled(a.triangles))
+    np.testing.assert_array_equal(b.morph_positions, a.morph_positions)
+    assert b.morph_names == a.morph_names
+
+
+def test_webp_textures_are_read(tmp_path, avatar):
+    import cv2
+
+    plain = tmp_path / "plain.glb"
+    export_arkit_character(avatar, plain, naming="_L")
+    gltf, binary = GlbReader._parse(plain.read_bytes())
+    ok, webp = cv2.imencode(".webp", cv2.cvtColor(avatar.albedo, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_WEBP_QUALITY, 101])
+    assert ok
+    bld = GlbBuilder()
+    bld.gltf, bld.bin = gltf, bytearray(binary)
+    image = bld.add("images", {"bufferView": bld.buffer_view(webp.tobytes()), "mimeType": "image/webp"})
+    tex = gltf["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"]["index"]
+    gltf["textures"][tex]["extensions"] = {"EXT_texture_webp": {"source": image}}
+    gltf["textures"][tex]["source"] = gltf["textures"][1]["source"]  # the fallback: another image
+    gltf["extensionsUsed"] = gltf["extensionsRequired"] = ["EXT_texture_webp"]
+    out = tmp_path / "webp.glb"
+    out.write_bytes(bld.to_bytes())
+    rig = import_glb(out)
+    np.testing.assert_array_equal(rig.albedo, avatar.albedo)  # lossless WebP: the same pixels

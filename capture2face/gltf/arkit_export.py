@@ -18,11 +18,12 @@ import os
 import numpy as np
 
 from capture2face.errors import CaptureError
+from capture2face.gltf.container import (
+    ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER, METRES_PER_CM, SAMPLER_LINEAR_CLAMP, GlbBuilder,
+)
 from capture2face.io.atomic import write_bytes_atomic
 from capture2face.rig.arkit_names import canonical_arkit
 from capture2face.rig.face_rig import FaceRig
-from capture2face.rig.glb_container import ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER, GlbBuilder
-from capture2face.rig.gltf import METRES_PER_CM, SAMPLER_LINEAR_CLAMP
 
 NAMINGS = ("arkit", "_L", ".L", "Left_", "blendShape1.")
 PARTS = (("Head", 0), ("Eyes", 1), ("Teeth", 2))  # mesh name, FaceRig material code

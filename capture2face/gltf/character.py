@@ -8,7 +8,7 @@ One animation, sampled once per frame (LINEAR), all samplers sharing one time ac
   animation's weight of the rig morph of its name (the import's matching: ARKit names in
   any spelling, the mapping JSON's ``morphs``), other targets 0;
 * the head rotation: a ``rotation`` channel on the head joint (the import's choice,
-  :func:`capture2face.rig.gltf_import._find_head`), its rest rotation turned by the
+  :func:`capture2face.gltf.rig_import._find_head`), its rest rotation turned by the
   tracked rotation in scene axes; without a head joint, ``rotation`` and
   ``translation`` channels on a new root node over the scene that turn the whole
   character about its face centre.
@@ -19,13 +19,16 @@ glTF has no frame rate: ``animations[0].extras`` carries ``{"fps": ..., "frames"
 from __future__ import annotations
 
 import os
+import struct
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pygltflib
 
 from capture2face.errors import CaptureError
-from capture2face.export.animation_glb import _frame_times, head_rotations
+from capture2face.gltf.animation import _frame_times, head_rotations, rotation_part
+from capture2face.gltf.rig_import import _find_head, _load_mapping, _morph_key, _quat_matrix, _world_matrices
 from capture2face.io.atomic import write_bytes_atomic
 from capture2face.rig.arkit_names import canonical_arkit
 from capture2face.rig.face_rig import FaceRig
@@ -66,8 +69,11 @@ class _Blob:
 
 def _load(path: Path) -> pygltflib.GLTF2:
     try:
-        gltf = pygltflib.GLTF2().load(str(path))
-    except Exception as exc:  # noqa: BLE001 - pygltflib raises whatever its parser meets; the import read it before
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # dataclasses_json's notes on optional fields
+            gltf = pygltflib.GLTF2().load(str(path))
+    except (ValueError, KeyError, TypeError, AttributeError, struct.error, UnicodeDecodeError) as exc:
+        # The import read this file already; a parse failure here is its content.
         raise CaptureError(f"{path}: not a readable glTF file ({exc.__class__.__name__}: {exc})") from None
     if gltf is None:
         raise CaptureError(f"{path}: not a readable glTF file")
@@ -77,8 +83,6 @@ def _load(path: Path) -> pygltflib.GLTF2:
 
 
 def _world(gltf: pygltflib.GLTF2) -> tuple[list[np.ndarray], dict[int, int]]:
-    from capture2face.rig.gltf_import import _world_matrices
-
     nodes = [{k: v for k, v in (("matrix", n.matrix), ("rotation", n.rotation), ("scale", n.scale),
                                 ("translation", n.translation), ("children", n.children)) if v} for n in gltf.nodes]
     parent = {c: p for p, n in enumerate(gltf.nodes) for c in (n.children or [])}
@@ -95,18 +99,10 @@ def _rotation(m: np.ndarray) -> np.ndarray:
     return r
 
 
-def _quat_matrix(q) -> np.ndarray:
-    from capture2face.rig.gltf_import import _quat_matrix as qm
-
-    return qm(q)
-
-
 def export_character_animation(source: str | os.PathLike, rig: FaceRig, animation, path: str | os.PathLike,
                                mapping_json: str | os.PathLike | None = None, fps: float | None = None) -> None:
     """Write ``source`` (the user's .glb/.gltf that ``rig`` was imported from) with the
     animation of ``animation`` to ``path`` (a .glb, atomically). See the module docs."""
-    from capture2face.rig.gltf_import import _find_head, _load_mapping, _morph_key
-
     source = Path(source)
     F = animation.n_frames
     if F == 0:
@@ -179,8 +175,6 @@ def export_character_animation(source: str | os.PathLike, rig: FaceRig, animatio
 
 
 def _rotations(head_pose, F: int) -> np.ndarray:
-    from capture2face.export.animation_glb import rotation_part
-
     if head_pose is None or len(head_pose) != F:
         return np.tile(np.eye(3), (F, 1, 1))
     return rotation_part(head_pose)
