@@ -135,7 +135,7 @@ def load_character(character: Any = None) -> FaceRig:
             from capture2face.gltf import import_glb
 
             mapping = path.with_suffix(".json")
-            return import_glb(path, mapping if mapping.is_file() else None)
+            return with_automatic_wrinkles(import_glb(path, mapping if mapping.is_file() else None))
     except CaptureError as exc:
         # The readers turn a malformed file into CaptureError; anything else is a bug of
         # ours and keeps its traceback (--debug) instead of blaming the user's file.
@@ -143,6 +143,26 @@ def load_character(character: Any = None) -> FaceRig:
         raise CaptureError(msg if msg.startswith(("character", str(path))) else f"character {path}: {msg}") from None
     raise CaptureError(f"character {path}: unsupported format '{suffix}'; "
                        "use a FaceRig .npz or a .glb with its mapping .json")
+
+
+def with_automatic_wrinkles(rig: FaceRig) -> FaceRig:
+    """An ARKit morph character without face bones with its automatic wrinkle influences
+    (:mod:`capture2face.rig.auto_wrinkles`: its front view tracked, feature points, poses
+    from its morphs); any other rig as it is. Where its face cannot be found, the rig
+    as it is, with a warning (it is still driven, without wrinkle influences)."""
+    from capture2face.rig.arkit_names import drive_mode, is_automatic
+    from capture2face.rig.auto_wrinkles import automatic_wrinkles
+
+    try:
+        if is_automatic(rig) or drive_mode(rig) != "arkit":
+            return rig
+    except CaptureError:
+        return rig  # undrivable: the check before tracking says why
+    try:
+        return automatic_wrinkles(rig)
+    except CaptureError as exc:
+        log.warning("no automatic wrinkles: %s", exc)
+        return rig
 
 
 # ---- stages (each callable on its own) ------------------------------------------------

@@ -408,3 +408,46 @@ def test_webp_textures_are_read(tmp_path, avatar):
     out.write_bytes(bld.to_bytes())
     rig = import_glb(out)
     np.testing.assert_array_equal(rig.albedo, avatar.albedo)  # lossless WebP: the same pixels
+
+
+# ---- automatic wrinkle influences ----------------------------------------------------------------
+def test_automatic_wrinkle_influences_follow_the_morphs(tmp_path, avatar):
+    from capture2face.pipeline import load_character
+    from capture2face.retarget import influences as inf
+    from capture2face.rig.arkit_names import is_automatic
+    from capture2face.rig.auto_wrinkles import feature_positions
+
+    path = tmp_path / "char.glb"
+    export_arkit_character(avatar, path, naming="_L", skeleton=True, body=True)
+    rig = load_character(path)  # no mapping file: the front view is tracked
+    assert is_automatic(rig) and drive_mode(rig) == "arkit"
+    # The tracked landmarks land where the avatar's are (the same face): MediaPipe's own
+    # error on a rendered face is ~0.15 cm.
+    ok = (rig.landmark_vertices[:468] >= 0) & (avatar.landmark_vertices[:468] >= 0)
+    err = np.linalg.norm(rig.vertices[rig.landmark_vertices[:468][ok]]
+                         - avatar.vertices[avatar.landmark_vertices[:468][ok]], axis=1)
+    assert ok.sum() == 468 and np.median(err) < 0.4
+    # A frown, then raised brows, then a smile: the glabella's compress influence follows
+    # the frown, the forehead's stretch influence the raised brows.
+    by = _by_arkit(rig)
+    k = np.arange(120)
+    frown, raised, smile = (np.clip(1 - np.abs(k - c) / 15, 0, 1) for c in (25, 60, 95))
+    w = np.zeros((len(k), rig.n_morphs), np.float32)
+    for name in ("browDownLeft", "browDownRight"):
+        w[:, by[name]] = frown
+    for name in ("browInnerUp", "browOuterUpLeft", "browOuterUpRight"):
+        w[:, by[name]] = raised
+    w[:, by["mouthSmileLeft"]] = w[:, by["mouthSmileRight"]] = smile
+    regions = inf.region_influence(inf.rig_influences(feature_positions(rig, w), rig), rig)
+    glabella = regions[:, rig.region_names.index("glabella"), rig.pose_names.index("compress")]
+    forehead = regions[:, rig.region_names.index("forehead"), rig.pose_names.index("stretch")]
+    assert np.corrcoef(glabella, frown)[0, 1] > 0.9 and glabella.max() > 0.3
+    assert np.corrcoef(forehead, raised)[0, 1] > 0.9 and forehead.max() > 0.3
+    assert glabella[raised > 0.5].max() < 0.05 and forehead[frown > 0.5].max() < 0.05
+    # The feature points never move the mesh: the Animation keeps them at rest.
+    from capture2face.retarget import retarget
+
+    track, _ = synthetic_track()
+    anim = retarget(track, rig)
+    np.testing.assert_array_equal(anim.bone_positions, np.repeat(rig.bone_rest[None], track.n_frames, 0))
+    assert anim.influences.max() > 0.3  # the synthetic track raises the brows

@@ -33,6 +33,8 @@ ARKIT_NAMES = [
     "mouthUpperUpLeft", "mouthUpperUpRight", "noseSneerLeft", "noseSneerRight", "tongueOut",
 ]
 _BY_KEY = {n.lower(): n for n in ARKIT_NAMES}
+# Bone names of automatic feature points (capture2face.rig.auto_wrinkles): never a user's joint.
+AUTO_PREFIX = "auto_feature/"
 _SIDES = {"l": "left", "r": "right", "left": "left", "right": "right"}
 # Separators of namespaces and node prefixes: "blendShape1.jawOpen", "head:jawOpen", "a|b".
 _PREFIX = re.compile(r"[.:|]")
@@ -87,13 +89,22 @@ def has_face_bones(rig) -> bool:
     return True
 
 
+def is_automatic(rig) -> bool:
+    """True when the rig's face bones are automatic feature points
+    (:mod:`capture2face.rig.auto_wrinkles`), which only measure wrinkle influences."""
+    return any(n.startswith(AUTO_PREFIX) for n in rig.bone_names)
+
+
 def drive_mode(rig) -> str:
     """``"bones"`` (face bones: the Dutreve path, morphs solved or scored with it) or
-    ``"arkit"`` (ARKit-named morphs and no face bones: the ARKit curves drive them).
+    ``"arkit"`` (ARKit-named morphs and no face bones of its own: the ARKit curves drive
+    them; automatic feature points, if any, only measure the wrinkle influences).
 
     Raises:
         CaptureError: neither; the message says what is missing.
     """
+    if is_automatic(rig) and arkit_morphs(rig.morph_names):
+        return "arkit"
     if has_face_bones(rig):
         return "bones"
     if arkit_morphs(rig.morph_names):
