@@ -444,6 +444,19 @@ def test_automatic_wrinkle_influences_follow_the_morphs(tmp_path, avatar):
     assert np.corrcoef(glabella, frown)[0, 1] > 0.9 and glabella.max() > 0.3
     assert np.corrcoef(forehead, raised)[0, 1] > 0.9 and forehead.max() > 0.3
     assert glabella[raised > 0.5].max() < 0.05 and forehead[frown > 0.5].max() < 0.05
+    # The wrinkle maps and zone masks baked into its UV space (the face's atlas tile, the
+    # left half) are the avatar's (the same face, the same UVs), where the avatar has any.
+    h, w = rig.albedo.shape[:2]
+    assert w == 2 * h == 2 * avatar.wrinkle_maps.shape[1]
+    for name in ("stretch", "compress"):
+        baked = rig.wrinkle_maps[rig.wrinkle_map_names.index(name), :, : w // 2].astype(int)
+        theirs = avatar.wrinkle_maps[avatar.wrinkle_map_names.index(name)].astype(int)
+        lines = (theirs != [128, 128, 255]).any(-1)
+        diff = np.abs(baked - theirs).max(-1)
+        assert np.median(diff[lines]) <= 4 and (diff[lines] > 24).mean() < 0.2, name
+    assert (rig.wrinkle_maps[:, :, w // 2:] == [128, 128, 255]).all()  # the body's tile stays flat
+    zones = rig.zone_masks[:, : w // 2].astype(int)
+    assert np.abs(zones - avatar.zone_masks.astype(int)).max(-1).mean() < 3
     # The feature points never move the mesh: the Animation keeps them at rest.
     from capture2face.retarget import retarget
 

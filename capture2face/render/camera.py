@@ -93,11 +93,13 @@ _FACE_MORPH_CM = 0.02
 
 
 def face_points(rig: FaceRig) -> np.ndarray:
-    """(N, 3) the points the camera frames: the skin; for a character without tracker
-    landmark vertices but with morphs (an imported ARKit head, maybe on a whole body
-    with hair and clothes, all of it "skin"), the vertices its morphs move: the face."""
+    """(N, 3) the points the camera frames: the skin; for an ARKit character (morphs and
+    no face bones of its own, maybe on a whole body with hair and clothes, all of it
+    "skin"), the vertices its morphs move: the face."""
+    from capture2face.rig.arkit_names import is_automatic
+
     skin = rig.material == 0
-    if rig.n_morphs and not (np.asarray(rig.landmark_vertices) >= 0).any():
+    if rig.n_morphs and (is_automatic(rig) or not (np.asarray(rig.landmark_vertices) >= 0).any()):
         moved = np.zeros(rig.n_vertices, bool)
         for m in range(rig.n_morphs):  # per morph: no (M, V, 3) temporary
             moved |= np.abs(rig.morph_positions[m]).max(axis=1) > _FACE_MORPH_CM
