@@ -15,7 +15,7 @@ import pytest
 from test_arkit import NAMES, synthetic_track
 
 from capture2face.errors import CaptureError
-from capture2face.gltf.arkit_export import export_arkit_character
+from capture2face.gltf.arkit_export import export_arkit_character, part_order
 from capture2face.rig.arkit_names import arkit_morphs, canonical_arkit, drive_mode
 from capture2face.rig.avatar import default_avatar
 from capture2face.gltf.container import ARRAY_BUFFER, GlbBuilder, GlbReader
@@ -48,17 +48,19 @@ def test_multi_mesh_arkit_character_imports_every_mesh_and_merges_morphs(tmp_pat
     path = tmp_path / "head.glb"
     export_arkit_character(avatar, path, naming=naming)
     rig = import_glb(path)  # no mapping file
-    # Head, eyes and mouth interior: three meshes, all of them in, in the avatar's order.
+    # Head, eyes and mouth interior: a mesh each, all of them in, one after the other.
+    order = part_order(avatar)
     assert rig.n_vertices == avatar.n_vertices
-    np.testing.assert_allclose(rig.vertices, avatar.vertices, atol=1e-5)
-    np.testing.assert_array_equal(rig.material, avatar.material)
+    np.testing.assert_allclose(rig.vertices, avatar.vertices[order], atol=1e-5)
+    known = avatar.material[order] <= 2  # skin, eye, mouth: named by their meshes
+    np.testing.assert_array_equal(rig.material[known], avatar.material[order][known])
     assert drive_mode(rig) == "arkit"
     mine = _by_arkit(rig)
     assert set(mine) == set(avatar.morph_names)  # every ARKit morph, found under its spelling
     spans = 0
     for name, m in mine.items():
         # One morph per name over every mesh that carries it (eyes and teeth move with the face).
-        np.testing.assert_allclose(rig.morph_positions[m], avatar.morph_positions[avatar.morph_index(name)],
+        np.testing.assert_allclose(rig.morph_positions[m], avatar.morph_positions[avatar.morph_index(name)][order],
                                    atol=1e-5)
         moved = np.abs(rig.morph_positions[m]).max(1) > 1e-4
         spans += len(np.unique(rig.material[moved])) >= 2
@@ -71,9 +73,10 @@ def test_quantized_character_reads_within_its_step(tmp_path, avatar):
     assert GlbReader._parse(path.read_bytes())[0]["extensionsRequired"] == ["KHR_mesh_quantization"]
     rig = import_glb(path)
     step_cm = 2e-3  # 0.02 mm
-    assert np.abs(rig.vertices - avatar.vertices).max() <= step_cm / 2 + 1e-5
+    order = part_order(avatar)
+    assert np.abs(rig.vertices - avatar.vertices[order]).max() <= step_cm / 2 + 1e-5
     jaw = _by_arkit(rig)["jawOpen"]
-    assert np.abs(rig.morph_positions[jaw] - avatar.morph_positions[avatar.morph_index("jawOpen")]).max() <= \
+    assert np.abs(rig.morph_positions[jaw] - avatar.morph_positions[avatar.morph_index("jawOpen")][order]).max() <= \
         step_cm / 2 + 1e-5
 
 
@@ -142,11 +145,12 @@ def test_atlas_keeps_each_mesh_texture(tmp_path, avatar):
     centre = rig.uvs[body].mean(0, keepdims=True)  # the middle of the outfit's tile
     assert np.abs(sample(centre).astype(int) - [50, 80, 160]).max() < 25
     # Face UVs land in the face tile and read the avatar's albedo there.
-    face = np.arange(avatar.n_vertices)[avatar.material == 0][::50]
+    face = np.flatnonzero(avatar.material == 0)[::50]
+    mine = np.argsort(part_order(avatar))[face]  # the same vertices in the character
     ah, aw = avatar.albedo.shape[:2]
     expect = avatar.albedo[np.clip((avatar.uvs[face, 1] * ah).astype(int), 0, ah - 1),
                            np.clip((avatar.uvs[face, 0] * aw).astype(int), 0, aw - 1)]
-    assert np.median(np.abs(sample(rig.uvs[face]).astype(int) - expect).max(1)) < 12
+    assert np.median(np.abs(sample(rig.uvs[mine]).astype(int) - expect).max(1)) < 12
 
 
 def test_mapping_json_maps_other_names(tmp_path, avatar):
@@ -165,7 +169,7 @@ def test_mapping_json_maps_other_names(tmp_path, avatar):
     mine = _by_arkit(rig)
     assert "jawOpen" in mine and "eyeBlinkLeft" in mine
     np.testing.assert_allclose(rig.morph_positions[mine["jawOpen"]],
-                               avatar.morph_positions[avatar.morph_index("jawOpen")], atol=1e-5)
+                               avatar.morph_positions[avatar.morph_index("jawOpen")][part_order(avatar)], atol=1e-5)
     (tmp_path / "fcl.json").write_text(json.dumps({"morphs": {"Fcl_MTH_A": "mouthWide"}}))
     with pytest.raises(CaptureError, match="mouthWide.*not an ARKit"):
         import_glb(out)

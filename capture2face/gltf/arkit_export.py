@@ -26,7 +26,13 @@ from capture2face.rig.arkit_names import canonical_arkit
 from capture2face.rig.face_rig import FaceRig
 
 NAMINGS = ("arkit", "_L", ".L", "Left_", "blendShape1.")
-PARTS = (("Head", 0), ("Eyes", 1), ("Teeth", 2))  # mesh name, FaceRig material code
+PART_NAMES = {0: "Head", 1: "Eyes", 2: "Teeth"}  # FaceRig material code -> mesh name (others: "Part<code>")
+
+
+def part_order(rig: FaceRig) -> np.ndarray:
+    """(V,) the rig's vertex indices in the order the export writes them: one mesh per
+    material code, in code order."""
+    return np.concatenate([np.flatnonzero(rig.material == c) for c in np.unique(rig.material)])
 _MOVES = 1e-6  # cm: a morph whose deltas on a mesh stay below this does not go on it
 
 
@@ -94,10 +100,9 @@ def export_arkit_character(rig: FaceRig, path: str | os.PathLike, naming: str = 
     step = 2e-5  # metres: 0.02 mm (a 65 cm extent in int16)
     mesh_nodes = []
     offset = (rig.vertices.astype(np.float64).min(0) + rig.vertices.astype(np.float64).max(0)) / 2 * METRES_PER_CM
-    for part, code in PARTS:
+    for code in np.unique(rig.material):
+        part = PART_NAMES.get(int(code), f"Part{int(code)}")
         sel = np.flatnonzero(rig.material == code)
-        if not len(sel):
-            continue
         remap = np.full(rig.n_vertices, -1, np.int64)
         remap[sel] = np.arange(len(sel))
         tris = remap[rig.triangles[np.all(rig.material[rig.triangles] == code, axis=1)]]
