@@ -254,7 +254,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     def run_args(p):
         p.add_argument("--character", metavar="FILE", default=None,
-                       help="a FaceRig .npz or a .glb (with its mapping .json beside it)")
+                       help="a FaceRig .npz or a .glb: ARKit-named morphs need nothing else; a mapping "
+                            ".json beside it for face bones or other morph names")
         p.add_argument("--wrinkles", choices=WRINKLE_DRIVERS, default="auto",
                        help="wrinkle driver: auto (each bone's progress to the reference poses, "
                             "default), zones (masked face zones), dynamic (the mesh's area change "

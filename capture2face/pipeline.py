@@ -56,8 +56,9 @@ class RunOptions:
 
     Attributes:
         character: None (the default avatar), a built-in name ("default", "wide"), a
-            FaceRig .npz (``FaceRig.save``), a .glb with its mapping JSON beside it
-            (``<name>.json``), or a :class:`FaceRig`.
+            FaceRig .npz (``FaceRig.save``), a .glb / .gltf (ARKit-named morphs are driven
+            with no mapping; a mapping JSON beside it, ``<name>.json``, for face bones or
+            other morph names), or a :class:`FaceRig`.
         wrinkles: wrinkle driver: auto (Dutreve bone masks), zones, dynamic, off.
         size: rendered frame size in pixels (square, even).
         neutral_frame: index of the neutral frame (None: picked automatically).
