@@ -140,7 +140,6 @@ def automatic_wrinkles(rig: FaceRig) -> FaceRig:
     feature_lm = avatar.bone_landmarks[face_bones]
     feature_v = lmv[feature_lm]
     rest = np.concatenate([rig.bone_rest, rig.vertices[feature_v]]).astype(np.float32)
-    B = len(names)
     # Reference poses: every feature vertex under the pose's morph mix.
     pose_names = list(POSES)
     pose_w = np.zeros((len(pose_names), rig.n_morphs), np.float32)
