@@ -468,3 +468,23 @@ def test_automatic_wrinkle_influences_follow_the_morphs(tmp_path, avatar):
     anim = retarget(track, rig)
     np.testing.assert_array_equal(anim.bone_positions, np.repeat(rig.bone_rest[None], track.n_frames, 0))
     assert anim.influences.max() > 0.3  # the synthetic track raises the brows
+
+
+def test_node_transforms_place_every_mesh_in_the_scene(tmp_path, avatar):
+    """An FBX-style file: the meshes under an 'Armature' node turned 90 degrees about x and
+    scaled by 0.01 (centimetre data): vertices, normals and morph deltas come out turned
+    and scaled as the scene shows them."""
+    plain = tmp_path / "plain.glb"
+    export_arkit_character(avatar, plain, naming="_L")
+    gltf, binary = GlbReader._parse(plain.read_bytes())
+    s = np.sqrt(0.5)
+    gltf["nodes"].append({"name": "Armature", "rotation": [s, 0.0, 0.0, s], "scale": [0.01] * 3,
+                          "children": list(gltf["scenes"][0]["nodes"])})
+    gltf["scenes"][0]["nodes"] = [len(gltf["nodes"]) - 1]
+    turned = tmp_path / "turned.glb"
+    _write_glb(turned, gltf, binary)
+    a, b = import_glb(plain), import_glb(turned)
+    rot = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])  # +90 degrees about x
+    np.testing.assert_allclose(b.vertices, a.vertices @ rot.T * 0.01, atol=1e-5)
+    np.testing.assert_allclose(b.normals, a.normals @ rot.T, atol=1e-5)
+    np.testing.assert_allclose(b.morph_positions, a.morph_positions @ rot.T * 0.01, atol=1e-6)

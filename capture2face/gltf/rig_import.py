@@ -519,13 +519,13 @@ def _surface(r: GlbReader, picked: list[int], world, skel: dict, mapping: dict, 
         m = _gather(r, g["meshes"][nodes[ni]["mesh"]], mapping)
         to_scene = skel["node_to_scene"][ni]
         lin = to_scene[:3, :3]
-        inv_t = np.linalg.inv(lin).T
+        normal_rows = np.linalg.inv(lin)  # normals as rows: (inv(lin)^T n)^T = n^T inv(lin)
         pos = m["pos"] @ lin.T + to_scene[:3, 3]
         if m["nrm"] is not None and np.isfinite(m["nrm"]).all():
-            normals = m["nrm"] @ inv_t
+            normals = m["nrm"] @ normal_rows
         else:
             computed = vertex_normals(pos, m["tris"])
-            normals = computed if m["nrm"] is None else np.where(np.isfinite(m["nrm"]), m["nrm"] @ inv_t, computed)
+            normals = computed if m["nrm"] is None else np.where(np.isfinite(m["nrm"]), m["nrm"] @ normal_rows, computed)
         normals = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
         uvs = m["uv"] if m["uv"] is not None else np.zeros((len(pos), 2))
         if m["tan"] is not None and np.isfinite(m["tan"]).all():
@@ -538,7 +538,7 @@ def _surface(r: GlbReader, picked: list[int], world, skel: dict, mapping: dict, 
         if m["joints"] is not None and ni in skel["node_joint_map"]:
             remap = skel["node_joint_map"][ni]
             bones = skel["joint_to_bone"][remap[np.clip(m["joints"], 0, len(remap) - 1)]]
-        mnrm = m["mnrm"] @ inv_t
+        mnrm = m["mnrm"] @ normal_rows
         missing = ~np.isfinite(mnrm).all(axis=(1, 2))
         for k in np.flatnonzero(missing):  # per morph without NORMAL deltas: from the morphed shape
             mnrm[k] = np.where(np.isfinite(mnrm[k]), mnrm[k],
