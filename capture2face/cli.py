@@ -24,14 +24,20 @@ def _cmd_avatar(args: argparse.Namespace) -> int:
         write_maps(rig, args.maps)
         print(f"wrote the textures and masks of '{rig.name}' to {args.maps}")
     if args.export:
-        from capture2face.rig.gltf import export_glb
+        from capture2face.gltf import export_glb
 
         export_glb(rig, args.export)
         print(f"wrote {args.export}")
+    if args.export_arkit:
+        from capture2face.gltf.arkit_export import export_arkit_character
+
+        export_arkit_character(rig, args.export_arkit, naming=args.naming, quantize=args.quantize,
+                               skeleton=args.skeleton, body=args.body)
+        print(f"wrote {args.export_arkit}")
     if args.save:
         rig.save(args.save)
         print(f"wrote {args.save}")
-    if not (args.maps or args.export or args.save):
+    if not (args.maps or args.export or args.save or args.export_arkit):
         print(
             f"{rig.name}: {rig.n_vertices} vertices, {len(rig.triangles)} triangles, "
             f"{rig.n_bones} bones, {rig.n_morphs} morph targets, poses {', '.join(rig.pose_names)}"
@@ -212,6 +218,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--maps", metavar="DIR", help="write textures and zone masks as PNGs")
     p.add_argument("--export", metavar="GLB", help="write the avatar as glTF binary (.glb)")
     p.add_argument("--save", metavar="NPZ", help="write the FaceRig file")
+    p.add_argument("--export-arkit", metavar="GLB",
+                   help="write the avatar as a third-party ARKit character would come: head, eyes and teeth "
+                        "as separate meshes with ARKit-named morphs only, no face bones, no mapping")
+    p.add_argument("--naming", default="_L", choices=["arkit", "_L", ".L", "Left_", "blendShape1."],
+                   help="--export-arkit: morph naming (eyeBlinkLeft, eyeBlink_L, eyeBlink.L, EyeBlink_Left, "
+                        "blendShape1.eyeBlinkLeft; default _L)")
+    p.add_argument("--quantize", action="store_true", help="--export-arkit: KHR_mesh_quantization (int16)")
+    p.add_argument("--skeleton", action="store_true", help="--export-arkit: a Hips-Neck-Head skin")
+    p.add_argument("--body", action="store_true", help="--export-arkit: a textured body under the head")
     p.add_argument("--variant", default=None, help="a built-in variant, e.g. 'wide'")
     p.set_defaults(func=_cmd_avatar)
 
@@ -239,7 +254,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     def run_args(p):
         p.add_argument("--character", metavar="FILE", default=None,
-                       help="a FaceRig .npz or a .glb (with its mapping .json beside it)")
+                       help="a FaceRig .npz or a .glb: ARKit-named morphs need nothing else; a mapping "
+                            ".json beside it for face bones or other morph names")
         p.add_argument("--wrinkles", choices=WRINKLE_DRIVERS, default="auto",
                        help="wrinkle driver: auto (each bone's progress to the reference poses, "
                             "default), zones (masked face zones), dynamic (the mesh's area change "

@@ -56,8 +56,9 @@ class RunOptions:
 
     Attributes:
         character: None (the default avatar), a built-in name ("default", "wide"), a
-            FaceRig .npz (``FaceRig.save``), a .glb with its mapping JSON beside it
-            (``<name>.json``), or a :class:`FaceRig`.
+            FaceRig .npz (``FaceRig.save``), a .glb / .gltf (ARKit-named morphs are driven
+            with no mapping; a mapping JSON beside it, ``<name>.json``, for face bones or
+            other morph names), or a :class:`FaceRig`.
         wrinkles: wrinkle driver: auto (Dutreve bone masks), zones, dynamic, off.
         size: rendered frame size in pixels (square, even).
         neutral_frame: index of the neutral frame (None: picked automatically).
@@ -132,18 +133,37 @@ def load_character(character: Any = None) -> FaceRig:
         if suffix == ".npz":
             return FaceRig.load(path)
         if suffix in (".glb", ".gltf"):
-            from capture2face.rig.gltf import import_glb
+            from capture2face.gltf import import_glb
 
             mapping = path.with_suffix(".json")
-            return import_glb(path, mapping if mapping.is_file() else None)
+            return with_automatic_wrinkles(import_glb(path, mapping if mapping.is_file() else None))
     except CaptureError as exc:
+        # The readers turn a malformed file into CaptureError; anything else is a bug of
+        # ours and keeps its traceback (--debug) instead of blaming the user's file.
         msg = str(exc)
         raise CaptureError(msg if msg.startswith(("character", str(path))) else f"character {path}: {msg}") from None
-    except Exception as exc:  # noqa: BLE001 - any parse failure of a user's file is their input
-        raise CaptureError(f"character {path}: not a readable {suffix[1:]} character "
-                           f"({exc.__class__.__name__}: {exc})".rstrip()) from None
     raise CaptureError(f"character {path}: unsupported format '{suffix}'; "
                        "use a FaceRig .npz or a .glb with its mapping .json")
+
+
+def with_automatic_wrinkles(rig: FaceRig) -> FaceRig:
+    """An ARKit morph character without face bones with its automatic wrinkle influences
+    (:mod:`capture2face.rig.auto_wrinkles`: its front view tracked, feature points, poses
+    from its morphs); any other rig as it is. Where its face cannot be found, the rig
+    as it is, with a warning (it is still driven, without wrinkle influences)."""
+    from capture2face.rig.arkit_names import drive_mode, is_automatic
+    from capture2face.rig.auto_wrinkles import automatic_wrinkles
+
+    try:
+        if is_automatic(rig) or drive_mode(rig) != "arkit":
+            return rig
+    except CaptureError:
+        return rig  # undrivable: the check before tracking says why
+    try:
+        return automatic_wrinkles(rig)
+    except CaptureError as exc:
+        log.warning("no automatic wrinkles: %s", exc)
+        return rig
 
 
 # ---- stages (each callable on its own) ------------------------------------------------
@@ -165,17 +185,34 @@ def retarget_stage(track, rig: FaceRig):
     return retarget(track, rig, RetargetOptions())
 
 
-def export_stage(rig: FaceRig, animation, folder: str | os.PathLike, track=None) -> None:
+def export_stage(rig: FaceRig, animation, folder: str | os.PathLike, track=None, character: Any = None) -> None:
     """animation.npz, animation.glb and livelink.csv into ``folder`` (``track``: the
     clip's Track, whose MediaPipe scores fill Live Link columns the rig has no morph for;
-    None uses the animation's copy of them)."""
+    None uses the animation's copy of them). ``character``: the :attr:`RunOptions.character`
+    the rig came from; a user's ARKit .glb gets its own file back, animated
+    (:mod:`capture2face.gltf.character`), any other rig the FaceRig's export."""
     from capture2face.export.livelink import write_livelink_csv
-    from capture2face.rig.gltf import export_glb
+    from capture2face.rig.arkit_names import drive_mode
+    from capture2face.gltf import export_glb
 
     folder = Path(folder)
     animation.save(folder / "animation.npz")
-    export_glb(rig, folder / "animation.glb", animation=animation)
+    source = _character_file(character)
+    if source is not None and drive_mode(rig) == "arkit":
+        from capture2face.gltf.character import export_character_animation
+
+        export_character_animation(source, rig, animation, folder / "animation.glb")
+    else:
+        export_glb(rig, folder / "animation.glb", animation=animation)
     write_livelink_csv(animation, track, folder / "livelink.csv")
+
+
+def _character_file(character: Any) -> Path | None:
+    """The .glb / .gltf a character option names, or None (built-in, .npz, a FaceRig)."""
+    if character is None or isinstance(character, FaceRig):
+        return None
+    path = Path(os.fspath(character))
+    return path if path.suffix.lower() in (".glb", ".gltf") and path.is_file() else None
 
 
 def avatar_head_poses(rig: FaceRig, head_pose: np.ndarray, fov_y_degrees: float) -> np.ndarray:
@@ -192,10 +229,23 @@ def avatar_head_poses(rig: FaceRig, head_pose: np.ndarray, fov_y_degrees: float)
     # there whatever the rotation.
     target = framing_pose(rig, fov_y_degrees=fov_y_degrees)[:3, 3] + centre
     rot = np.asarray(head_pose, np.float64)[:, :3, :3]
+    if getattr(rig, "head_weights", None) is not None:
+        # The head joint turns (avatar_head_rotations), the camera and the body stay.
+        rot = np.broadcast_to(np.eye(3), rot.shape)
     poses = np.tile(np.eye(4), (len(rot), 1, 1))
     poses[:, :3, :3] = rot
     poses[:, :3, 3] = target - rot @ centre
     return poses
+
+
+def avatar_head_rotations(rig: FaceRig, head_pose: np.ndarray) -> np.ndarray | None:
+    """(F, 3, 3) float32 head-joint rotations for a character with a head joint
+    (``FaceRig.head_weights``; :attr:`FrameState.head_rotation
+    <capture2face.render.renderer.FrameState.head_rotation>`), else None: the head
+    rotation turns the whole character (:func:`avatar_head_poses`)."""
+    if getattr(rig, "head_weights", None) is None:
+        return None
+    return np.ascontiguousarray(np.asarray(head_pose, np.float32)[:, :3, :3])
 
 
 def run_render_options(options: RunOptions):
@@ -240,6 +290,7 @@ def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder
     fps = float(track.fps)
     render_opts = run_render_options(options)
     poses = avatar_head_poses(rig, animation.head_pose, render_opts.fov_y_degrees).astype(np.float32)
+    turns = avatar_head_rotations(rig, animation.head_pose)
     fitter = SourceFitter(track.width, track.height, size)
     q = max(2, int(options.queue_frames))
     # x264's own thread pool would oversubscribe the cores the rasterizer needs (llvmpipe
@@ -291,6 +342,7 @@ def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder
             state = FrameState(
                 bone_positions=animation.bone_positions[i], blend_weights=animation.blend_weights[i],
                 head_pose=poses[i], influences=animation.influences[i], zone_weights=animation.zone_weights[i],
+                head_rotation=None if turns is None else turns[i],
             )
             if options.compare:
                 image, heat = renderer.render_with_influence(state)
@@ -466,7 +518,7 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
         raise_if_interrupted()
 
         t = time.perf_counter()
-        export_stage(rig, animation, tmp, track)
+        export_stage(rig, animation, tmp, track, character=options.character)
         release_free_memory()
         seconds["export"] = time.perf_counter() - t
         raise_if_interrupted()

@@ -50,13 +50,14 @@ def check_character(character: Any = None):
     Returns:
         The :class:`~capture2face.rig.face_rig.FaceRig`.
     Raises:
-        CaptureError: missing or corrupt file, or too few tracked feature points.
+        CaptureError: missing or corrupt file (an unsupported required glTF extension
+            named), or a character with neither face bones nor ARKit-named morphs.
     """
     from capture2face.pipeline import load_character
-    from capture2face.retarget import feature_correspondence
+    from capture2face.rig.arkit_names import drive_mode
 
     rig = load_character(character)
-    feature_correspondence(rig)  # raises CaptureError for an undrivable character
+    drive_mode(rig)  # raises CaptureError for an undrivable character, saying what is missing
     return rig
 
 

@@ -43,13 +43,15 @@ def no_tracking(monkeypatch):
 
 @pytest.fixture(scope="module")
 def undrivable_character(tmp_path_factory) -> Path:
-    """A FaceRig .npz that loads but has no tracked feature points to retarget onto."""
+    """A FaceRig .npz that loads but has no tracked feature points to retarget onto and no
+    ARKit-named morphs (the default avatar's, renamed)."""
     from capture2face.rig.avatar import default_avatar
 
     rig = default_avatar()
     rig = dataclasses.replace(rig, name="blank",
                               landmark_vertices=np.full_like(rig.landmark_vertices, -1),
-                              bone_landmarks=np.full_like(rig.bone_landmarks, -1))
+                              bone_landmarks=np.full_like(rig.bone_landmarks, -1),
+                              morph_names=[f"shape_{i}" for i in range(rig.n_morphs)])
     path = tmp_path_factory.mktemp("rig") / "blank.npz"
     rig.save(path)
     return path
@@ -121,10 +123,10 @@ def test_tracker_keeps_its_own_neutral_frame_check():
 
 
 def test_undrivable_character_fails_before_tracking(undrivable_character, tmp_path, no_tracking, capsys):
-    with pytest.raises(CaptureError, match="too few tracked feature points"):
+    with pytest.raises(CaptureError, match="cannot be driven: its 27 morph targets .* have no ARKit names and no face bones"):
         run(SAMPLE, tmp_path, RunOptions(character=undrivable_character), progress=False)
     code, err = _main(capsys, "run", str(SAMPLE), "-o", str(tmp_path), "--character", str(undrivable_character))
-    assert code == 2 and "too few tracked feature points" in err and err.count("\n") == 1
+    assert code == 2 and "no ARKit names and no face bones" in err and err.count("\n") == 1
     assert not any(tmp_path.iterdir())
 
 
@@ -156,7 +158,7 @@ def test_egl_failure_is_one_line(monkeypatch):
 def test_batch_checks_once_before_any_clip(undrivable_character, tmp_path, no_tracking, capsys, monkeypatch):
     from capture2face.batch import run_batch
 
-    with pytest.raises(CaptureError, match="too few tracked feature points"):
+    with pytest.raises(CaptureError, match="cannot be driven: its 27 morph targets .* have no ARKit names and no face bones"):
         run_batch([SAMPLE, SAMPLE], tmp_path / "a", RunOptions(character=undrivable_character), progress=False)
     with pytest.raises(CaptureError, match="--size"):
         run_batch([SAMPLE], tmp_path / "b", RunOptions(size=5000), progress=False)

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from capture2face.errors import CaptureError
-from capture2face.export.animation_glb import head_rotations, read_animation_keyframe_count, read_glb_animation
+from capture2face.gltf.animation import head_rotations, read_animation_keyframe_count, read_glb_animation
 from capture2face.export.livelink import HEADER, head_angles, timecodes, write_livelink_csv
 from capture2face.retarget.animation import Animation
 from capture2face.rig.face_rig import REGION_NAMES, ZONE_NAMES
-from capture2face.rig.gltf import export_glb, import_glb
+from capture2face.gltf import export_glb, import_glb
 from gltf_validator import problems, validate
 
 # Copied character for character from issue 6.

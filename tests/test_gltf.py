@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from capture2face.errors import CaptureError
-from capture2face.rig.glb_container import ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER, GlbBuilder, GlbReader, encode_png
-from capture2face.rig.gltf import export_glb, import_glb
+from capture2face.gltf.container import ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER, GlbBuilder, GlbReader, encode_png
+from capture2face.gltf import export_glb, import_glb
 from gltf_validator import problems, validate
 
 
@@ -190,7 +190,7 @@ def _foreign_glb(tmp_path):
 
 
 def test_import_foreign_character_with_mapping(tmp_path, monkeypatch):
-    import capture2face.rig.gltf_import as gi
+    import capture2face.gltf.rig_import as gi
 
     monkeypatch.setattr(gi, "_lend_from_avatar", lambda rig, posed, tabled: rig)  # tested below
     path, src = _foreign_glb(tmp_path)

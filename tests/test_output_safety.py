@@ -242,8 +242,8 @@ ENOSPC_RUN = """
 import errno, os, sys
 from capture2face import pipeline
 real = pipeline.export_stage
-def export_stage(rig, animation, folder, track=None):
-    real(rig, animation, folder, track)
+def export_stage(rig, animation, folder, track=None, **kw):
+    real(rig, animation, folder, track, **kw)
     raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), os.path.join(folder, "livelink.csv"))
 pipeline.export_stage = export_stage
 from capture2face.cli import main

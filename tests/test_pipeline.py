@@ -42,9 +42,9 @@ def video_stats(path: Path) -> tuple[int, float, int, int]:
 
 def check_outputs(folder: Path, clip: Path) -> dict:
     """Every check of issue 6 on one run's output folder; returns its report."""
-    from capture2face.export.animation_glb import read_animation_keyframe_count, read_glb_animation
+    from capture2face.gltf.animation import read_animation_keyframe_count, read_glb_animation
     from capture2face.retarget.animation import Animation
-    from capture2face.rig.gltf import import_glb
+    from capture2face.gltf import import_glb
     from capture2face.tracking.track import Track
 
     assert sorted(p.name for p in folder.iterdir()) == sorted(OUTPUTS)
@@ -237,7 +237,7 @@ def test_compare_frame_puts_landmarks_on_the_source_pixels():
 def test_characters_load_from_npz_glb_and_builtin_names(tmp_path):
     from capture2face.pipeline import load_character
     from capture2face.rig.avatar import default_avatar
-    from capture2face.rig.gltf import export_glb
+    from capture2face.gltf import export_glb
 
     wide = default_avatar(variant="wide")
     wide.save(tmp_path / "wide.npz")
@@ -255,7 +255,7 @@ def test_run_with_a_glb_character(sample_clip, tmp_path):
     from capture2face.pipeline import RunOptions, run
     from capture2face.retarget.animation import Animation
     from capture2face.rig.avatar import default_avatar
-    from capture2face.rig.gltf import export_glb
+    from capture2face.gltf import export_glb
 
     wide = default_avatar(variant="wide")
     export_glb(wide, tmp_path / "hero.glb")
@@ -287,7 +287,7 @@ def test_a_face_that_leaves_the_frame_keeps_every_frame(tmp_path):
     assert any("no face in" in w for w in report["warnings"])
     assert video_stats(folder / "avatar.mp4")[0] == 75
     assert len((folder / "livelink.csv").read_text().splitlines()) == 76
-    from capture2face.export.animation_glb import read_animation_keyframe_count
+    from capture2face.gltf.animation import read_animation_keyframe_count
 
     assert read_animation_keyframe_count(folder / "animation.glb") == 75
 

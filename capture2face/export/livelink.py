@@ -69,7 +69,7 @@ def _scores(track_or_blendshapes, animation) -> tuple[np.ndarray, list[str]]:
 def head_angles(head_pose: np.ndarray) -> np.ndarray:
     """(F, 4, 4) head -> camera transforms -> (F, 3) yaw, pitch, roll in radians for
     R = Ry(yaw) Rx(pitch) Rz(roll) (rotation part orthonormalized first)."""
-    from capture2face.export.animation_glb import rotation_part
+    from capture2face.gltf.animation import rotation_part
 
     r = rotation_part(head_pose)
     yaw = np.arctan2(r[:, 0, 2], r[:, 2, 2])

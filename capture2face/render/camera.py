@@ -88,10 +88,30 @@ def rotation_ypr(angles_deg: np.ndarray) -> np.ndarray:
     return rz @ ry @ rx
 
 
+# A vertex that some morph moves further than this (cm) belongs to the face.
+_FACE_MORPH_CM = 0.02
+
+
+def face_points(rig: FaceRig) -> np.ndarray:
+    """(N, 3) the points the camera frames: the skin; for an ARKit character (morphs and
+    no face bones of its own, maybe on a whole body with hair and clothes, all of it
+    "skin"), the vertices its morphs move: the face."""
+    from capture2face.rig.arkit_names import is_automatic
+
+    skin = rig.material == 0
+    if rig.n_morphs and (is_automatic(rig) or not (np.asarray(rig.landmark_vertices) >= 0).any()):
+        moved = np.zeros(rig.n_vertices, bool)
+        for m in range(rig.n_morphs):  # per morph: no (M, V, 3) temporary
+            moved |= np.abs(rig.morph_positions[m]).max(axis=1) > _FACE_MORPH_CM
+        if moved.sum() >= 3:
+            return rig.vertices[moved]
+    return rig.vertices[skin]
+
+
 def face_centre_and_height(rig: FaceRig) -> tuple[np.ndarray, float]:
-    """Centre (3,) of the skin's bounding box and its height (cm)."""
-    skin = rig.vertices[rig.material == 0]
-    lo, hi = skin.min(0).astype(np.float64), skin.max(0).astype(np.float64)
+    """Centre (3,) of the face's bounding box (:func:`face_points`) and its height (cm)."""
+    points = face_points(rig)
+    lo, hi = points.min(0).astype(np.float64), points.max(0).astype(np.float64)
     return (lo + hi) / 2.0, float(hi[1] - lo[1])
 
 

@@ -17,6 +17,8 @@ from capture2face.retarget.arkit import arkit_curves
 from capture2face.retarget.rbf import FeatureMap, fit_feature_map
 from capture2face.retarget.solve import LinearSolver, linear_rig_model
 from capture2face.retarget.windows import MappedPoints, SpilledMedian, frame_windows
+from capture2face.rig.arkit_names import arkit_weights, drive_mode
+from capture2face.rig.auto_wrinkles import feature_positions
 from capture2face.rig.avatar import close_lips
 
 
@@ -364,6 +366,8 @@ def retarget(track, rig, options: RetargetOptions | None = None) -> Animation:
 
 
 def _retarget(track, rig, options: RetargetOptions) -> Animation:
+    if drive_mode(rig) == "arkit":
+        return _retarget_arkit(track, rig)
     landmarks, target, per_vertex = feature_correspondence(rig)
     network = _fit_network(track, rig, landmarks, target, options)
     windows = frame_windows(track.n_frames, options.window_frames, options.window_overlap)
@@ -372,9 +376,31 @@ def _retarget(track, rig, options: RetargetOptions) -> Animation:
         bones, weights = solve_bones_weights(mapped, rig, landmarks, per_vertex, options, track.neutral_frame)
     if weights is None:
         weights = _mediapipe_weights(track, rig)
+    return _animation(track, rig, bones, weights, arkit_curves(track))
+
+
+def _retarget_arkit(track, rig) -> Animation:
+    """A character without face bones: its ARKit-named morphs (any spelling, on every
+    mesh that has them) take the clip's ARKit curves, which already have ARKit meaning
+    (:func:`~capture2face.retarget.arkit.arkit_curves`); bones stay at rest (the head
+    rotation is the animation's head pose)."""
+    curves = arkit_curves(track)
+    weights = arkit_weights(list(track.blendshape_names), curves, rig.morph_names)
+    bones = np.repeat(rig.bone_rest[None].astype(np.float32), track.n_frames, 0)
+    # Automatic feature points (rig.auto_wrinkles) measure the influences where the
+    # morphs carry them; as bones they stay at rest (the morphs deform the face).
+    return _animation(track, rig, bones, weights, curves,
+                      influence_bones=_per_frame(lambda w: feature_positions(rig, w), weights))
+
+
+def _animation(track, rig, bones: np.ndarray, weights: np.ndarray, curves: np.ndarray,
+               influence_bones: np.ndarray | None = None) -> Animation:
+    """The Animation of solved bones (F, B, 3) and morph weights (F, M): the head bone
+    pinned to rest, weights clipped to [0, 1], influences (from ``influence_bones``,
+    default ``bones``), regions and zones evaluated."""
     bones[:, 0] = rig.bone_rest[0]
     weights = np.clip(weights, 0.0, 1.0).astype(np.float32, copy=False)
-    influences = _per_frame(lambda b: inf.rig_influences(b, rig), bones)
+    influences = _per_frame(lambda b: inf.rig_influences(b, rig), bones if influence_bones is None else influence_bones)
     return Animation(
         times=np.asarray(track.times, np.float64),
         fps=float(track.fps),
@@ -395,7 +421,7 @@ def _retarget(track, rig, options: RetargetOptions) -> Animation:
         presence=np.asarray(track.presence, bool),
         character=rig.name,
         arkit_names=list(track.blendshape_names),
-        arkit_weights=arkit_curves(track),
+        arkit_weights=curves,
     )
 
 

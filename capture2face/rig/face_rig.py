@@ -87,6 +87,9 @@ class FaceRig:
             opposite sign cancel.
         region_names: R region names (``REGION_NAMES``).
         region_weights: (R, V) float32 per-vertex membership in [0, 1] of each region.
+        head_weights: (V,) float32 share of the head rotation each vertex takes (an
+            imported character's skin weights on its head joint and the joints below
+            it), or None: the head rotation turns the whole character (the camera).
     """
 
     name: str
@@ -121,6 +124,7 @@ class FaceRig:
     zone_table: np.ndarray
     region_names: list[str]
     region_weights: np.ndarray
+    head_weights: np.ndarray | None = None
 
     # ---- derived quantities (never stored) ------------------------------------------
     @property

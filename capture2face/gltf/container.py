@@ -1,0 +1,377 @@
+"""The glTF 2.0 container (.glb, .gltf): a writer and a reader, on pygltflib.
+
+pygltflib parses and writes the document and its chunks (GLB header, JSON, BIN; data
+URIs); the document is handled here as plain JSON-like dicts, and accessors are decoded
+(and encoded) with NumPy: sparse, ``byteStride``, normalized and quantized integers.
+What a FaceRig or an animation puts into a .glb is in :mod:`capture2face.gltf.rig_export`
+and :mod:`capture2face.gltf.animation`.
+
+Writer rules that keep the Khronos validator quiet: every buffer view starts on a 4-byte
+boundary (so every accessor is aligned to its component size), vertex attributes are
+tightly packed (no ``byteStride``), POSITION and animation-input accessors carry min/max,
+and images are stored as PNG inside buffer views.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+import warnings
+from typing import Any
+
+import cv2
+import numpy as np
+import pygltflib
+
+from capture2face.errors import CaptureError
+
+# Units and the conventions of our own files (capture2face.gltf.rig_export).
+METRES_PER_CM = 0.01
+CM_PER_METRE = 100.0
+EXTRAS_KEY = "capture2face"
+EXTRAS_FORMAT = "capture2face.FaceRig.glb/1"
+ROOT_NODE_NAME = "capture2face_root"
+SAMPLER_LINEAR_CLAMP = {"magFilter": 9729, "minFilter": 9987, "wrapS": 33071, "wrapT": 33071}
+
+GLB_MAGIC = 0x46546C67  # "glTF"
+CHUNK_JSON = 0x4E4F534A  # "JSON"
+CHUNK_BIN = 0x004E4942  # "BIN\0"
+
+ARRAY_BUFFER = 34962
+ELEMENT_ARRAY_BUFFER = 34963
+
+# componentType codes <-> NumPy dtypes (little-endian, as glTF requires).
+COMPONENT_DTYPES = {
+    5120: np.dtype("<i1"), 5121: np.dtype("<u1"), 5122: np.dtype("<i2"),
+    5123: np.dtype("<u2"), 5125: np.dtype("<u4"), 5126: np.dtype("<f4"),
+}
+DTYPE_COMPONENTS = {v: k for k, v in COMPONENT_DTYPES.items()}
+TYPE_SIZES = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+SIZE_TYPES = {1: "SCALAR", 2: "VEC2", 3: "VEC3", 4: "VEC4", 16: "MAT4"}
+
+
+def encode_png(image: np.ndarray) -> bytes:
+    """(H, W, C) uint8 RGB/RGBA or (H, W) grey -> PNG bytes (lossless)."""
+    image = np.ascontiguousarray(image)
+    if image.ndim == 3 and image.shape[2] == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+    elif image.ndim == 3 and image.shape[2] == 4:
+        image = cv2.cvtColor(image, cv2.COLOR_RGBA2BGRA)
+    ok, buf = cv2.imencode(".png", image)
+    if not ok:
+        raise CaptureError("could not encode a texture as PNG")
+    return buf.tobytes()
+
+
+def decode_image(data: bytes) -> np.ndarray:
+    """PNG/JPEG bytes -> (H, W, C) uint8 RGB or RGBA (grey images become RGB)."""
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise ValueError("undecodable image")
+    if image.dtype != np.uint8:  # 16-bit PNGs
+        image = (image.astype(np.float32) / 257.0 + 0.5).astype(np.uint8)
+    if image.ndim == 2:
+        return cv2.cvtColor(image, cv2.COLOR_GRAY2RGB)
+    if image.shape[2] == 4:
+        return cv2.cvtColor(image, cv2.COLOR_BGRA2RGBA)
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
+class GlbBuilder:
+    """Accumulates the glTF JSON and its one binary buffer; :meth:`to_bytes` makes the .glb."""
+
+    def __init__(self, generator: str = "capture2face"):
+        self.gltf: dict[str, Any] = {"asset": {"version": "2.0", "generator": generator}}
+        self.bin = bytearray()
+
+    def _list(self, key: str) -> list:
+        return self.gltf.setdefault(key, [])
+
+    def add(self, key: str, obj: dict) -> int:
+        """Append ``obj`` to the top-level array ``key``; return its index."""
+        items = self._list(key)
+        items.append(obj)
+        return len(items) - 1
+
+    def buffer_view(self, data: bytes, target: int | None = None) -> int:
+        """Append raw bytes on a 4-byte boundary as a new buffer view."""
+        self.bin.extend(b"\0" * (-len(self.bin) % 4))
+        view = {"buffer": 0, "byteOffset": len(self.bin), "byteLength": len(data)}
+        if target is not None:
+            view["target"] = target
+        self.bin.extend(data)
+        return self.add("bufferViews", view)
+
+    def accessor(
+        self, array: np.ndarray, target: int | None = None, minmax: bool = False,
+        normalized: bool = False, gltf_type: str | None = None,
+    ) -> int:
+        """Store ``array`` ((N,) or (N, k), a glTF component dtype) as one accessor.
+
+        Args:
+            target: ARRAY_BUFFER for vertex attributes, ELEMENT_ARRAY_BUFFER for indices,
+                None for animation data and inverse bind matrices.
+            minmax: write per-component ``min``/``max`` (required for POSITION and for
+                animation sampler inputs).
+        """
+        array = np.ascontiguousarray(array)
+        dtype = array.dtype.newbyteorder("<") if array.dtype.byteorder == ">" else array.dtype
+        if dtype not in DTYPE_COMPONENTS:
+            raise TypeError(f"no glTF component type for {array.dtype}")
+        width = 1 if array.ndim == 1 else int(np.prod(array.shape[1:]))
+        flat = array.reshape(len(array), width).astype(dtype, copy=False)
+        acc: dict[str, Any] = {
+            "bufferView": self.buffer_view(flat.tobytes(), target),
+            "componentType": DTYPE_COMPONENTS[dtype],
+            "count": int(len(array)),
+            "type": gltf_type or SIZE_TYPES[width],
+        }
+        if normalized:
+            acc["normalized"] = True
+        if minmax and len(array):
+            cast = float if dtype.kind == "f" else int
+            acc["min"] = [cast(v) for v in flat.min(axis=0)]
+            acc["max"] = [cast(v) for v in flat.max(axis=0)]
+        return self.add("accessors", acc)
+
+    def image_png(self, image: np.ndarray, name: str) -> int:
+        view = self.buffer_view(encode_png(image))
+        return self.add("images", {"bufferView": view, "mimeType": "image/png", "name": name})
+
+    def to_bytes(self) -> bytes:
+        """The complete .glb (pygltflib writes the header and the padded chunks)."""
+        self.bin.extend(b"\0" * (-len(self.bin) % 4))
+        if self.bin:
+            self.gltf["buffers"] = [{"byteLength": len(self.bin)}]
+        _check_finite(self.gltf)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # dataclasses_json's notes on optional fields
+            doc = pygltflib.GLTF2.from_dict(self.gltf)
+        doc.set_binary_blob(bytes(self.bin))
+        return b"".join(doc.save_to_bytes())
+
+
+def _check_finite(value) -> None:
+    """JSON has no NaN or infinity: refuse them here rather than write an invalid file."""
+    json.dumps(value, allow_nan=False)
+
+
+def _plain(value):
+    """pygltflib's dicts -> the file's JSON: unset (None) properties dropped; extras and
+    extensions kept as they are."""
+    if isinstance(value, dict):
+        return {k: (v if k in ("extras", "extensions") else _plain(v)) for k, v in value.items() if v is not None}
+    if isinstance(value, list):
+        return [_plain(v) for v in value]
+    return value
+
+
+# Required extensions the reader honours: quantized attributes are read like any other
+# accessor (the node's transform dequantizes them); material extensions only change
+# the shading, which the renderer does its own way.
+SUPPORTED_REQUIRED = ("KHR_mesh_quantization", "EXT_meshopt_compression", "EXT_texture_webp")
+SHADING_ONLY_PREFIX = "KHR_materials_"
+_HINTS = {
+    "KHR_draco_mesh_compression": "export it again without Draco compression",
+    "KHR_texture_basisu": "export it again with PNG, JPEG or WebP textures",
+}
+MESHOPT = "EXT_meshopt_compression"
+
+
+def check_required_extensions(gltf: dict, path: str) -> None:
+    """A file that requires an extension this reader cannot honour fails here, in one
+    line naming it (instead of a confusing error about its buffers later).
+
+    Read: ``KHR_mesh_quantization`` (integer attributes, dequantized by the node's
+    transform), ``EXT_meshopt_compression`` (with the ``meshoptimizer`` package),
+    ``EXT_texture_webp`` (OpenCV decodes WebP), ``KHR_materials_*`` (shading only).
+    """
+    required = [str(e) for e in gltf.get("extensionsRequired") or []]
+    missing = [e for e in required if e not in SUPPORTED_REQUIRED and not e.startswith(SHADING_ONLY_PREFIX)]
+    if missing:
+        hint = next((_HINTS[e] for e in missing if e in _HINTS), "")
+        raise CaptureError(f"{path}: requires the glTF extension{'s' if len(missing) > 1 else ''} "
+                           f"{', '.join(missing)}, which capture2face cannot read" + (f" ({hint})" if hint else ""))
+    if MESHOPT in required:
+        _meshoptimizer(path)
+
+
+def _meshoptimizer(path: str):
+    try:
+        import meshoptimizer
+    except ImportError:
+        raise CaptureError(f"{path}: requires the glTF extension {MESHOPT}, which needs the meshoptimizer "
+                           "package (pip install meshoptimizer; it builds from source with a C++ compiler)") from None
+    return meshoptimizer
+
+
+def _meshopt_decode(path: str, ext: dict, data: bytes) -> bytes:
+    """The bytes of an ``EXT_meshopt_compression`` buffer view: the compressed stream
+    decoded (ATTRIBUTES, TRIANGLES, INDICES), then its filter undone."""
+    mo = _meshoptimizer(path)
+    count, stride = int(ext["count"]), int(ext["byteStride"])
+    mode, filt = ext.get("mode", "ATTRIBUTES"), ext.get("filter", "NONE")
+    if mode == "ATTRIBUTES":
+        out = mo.decode_vertex_buffer(count, stride, data, dtype=np.dtype((np.void, stride))).view(np.uint8)
+    elif mode in ("TRIANGLES", "INDICES"):
+        decode = mo.decode_index_buffer if mode == "TRIANGLES" else mo.decode_index_sequence
+        out = np.asarray(decode(count, stride, data)).astype(np.uint16 if stride == 2 else np.uint32).view(np.uint8)
+    else:
+        raise CaptureError(f"{path}: {MESHOPT} mode '{mode}' is unknown")
+    if filt != "NONE":
+        undo = {"OCTAHEDRAL": mo.decode_filter_oct, "QUATERNION": mo.decode_filter_quat,
+                "EXPONENTIAL": mo.decode_filter_exp}.get(filt)
+        if undo is None:
+            raise CaptureError(f"{path}: {MESHOPT} filter '{filt}' is unknown")
+        out = np.asarray(undo(np.ascontiguousarray(out), count, stride)).view(np.uint8)
+    return out.tobytes()
+
+
+class GlbReader:
+    """Parses a .glb (or a .gltf whose buffers are embedded as data URIs) and reads accessors."""
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = os.fspath(path)
+        if not os.path.isfile(self.path):
+            raise CaptureError(f"{self.path}: no such file")
+        with open(self.path, "rb") as fh:
+            data = fh.read()
+        try:
+            self.gltf, self.bin = self._parse(data)
+        except (ValueError, KeyError, struct.error, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise CaptureError(f"{self.path}: not a readable glTF binary (.glb) file ({exc})") from None
+        version = str(self.gltf.get("asset", {}).get("version", ""))
+        if not version.startswith("2."):
+            raise CaptureError(f"{self.path}: glTF version {version or '?'} is not supported (need 2.0)")
+        check_required_extensions(self.gltf, self.path)
+        self._cache: dict[int, np.ndarray] = {}
+        self._decoded: dict[int, bytes] = {}
+
+    @staticmethod
+    def _parse(data: bytes) -> tuple[dict, bytes]:
+        """(document as dicts, BIN chunk). The GLB header is checked first (pygltflib
+        reads a truncated file without a word)."""
+        if data[:1] != b"{":
+            if len(data) < 12:
+                raise ValueError("file too short")
+            magic, version, length = struct.unpack_from("<III", data, 0)
+            if magic != GLB_MAGIC:
+                raise ValueError("no glTF magic")
+            if version != 2:
+                raise ValueError(f"GLB container version {version}")
+            if length > len(data):
+                raise ValueError(f"truncated: header says {length} bytes, file has {len(data)}")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # dataclasses_json's notes on optional fields
+            try:
+                doc = (pygltflib.GLTF2.from_json(data.decode("utf-8")) if data[:1] == b"{"
+                       else pygltflib.GLTF2.load_from_bytes(data))
+            except (ValueError, KeyError, TypeError, AttributeError, struct.error, UnicodeDecodeError) as exc:
+                # pygltflib's parser meets a malformed document with whatever it trips on.
+                raise ValueError(f"{exc.__class__.__name__}: {exc}") from None
+        if doc is None:
+            raise ValueError("no JSON chunk")
+        return _plain(json.loads(doc.to_json())), bytes(doc.binary_blob() or b"")
+
+    # ---- raw data -----------------------------------------------------------------------
+    def _buffer(self, index: int) -> bytes:
+        buf = self.gltf["buffers"][index]
+        uri = buf.get("uri")
+        if uri is None:
+            return self.bin
+        return self._uri_bytes(uri)
+
+    def _uri_bytes(self, uri: str) -> bytes:
+        """Bytes behind a glTF URI: a base64 data URI or a file beside the .gltf."""
+        if uri.startswith("data:"):
+            import base64
+
+            return base64.b64decode(uri.split(",", 1)[1])
+        with open(os.path.join(os.path.dirname(self.path), uri), "rb") as fh:
+            return fh.read()
+
+    def view_bytes(self, index: int) -> tuple[bytes, int | None]:
+        view = self.gltf["bufferViews"][index]
+        ext = (view.get("extensions") or {}).get(MESHOPT)
+        if ext is not None:
+            if index not in self._decoded:  # decompressed once per view
+                raw = self._slice(self._buffer(ext["buffer"]), ext.get("byteOffset", 0), ext["byteLength"], index)
+                self._decoded[index] = _meshopt_decode(self.path, ext, raw)
+            return self._decoded[index], ext.get("byteStride")
+        return self._slice(self._buffer(view.get("buffer", 0)), view.get("byteOffset", 0), view["byteLength"],
+                           index), view.get("byteStride")
+
+    def _slice(self, buf: bytes, start: int, length: int, index: int) -> bytes:
+        end = start + length
+        if end > len(buf):
+            raise CaptureError(f"{self.path}: buffer view {index} runs past the end of its buffer")
+        return buf[start:end]
+
+    def _read_dense(self, view_index: int, offset: int, count: int, dtype: np.dtype, width: int) -> np.ndarray:
+        data, stride = self.view_bytes(view_index)
+        elem = dtype.itemsize * width
+        stride = stride or elem
+        if count and offset + stride * (count - 1) + elem > len(data):
+            raise CaptureError(f"{self.path}: an accessor runs past the end of its buffer view")
+        raw = np.frombuffer(data, np.uint8, count=stride * (count - 1) + elem if count else 0, offset=offset)
+        if stride == elem:
+            return raw.view(dtype).reshape(count, width).copy()
+        rows = np.lib.stride_tricks.as_strided(raw, shape=(count, elem), strides=(stride, 1))
+        return np.ascontiguousarray(rows).view(dtype).reshape(count, width)
+
+    def accessor(self, index: int, as_float: bool = True) -> np.ndarray:
+        """(count, k) array of accessor ``index`` (k = 1 for SCALAR), sparse and
+        ``byteStride`` resolved; normalized integers become floats in [0, 1] / [-1, 1]
+        when ``as_float``."""
+        key = index * 2 + int(as_float)
+        if key in self._cache:
+            return self._cache[key]
+        try:
+            acc = self.gltf["accessors"][index]
+            dtype = COMPONENT_DTYPES[acc["componentType"]]
+            width = TYPE_SIZES[acc["type"]]
+        except (IndexError, KeyError, TypeError):
+            raise CaptureError(f"{self.path}: accessor {index} is missing or malformed") from None
+        count = int(acc["count"])
+        if "bufferView" in acc:
+            out = self._read_dense(acc["bufferView"], acc.get("byteOffset", 0), count, dtype, width)
+        else:
+            out = np.zeros((count, width), dtype)
+        sparse = acc.get("sparse")
+        if sparse:
+            n = int(sparse["count"])
+            idx_spec, val_spec = sparse["indices"], sparse["values"]
+            idx = self._read_dense(idx_spec["bufferView"], idx_spec.get("byteOffset", 0), n,
+                                   COMPONENT_DTYPES[idx_spec["componentType"]], 1)[:, 0]
+            vals = self._read_dense(val_spec["bufferView"], val_spec.get("byteOffset", 0), n, dtype, width)
+            out = out.copy()
+            out[idx.astype(np.int64)] = vals
+        if as_float and acc.get("normalized") and dtype.kind in "iu":
+            scale = float(np.iinfo(dtype).max)
+            out = np.maximum(out.astype(np.float32) / scale, -1.0)
+        self._cache[key] = out
+        return out
+
+    def image(self, index: int) -> np.ndarray:
+        """(H, W, C) uint8 RGB(A) of image ``index`` (embedded, data URI or file beside the glTF)."""
+        img = self.gltf["images"][index]
+        try:
+            if "bufferView" in img:
+                data, _ = self.view_bytes(img["bufferView"])
+            else:
+                data = self._uri_bytes(img["uri"])
+            return decode_image(data)
+        except (OSError, ValueError, KeyError) as exc:
+            raise CaptureError(f"{self.path}: image {index} is unreadable ({exc.__class__.__name__})") from None
+
+    def texture_image(self, texture_info: dict | None) -> np.ndarray | None:
+        """The image behind a material's textureInfo, or None."""
+        if not texture_info:
+            return None
+        tex = self.gltf.get("textures", [])[texture_info["index"]]
+        # EXT_texture_webp names the WebP image in its extension (OpenCV decodes it).
+        source = ((tex.get("extensions") or {}).get("EXT_texture_webp") or {}).get("source", tex.get("source"))
+        if source is None:
+            return None
+        return self.image(source)

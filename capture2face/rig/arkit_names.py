@@ -1,0 +1,132 @@
+"""ARKit blendshape names as characters spell them, and how a character is driven.
+
+Character tools name the 52 ARKit morphs in their own ways: ``eyeBlinkLeft`` (ARKit,
+Ready Player Me), ``EyeBlinkLeft`` (Live Link), ``eyeBlink_L`` (Face Cap),
+``eyeBlink.L`` (Blender), ``blendShape1.eyeBlinkLeft`` (Maya's blendShape node) or
+``head:eyeBlink_L`` (a namespace). :func:`canonical_arkit` maps each to ARKit's spelling
+(MediaPipe's, the spelling of ``Animation.arkit_names``), or None for other names.
+
+:func:`drive_mode` says how the retargeting drives a rig: ``"bones"`` (Dutreve's
+feature-point path: landmark vertices or face bones tied to tracker landmarks) or
+``"arkit"`` (no face bones: the clip's ARKit curves drive every morph of that name).
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from capture2face.errors import CaptureError
+
+#: Apple's 52 ARKit blendshapes (MediaPipe has the same names, less ``tongueOut``).
+ARKIT_NAMES = [
+    "browDownLeft", "browDownRight", "browInnerUp", "browOuterUpLeft", "browOuterUpRight",
+    "cheekPuff", "cheekSquintLeft", "cheekSquintRight", "eyeBlinkLeft", "eyeBlinkRight",
+    "eyeLookDownLeft", "eyeLookDownRight", "eyeLookInLeft", "eyeLookInRight", "eyeLookOutLeft",
+    "eyeLookOutRight", "eyeLookUpLeft", "eyeLookUpRight", "eyeSquintLeft", "eyeSquintRight",
+    "eyeWideLeft", "eyeWideRight", "jawForward", "jawLeft", "jawOpen", "jawRight", "mouthClose",
+    "mouthDimpleLeft", "mouthDimpleRight", "mouthFrownLeft", "mouthFrownRight", "mouthFunnel",
+    "mouthLeft", "mouthLowerDownLeft", "mouthLowerDownRight", "mouthPressLeft", "mouthPressRight",
+    "mouthPucker", "mouthRight", "mouthRollLower", "mouthRollUpper", "mouthShrugLower",
+    "mouthShrugUpper", "mouthSmileLeft", "mouthSmileRight", "mouthStretchLeft", "mouthStretchRight",
+    "mouthUpperUpLeft", "mouthUpperUpRight", "noseSneerLeft", "noseSneerRight", "tongueOut",
+]
+_BY_KEY = {n.lower(): n for n in ARKIT_NAMES}
+# Bone names of automatic feature points (capture2face.rig.auto_wrinkles): never a user's joint.
+AUTO_PREFIX = "auto_feature/"
+_SIDES = {"l": "left", "r": "right", "left": "left", "right": "right"}
+# Separators of namespaces and node prefixes: "blendShape1.jawOpen", "head:jawOpen", "a|b".
+_PREFIX = re.compile(r"[.:|]")
+_SIDE_SUFFIX = re.compile(r"^(.*?)[ _.\-]?(l|r|left|right)$", re.IGNORECASE)
+_WORD = re.compile(r"[ _\-]")
+
+
+def canonical_arkit(name: str) -> str | None:
+    """ARKit's spelling of a morph name, or None when it is not an ARKit blendshape.
+
+    Case is ignored; ``Left``/``Right``, ``_L``/``_R``, ``.L``/``.R`` (and ``-``, space)
+    mark the side; anything up to the last ``.``, ``:`` or ``|`` (other than a side
+    suffix) is a prefix; ``_`` between words is ignored (``Mouth_Smile_L``).
+    """
+    text = str(name).strip()
+    parts = _PREFIX.split(text)
+    if len(parts) >= 2 and parts[-1].lower() in _SIDES:  # "eyeBlink.L": the side, not a prefix
+        base, side = parts[-2], _SIDES[parts[-1].lower()]
+    else:
+        base, side = parts[-1], ""
+    key = _WORD.sub("", base).lower()
+    if not side and key in _BY_KEY:  # "mouthLeft" is a name of its own, not "mouth" + side
+        return _BY_KEY[key]
+    if not side:
+        m = _SIDE_SUFFIX.match(base)
+        if m is None:
+            return None
+        base, side = m.group(1), _SIDES[m.group(2).lower()]
+        key = _WORD.sub("", base).lower()
+    return _BY_KEY.get(key + side)
+
+
+def arkit_morphs(morph_names: list[str]) -> dict[int, str]:
+    """{morph index: ARKit name} of every morph whose name is an ARKit blendshape's."""
+    out = {}
+    for i, n in enumerate(morph_names):
+        a = canonical_arkit(n)
+        if a is not None:
+            out[i] = a
+    return out
+
+
+def has_face_bones(rig) -> bool:
+    """True when Dutreve's feature-point retargeting can drive ``rig`` (landmark vertices
+    on its skin, or at least 4 bones tied to tracker landmarks)."""
+    from capture2face.retarget.driver import feature_correspondence
+
+    try:
+        feature_correspondence(rig)
+    except CaptureError:
+        return False
+    return True
+
+
+def is_automatic(rig) -> bool:
+    """True when the rig's face bones are automatic feature points
+    (:mod:`capture2face.rig.auto_wrinkles`), which only measure wrinkle influences."""
+    return any(n.startswith(AUTO_PREFIX) for n in rig.bone_names)
+
+
+def drive_mode(rig) -> str:
+    """``"bones"`` (face bones: the Dutreve path, morphs solved or scored with it) or
+    ``"arkit"`` (ARKit-named morphs and no face bones of its own: the ARKit curves drive
+    them; automatic feature points, if any, only measure the wrinkle influences).
+
+    Raises:
+        CaptureError: neither; the message says what is missing.
+    """
+    if is_automatic(rig) and arkit_morphs(rig.morph_names):
+        return "arkit"
+    if has_face_bones(rig):
+        return "bones"
+    if arkit_morphs(rig.morph_names):
+        return "arkit"
+    names = ", ".join(rig.morph_names[:4]) + (", ..." if rig.n_morphs > 4 else "")
+    have = f"its {rig.n_morphs} morph targets ({names}) have no ARKit names" if rig.n_morphs else "it has no morph targets"
+    raise CaptureError(f"character '{rig.name}' cannot be driven: {have} and no face bones are tied to tracker "
+                       "landmarks (name morphs like jawOpen / eyeBlink_L, or map them in a mapping JSON)")
+
+
+def arkit_weights(arkit_names: list[str], arkit_curves: np.ndarray, morph_names: list[str]) -> np.ndarray:
+    """(F, M) float32 morph weights: each ARKit-named morph takes its curve, others 0.
+
+    Args:
+        arkit_names: S curve names (``Animation.arkit_names``).
+        arkit_curves: (F, S) curves in [0, 1] with ARKit meaning.
+        morph_names: M morph names of the character (any spelling).
+    """
+    curves = np.asarray(arkit_curves, np.float32)
+    index = {n: i for i, n in enumerate(arkit_names)}
+    out = np.zeros((len(curves), len(morph_names)), np.float32)
+    for m, name in arkit_morphs(morph_names).items():
+        if name in index:
+            out[:, m] = curves[:, index[name]]
+    return np.clip(out, 0.0, 1.0)

@@ -1,0 +1,280 @@
+"""Automatic wrinkle influences on any ARKit character, without a mapping file.
+
+Dutreve et al. 2009 weigh each wrinkle map by how far the face's bones have travelled
+towards a reference pose. An ARKit morph character has no face bones, so its own feature
+vertices play their part:
+
+1. **Where the face is**: the character's neutral face is rendered from the front and
+   tracked with the same MediaPipe tracker as the clips; each landmark is cast onto the
+   surface (the front-most vertex under it): ``landmark_vertices``.
+2. **Feature points as bones**: one feature bone per face bone of the default avatar (its
+   25 landmarks: brows, lids, cheeks, nose wings, lips, jaw), at the character's vertex
+   for that landmark, grouped as the avatar groups its bones. They never translate
+   (``Animation.bone_positions`` keep them at rest; the morphs move the face): their
+   per-frame positions for the influences are the feature vertices deformed by the
+   morph weights (:func:`feature_positions`).
+3. **Reference poses from the ARKit morphs**: "stretch" = browInnerUp + browOuterUp + eyeWide,
+   "compress" = browDown + eyeSquint + noseSneer (all at 1): each feature bone's pose
+   position is its vertex under that morph mix.
+4. **Masks, regions, zone table** lent by the default avatar fitted to the character's
+   landmarks (similarity transform): each face vertex takes the skin weights (as feature
+   bones), the region weights of its nearest avatar vertex, and the zone-table rows go by
+   ARKit name.
+
+5. **Wrinkle maps and zone masks in the character's own UV space** (:func:`_bake_maps`):
+   each texel of a face triangle takes the avatar's map at the avatar UV of the
+   triangle's vertices (each vertex's nearest fitted avatar vertex, interpolated), its
+   tangent-space normal turned from the avatar's tangent to the character's in the
+   tangent plane (so a flat normal stays flat).
+   Maps the character brings (a mapping JSON's) are kept.
+
+The influence view and ``region_influence`` then work as for the default avatar, and the
+forehead lines appear where the brows go up.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from capture2face.errors import CaptureError
+from capture2face.rig.arkit_names import AUTO_PREFIX, arkit_morphs
+from capture2face.rig.face_rig import FaceRig
+
+log = logging.getLogger("capture2face")
+
+POSES = {
+    "stretch": ("browInnerUp", "browOuterUpLeft", "browOuterUpRight", "eyeWideLeft", "eyeWideRight"),
+    "compress": ("browDownLeft", "browDownRight", "eyeSquintLeft", "eyeSquintRight", "noseSneerLeft",
+                 "noseSneerRight"),
+}
+RENDER_SIZE = 512
+# A face vertex further than this (in inter-ocular distances) from every fitted avatar
+# skin vertex is not face (hair, ears, neck): it keeps its own skin and no region.
+_FACE_REACH_IOD = 0.08
+
+
+def find_landmark_vertices(rig: FaceRig) -> np.ndarray:
+    """(478,) int32 vertex under each MediaPipe landmark of the character's neutral face
+    rendered from the front (-1 where none).
+
+    Raises:
+        CaptureError: the tracker finds no face in the render.
+    """
+    from scipy.spatial import cKDTree
+
+    from capture2face.render import FrameState, Renderer, RenderOptions
+    from capture2face.render.camera import framing_pose, project
+    from capture2face.tracking.landmarker import FaceLandmarker, LandmarkerOptions
+
+    opts = RenderOptions(size=RENDER_SIZE, wrinkles="off", samples=4)
+    pose = framing_pose(rig, fov_y_degrees=opts.fov_y_degrees)
+    with Renderer(rig, opts) as renderer:
+        image = renderer.render(FrameState.at_pose(rig, pose))
+    with FaceLandmarker.create_from_options(LandmarkerOptions(num_faces=1)) as landmarker:
+        obs = landmarker.detect(image, 0.0)
+    if obs is None:
+        raise CaptureError(f"character '{rig.name}': the tracker finds no face in its front view")
+    px = project(rig.vertices, pose, opts.fov_y_degrees, RENDER_SIZE)  # (V, 2)
+    depth = -(rig.vertices.astype(np.float64) @ pose[:3, :3].T + pose[:3, 3])[:, 2]
+    out = np.full(len(obs.landmarks_px), -1, np.int32)
+    lm = obs.landmarks_px.astype(np.float64)
+    for material, rows in ((0, slice(0, 468)), (1, slice(468, None))):  # skin; irises on the eyes
+        cand = np.flatnonzero((rig.material == material) & np.isfinite(px).all(1))
+        if not len(cand):
+            continue
+        k = min(32, len(cand))
+        d, idx = cKDTree(px[cand]).query(lm[rows], k=k)
+        d, idx = d.reshape(len(d), k), idx.reshape(len(idx), k)
+        # The front-most vertex among those within 2 px (or the nearest, if further): the
+        # surface under the landmark, not the back of the head behind it.
+        near = d <= np.maximum(d[:, :1], 2.0)
+        front = np.where(near, depth[cand][idx], np.inf)
+        out[rows] = cand[idx[np.arange(len(idx)), np.argmin(front, axis=1)]]
+    return out
+
+
+def feature_positions(rig: FaceRig, blend_weights: np.ndarray) -> np.ndarray:
+    """(F, B, 3) float32 bone positions for the influences: the rest positions, with each
+    automatic feature bone at its vertex deformed by the frame's morph weights.
+
+    Args:
+        blend_weights: (F, M) morph weights.
+    """
+    weights = np.asarray(blend_weights, np.float32)
+    out = np.repeat(rig.bone_rest[None].astype(np.float32), len(weights), 0)
+    auto = [b for b, n in enumerate(rig.bone_names) if n.startswith(AUTO_PREFIX)]
+    if not auto:
+        return out
+    verts = rig.landmark_vertices[rig.bone_landmarks[auto]]
+    deltas = rig.morph_positions[:, verts].reshape(rig.n_morphs, -1).astype(np.float32)  # (M, n*3)
+    out[:, auto] += (weights @ deltas).reshape(len(weights), len(auto), 3)
+    return out
+
+
+def automatic_wrinkles(rig: FaceRig) -> FaceRig:
+    """``rig`` (an ARKit morph character without face bones) with feature bones,
+    reference poses, influence masks, regions and zone table (see the module docs).
+
+    Raises:
+        CaptureError: no face found in its front view, or too few ARKit pose morphs.
+    """
+    from scipy.spatial import cKDTree
+
+    from capture2face.gltf.rig_import import _similarity
+    from capture2face.rig.avatar import default_avatar
+
+    by_name = {a: m for m, a in arkit_morphs(rig.morph_names).items()}
+    if not any(n in by_name for names in POSES.values() for n in names):
+        raise CaptureError(f"character '{rig.name}': none of the brow / eye / nose ARKit morphs that make "
+                           "its wrinkle reference poses")
+    lmv = find_landmark_vertices(rig)
+    avatar = default_avatar()
+    face_bones = [b for b in range(1, avatar.n_bones) if avatar.bone_landmarks[b] >= 0
+                  and lmv[avatar.bone_landmarks[b]] >= 0]
+    if len(face_bones) < 4:
+        raise CaptureError(f"character '{rig.name}': the tracker found too few of its face's feature points")
+    B0 = rig.n_bones
+    names = rig.bone_names + [AUTO_PREFIX + avatar.bone_names[b] for b in face_bones]
+    feature_lm = avatar.bone_landmarks[face_bones]
+    feature_v = lmv[feature_lm]
+    rest = np.concatenate([rig.bone_rest, rig.vertices[feature_v]]).astype(np.float32)
+    # Reference poses: every feature vertex under the pose's morph mix.
+    pose_names = list(POSES)
+    pose_w = np.zeros((len(pose_names), rig.n_morphs), np.float32)
+    for p, pname in enumerate(pose_names):
+        for n in POSES[pname]:
+            if n in by_name:
+                pose_w[p, by_name[n]] = 1.0
+    pose_bones = np.repeat(rest[None], len(pose_names), 0)
+    pose_bones[:, B0:] += np.einsum("pm,mnc->pnc", pose_w, rig.morph_positions[:, feature_v])
+    # Groups: as the avatar groups the same bones; the rig's own joints alone.
+    groups = np.concatenate([np.arange(B0), B0 + avatar.bone_groups[face_bones]]).astype(np.int32)
+    _, groups = np.unique(groups, return_inverse=True)
+
+    # The avatar fitted onto the character's landmarks lends masks, regions and zones.
+    canon = avatar.vertices[avatar.landmark_vertices.clip(0)].astype(np.float64)
+    both = np.flatnonzero((avatar.landmark_vertices >= 0) & (lmv >= 0))[:468]
+    both = both[both < 468]
+    s, rot, t = _similarity(canon[both], rig.vertices[lmv[both]].astype(np.float64))
+    fitted = avatar.vertices.astype(np.float64) @ (s * rot).T + t  # (Va, 3) on the character
+    askin = np.flatnonzero(avatar.material == 0)
+    dist, nearest = cKDTree(fitted[askin]).query(rig.vertices.astype(np.float64), k=1)
+    nearest = askin[nearest]
+    iod = float(np.linalg.norm(rig.vertices[lmv[33]] - rig.vertices[lmv[263]]))
+    face = (rig.material == 0) & (dist < _FACE_REACH_IOD * iod)
+    to_rig = np.zeros(avatar.n_bones, np.int64)  # avatar bone -> rig bone (head -> 0)
+    to_rig[face_bones] = B0 + np.arange(len(face_bones))
+    skin_joints, skin_weights = rig.skin_joints.copy(), rig.skin_weights.copy()
+    skin_joints[face] = to_rig[avatar.skin_joints[nearest[face]]]
+    skin_weights[face] = avatar.skin_weights[nearest[face]]
+    regions = np.zeros((len(avatar.region_names), rig.n_vertices), np.float32)
+    regions[:, face] = avatar.region_weights[:, nearest[face]]
+    table = rig.zone_table.copy()
+    amorph = {n: i for i, n in enumerate(avatar.morph_names)}
+    for m, a in arkit_morphs(rig.morph_names).items():
+        if a in amorph and not table[m].any():
+            table[m] = avatar.zone_table[amorph[a]]
+    log.debug("automatic wrinkles: %d feature points, %d face vertices", len(face_bones), int(face.sum()))
+    maps = list(rig.wrinkle_map_names)
+    wrinkle_maps, zone_masks = _bake_maps(rig, avatar, nearest, face)
+    return rig.replace(
+        wrinkle_maps=wrinkle_maps, zone_masks=zone_masks,
+        landmark_vertices=lmv,
+        bone_names=names, bone_rest=rest,
+        bone_parents=np.concatenate([rig.bone_parents, np.zeros(len(face_bones), np.int32)]).astype(np.int32),
+        bone_landmarks=np.concatenate([rig.bone_landmarks, feature_lm]).astype(np.int32),
+        bone_groups=groups.astype(np.int32),
+        skin_joints=skin_joints.astype(np.int32), skin_weights=skin_weights.astype(np.float32),
+        pose_names=pose_names, pose_bones=pose_bones.astype(np.float32), pose_morph_weights=pose_w,
+        pose_maps=np.array([maps.index(p) if p in maps else 0 for p in pose_names], np.int32),
+        region_names=list(avatar.region_names), region_weights=regions, zone_table=table,
+    )
+
+
+def _bake_maps(rig: FaceRig, avatar: FaceRig, nearest: np.ndarray, face: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The avatar's "stretch" / "compress" wrinkle maps and zone masks baked into the
+    character's UV space over its face triangles (flat normals, zero zones elsewhere).
+
+    Args:
+        nearest: (V,) the nearest fitted avatar vertex of each character vertex.
+        face: (V,) bool, the character's face vertices.
+    Returns:
+        wrinkle maps (K, H, W, 3) in ``rig.wrinkle_map_names`` order, zone masks (H, W, 8).
+    """
+    import cv2
+
+    H, W = rig.albedo.shape[:2]
+    flat = np.array([128, 128, 255], np.uint8)
+    maps = rig.wrinkle_maps.copy()
+    zones = rig.zone_masks.copy()
+    todo = [k for k, n in enumerate(rig.wrinkle_map_names)
+            if n in avatar.wrinkle_map_names and (maps[k] == flat).all()]  # keep maps the character brings
+    bake_zones = not zones.any()
+    tris = rig.triangles[face[rig.triangles].all(1)]
+    # A triangle whose vertices' avatar UVs lie far apart straddles one of the avatar's UV
+    # seams (lips, lids: vertices at one position with two UVs): left flat.
+    askin = avatar.triangles[(avatar.material[avatar.triangles] == 0).all(1)]
+    limit = 2.0 * np.percentile(_uv_spread(avatar.uvs[askin]), 99)
+    tris = tris[_uv_spread(avatar.uvs[nearest[tris]]) <= limit]
+    if not len(tris) or not (todo or bake_zones):
+        return maps, zones
+    # Rasterize the face triangles' ids in UV space (texel centres at +0.5; 4 fractional bits).
+    ids = np.full((H, W), -1, np.int32)
+    corners = np.rint((rig.uvs[tris] * [W, H] - 0.5) * 16).astype(np.int32)  # (T, 3, 2)
+    for t in range(len(tris)):  # per triangle: OpenCV fills one polygon a call
+        cv2.fillConvexPoly(ids, corners[t], int(t), lineType=cv2.LINE_8, shift=4)
+    ys, xs = np.nonzero(ids >= 0)
+    tri = tris[ids[ys, xs]]  # (N, 3)
+    p = np.stack([(xs + 0.5) / W, (ys + 0.5) / H], 1)
+    a, b, c = (rig.uvs[tri[:, i]].astype(np.float64) for i in range(3))
+    v0, v1, v2 = b - a, c - a, p - a
+    den = v0[:, 0] * v1[:, 1] - v1[:, 0] * v0[:, 1]
+    den = np.where(np.abs(den) < 1e-12, 1e-12, den)
+    l1 = np.clip((v2[:, 0] * v1[:, 1] - v1[:, 0] * v2[:, 1]) / den, 0, 1)
+    l2 = np.clip((v0[:, 0] * v2[:, 1] - v2[:, 0] * v0[:, 1]) / den, 0, 1)
+    bary = np.stack([1 - l1 - l2, l1, l2], 1)  # (N, 3)
+    auv = np.einsum("nk,nkc->nc", bary, avatar.uvs[nearest[tri]].astype(np.float64))
+    ah, aw = avatar.wrinkle_maps.shape[1:3]
+    # remap takes maps under 32767 px a side: the N lookups as rows of 1024.
+    n_rows = -(-len(p) // 1024)
+    mx = np.zeros(n_rows * 1024, np.float32)
+    my = np.zeros(n_rows * 1024, np.float32)
+    mx[: len(p)], my[: len(p)] = auv[:, 0] * aw - 0.5, auv[:, 1] * ah - 0.5
+    mx, my = mx.reshape(n_rows, 1024), my.reshape(n_rows, 1024)
+
+    def sample(image: np.ndarray) -> np.ndarray:  # (N, C) bilinear at the avatar UVs
+        out = cv2.remap(np.ascontiguousarray(image), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        return out.reshape(n_rows * 1024, -1)[: len(p)]
+
+    if todo:
+        # Per vertex, the turn in the tangent plane from the avatar's tangent to the
+        # character's (and a mirror where their bitangents disagree), interpolated: flat
+        # stays flat wherever the two surfaces' normals differ.
+        tc, nc = rig.tangents[:, :3].astype(np.float64), rig.normals.astype(np.float64)
+        bc = rig.tangents[:, 3:4] * np.cross(nc, tc)
+        ta = avatar.tangents[nearest, :3].astype(np.float64)
+        ta = ta - np.einsum("vc,vc->v", ta, nc)[:, None] * nc
+        cos_sin = np.stack([np.einsum("vc,vc->v", ta, tc), np.einsum("vc,vc->v", ta, bc)], 1)
+        cos_sin /= np.maximum(np.linalg.norm(cos_sin, axis=1, keepdims=True), 1e-12)
+        mirror = np.where(avatar.tangents[nearest, 3] * rig.tangents[:, 3] < 0, -1.0, 1.0)
+        cs = np.einsum("nk,nkc->nc", bary, cos_sin[tri])
+        cs /= np.maximum(np.linalg.norm(cs, axis=1, keepdims=True), 1e-12)
+        m = np.einsum("nk,nk->n", bary, mirror[tri])
+        for k in todo:
+            src = avatar.wrinkle_maps[avatar.wrinkle_map_names.index(rig.wrinkle_map_names[k])]
+            n = sample(src).astype(np.float64) / 127.5 - 1.0
+            x, y = n[:, 0], n[:, 1] * np.where(m < 0, -1.0, 1.0)
+            n = np.stack([cs[:, 0] * x - cs[:, 1] * y, cs[:, 1] * x + cs[:, 0] * y, n[:, 2]], 1)
+            n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+            maps[k, ys, xs] = np.clip(np.rint(n * 127.5 + 127.5), 0, 255).astype(np.uint8)
+    if bake_zones:
+        zones[ys, xs, :4] = sample(avatar.zone_masks[..., :4])
+        zones[ys, xs, 4:8] = sample(avatar.zone_masks[..., 4:8])
+    return maps, zones
+
+
+def _uv_spread(uv: np.ndarray) -> np.ndarray:
+    """(T, 3, 2) triangle UVs -> (T,) longest edge."""
+    return np.linalg.norm(uv - np.roll(uv, 1, axis=1), axis=2).max(1)

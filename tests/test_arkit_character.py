@@ -1,0 +1,490 @@
+"""A user's own ARKit character, driven with no mapping file: morph names in any spelling,
+every mesh imported and moved, the head joint turned, textures packed, checked before
+tracking. The characters are built in code from the default avatar
+(capture2face.gltf.arkit_export); no third-party asset."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from test_arkit import NAMES, synthetic_track
+
+from capture2face.errors import CaptureError
+from capture2face.gltf.arkit_export import export_arkit_character, part_order
+from capture2face.rig.arkit_names import arkit_morphs, canonical_arkit, drive_mode
+from capture2face.rig.avatar import default_avatar
+from capture2face.gltf.container import ARRAY_BUFFER, GlbBuilder, GlbReader
+from capture2face.gltf import import_glb
+
+
+@pytest.fixture(scope="module")
+def avatar():
+    return default_avatar()
+
+
+@pytest.mark.parametrize("name, arkit", [
+    ("eyeBlinkLeft", "eyeBlinkLeft"), ("EyeBlinkLeft", "eyeBlinkLeft"), ("eyeBlink_L", "eyeBlinkLeft"),
+    ("eyeBlink.R", "eyeBlinkRight"), ("blendShape1.jawOpen", "jawOpen"), ("head:eyeBlink_R", "eyeBlinkRight"),
+    ("blendShape1.eyeBlink.L", "eyeBlinkLeft"), ("Mouth_Smile_L", "mouthSmileLeft"), ("JAWOPEN", "jawOpen"),
+    ("mouthLeft", "mouthLeft"), ("mouth_R", "mouthRight"), ("eyeLookIn_L", "eyeLookInLeft"),
+    ("EyeBlink_Left", "eyeBlinkLeft"), ("tongueOut", "tongueOut"),
+    ("Fcl_MTH_A", None), ("viseme_aa", None), ("jaw", None), ("eyeBlink", None), ("browInnerUp_L", None),
+])
+def test_arkit_names_in_every_spelling(name, arkit):
+    assert canonical_arkit(name) == arkit
+
+
+def _by_arkit(rig):
+    return {a: m for m, a in arkit_morphs(rig.morph_names).items()}
+
+
+@pytest.mark.parametrize("naming", ["_L", ".L", "blendShape1.", "Left_"])
+def test_multi_mesh_arkit_character_imports_every_mesh_and_merges_morphs(tmp_path, avatar, naming):
+    path = tmp_path / "head.glb"
+    export_arkit_character(avatar, path, naming=naming)
+    rig = import_glb(path)  # no mapping file
+    # Head, eyes and mouth interior: a mesh each, all of them in, one after the other.
+    order = part_order(avatar)
+    assert rig.n_vertices == avatar.n_vertices
+    np.testing.assert_allclose(rig.vertices, avatar.vertices[order], atol=1e-5)
+    known = avatar.material[order] <= 2  # skin, eye, mouth: named by their meshes
+    np.testing.assert_array_equal(rig.material[known], avatar.material[order][known])
+    assert drive_mode(rig) == "arkit"
+    mine = _by_arkit(rig)
+    assert set(mine) == set(avatar.morph_names)  # every ARKit morph, found under its spelling
+    spans = 0
+    for name, m in mine.items():
+        # One morph per name over every mesh that carries it (eyes and teeth move with the face).
+        np.testing.assert_allclose(rig.morph_positions[m], avatar.morph_positions[avatar.morph_index(name)][order],
+                                   atol=1e-5)
+        moved = np.abs(rig.morph_positions[m]).max(1) > 1e-4
+        spans += len(np.unique(rig.material[moved])) >= 2
+    assert spans >= 3  # some morphs (jawOpen: chin and teeth) span meshes
+
+
+def test_quantized_character_reads_within_its_step(tmp_path, avatar):
+    path = tmp_path / "q.glb"
+    export_arkit_character(avatar, path, naming="_L", quantize=True)
+    assert GlbReader._parse(path.read_bytes())[0]["extensionsRequired"] == ["KHR_mesh_quantization"]
+    rig = import_glb(path)
+    step_cm = 2e-3  # 0.02 mm
+    order = part_order(avatar)
+    assert np.abs(rig.vertices - avatar.vertices[order]).max() <= step_cm / 2 + 1e-5
+    jaw = _by_arkit(rig)["jawOpen"]
+    assert np.abs(rig.morph_positions[jaw] - avatar.morph_positions[avatar.morph_index("jawOpen")][order]).max() <= \
+        step_cm / 2 + 1e-5
+
+
+def test_arkit_character_is_driven_by_the_arkit_curves(tmp_path, avatar):
+    from capture2face.retarget import retarget
+    from capture2face.retarget.arkit import arkit_curves
+
+    path = tmp_path / "head.glb"
+    export_arkit_character(avatar, path, naming="_L")
+    rig = import_glb(path)
+    track, truth = synthetic_track()
+    anim = retarget(track, rig)
+    curves = arkit_curves(track)
+    for name, m in _by_arkit(rig).items():
+        expect = curves[:, NAMES.index(name)] if name in NAMES else 0.0
+        np.testing.assert_allclose(anim.blend_weights[:, m], expect, atol=1e-6)
+    # The geometry follows: the lower lip's vertex (largest jawOpen delta) moves with the
+    # curve, and the curve with the synthetic jaw.
+    jaw = _by_arkit(rig)["jawOpen"]
+    v = int(np.argmax(np.linalg.norm(rig.morph_positions[jaw], axis=1)))
+    from capture2face.rig.deform import deform
+
+    pos, _ = deform(rig, anim.bone_positions, anim.blend_weights)
+    drop = np.linalg.norm(pos[:, v] - rig.vertices[v], axis=1)
+    assert np.corrcoef(drop, truth["jawOpen"])[0, 1] > 0.95
+    assert drop.max() > 0.8 * np.linalg.norm(rig.morph_positions[jaw, v])  # a full opening reaches ~1
+    np.testing.assert_array_equal(anim.bone_positions, np.repeat(rig.bone_rest[None], track.n_frames, 0))
+
+
+def test_head_joint_turns_the_head_and_not_the_body(tmp_path, avatar):
+    from capture2face.render.camera import face_centre_and_height, rotation_matrix
+    from capture2face.render.skinning import Deformer
+
+    path = tmp_path / "body.glb"
+    export_arkit_character(avatar, path, naming="_L", skeleton=True, body=True)
+    rig = import_glb(path)
+    assert rig.bone_names[0] == "head" and {"Hips", "Neck"} <= set(rig.bone_names)
+    face = rig.material != 0
+    face[: avatar.n_vertices] = True
+    np.testing.assert_allclose(rig.head_weights[face], 1.0)
+    np.testing.assert_allclose(rig.head_weights[~face], 0.0)  # the body hangs on the hips
+    rot = rotation_matrix(30.0, 0.0, 0.0)
+    d = Deformer(rig)
+    zero = np.zeros(rig.n_morphs)
+    turned = d.positions(rig.bone_rest, zero, rot)
+    pivot = rig.bone_rest[0].astype(np.float64)
+    np.testing.assert_allclose(turned[face], (rig.vertices[face] - pivot) @ rot.T + pivot, atol=1e-4)
+    np.testing.assert_allclose(turned[~face], rig.vertices[~face], atol=1e-6)
+    # The camera frames the face (what the morphs move), not the body under it.
+    centre, height = face_centre_and_height(rig)
+    a_centre, a_height = face_centre_and_height(avatar)
+    assert abs(centre[1] - a_centre[1]) < 0.1 * a_height and height < 1.2 * a_height
+
+
+def test_atlas_keeps_each_mesh_texture(tmp_path, avatar):
+    path = tmp_path / "body.glb"
+    export_arkit_character(avatar, path, naming="_L", body=True)
+    rig = import_glb(path)
+    body = np.arange(avatar.n_vertices, rig.n_vertices)
+    h, w = rig.albedo.shape[:2]
+    assert w == 2 * h  # two tiles: the face's texture and the outfit's
+
+    def sample(uv):
+        return rig.albedo[np.clip((uv[:, 1] * h).astype(int), 0, h - 1), np.clip((uv[:, 0] * w).astype(int), 0, w - 1)]
+
+    centre = rig.uvs[body].mean(0, keepdims=True)  # the middle of the outfit's tile
+    assert np.abs(sample(centre).astype(int) - [50, 80, 160]).max() < 25
+    # Face UVs land in the face tile and read the avatar's albedo there.
+    face = np.flatnonzero(avatar.material == 0)[::50]
+    mine = np.argsort(part_order(avatar))[face]  # the same vertices in the character
+    ah, aw = avatar.albedo.shape[:2]
+    expect = avatar.albedo[np.clip((avatar.uvs[face, 1] * ah).astype(int), 0, ah - 1),
+                           np.clip((avatar.uvs[face, 0] * aw).astype(int), 0, aw - 1)]
+    assert np.median(np.abs(sample(rig.uvs[mine]).astype(int) - expect).max(1)) < 12
+
+
+def test_mapping_json_maps_other_names(tmp_path, avatar):
+    path = tmp_path / "vroid.glb"
+    export_arkit_character(avatar, path, naming="_L")
+    gltf, binary = GlbReader._parse(path.read_bytes())
+    for mesh in gltf["meshes"]:  # a VRoid-like set: Fcl_ names
+        names = mesh.get("extras", {}).get("targetNames", [])
+        mesh.get("extras", {})["targetNames"] = [
+            t.replace("jawOpen", "Fcl_MTH_A").replace("eyeBlink_L", "Fcl_EYE_Close_L") for t in names]
+    out = tmp_path / "fcl.glb"
+    _write_glb(out, gltf, binary)
+    assert "jawOpen" not in _by_arkit(import_glb(out))
+    (tmp_path / "fcl.json").write_text(json.dumps({"morphs": {"Fcl_MTH_A": "jawOpen", "Fcl_EYE_Close_L": "eyeBlink_L"}}))
+    rig = import_glb(out)
+    mine = _by_arkit(rig)
+    assert "jawOpen" in mine and "eyeBlinkLeft" in mine
+    np.testing.assert_allclose(rig.morph_positions[mine["jawOpen"]],
+                               avatar.morph_positions[avatar.morph_index("jawOpen")][part_order(avatar)], atol=1e-5)
+    (tmp_path / "fcl.json").write_text(json.dumps({"morphs": {"Fcl_MTH_A": "mouthWide"}}))
+    with pytest.raises(CaptureError, match="mouthWide.*not an ARKit"):
+        import_glb(out)
+
+
+def _write_glb(path, gltf: dict, binary: bytes) -> None:
+    bld = GlbBuilder()
+    bld.gltf, bld.bin = gltf, bytearray(binary)
+    path.write_bytes(bld.to_bytes())
+
+
+def _static_morph_glb(path, names, extensions=()):
+    """A triangle with morph targets of the given names, no skin."""
+    bld = GlbBuilder()
+    pos = np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0]], np.float32)
+    targets = [{"POSITION": bld.accessor(np.full((3, 3), 0.01, np.float32), ARRAY_BUFFER, minmax=True)}
+               for _ in names]
+    bld.add("meshes", {"primitives": [{"attributes": {"POSITION": bld.accessor(pos, ARRAY_BUFFER, minmax=True)},
+                                       "targets": targets}], "extras": {"targetNames": list(names)}})
+    bld.add("nodes", {"mesh": 0})
+    bld.gltf["scenes"] = [{"nodes": [0]}]
+    if extensions:
+        bld.gltf["extensionsUsed"] = bld.gltf["extensionsRequired"] = list(extensions)
+    path.write_bytes(bld.to_bytes())
+    return path
+
+
+def test_undrivable_character_says_what_is_missing(tmp_path):
+    from capture2face.preflight import check_character
+
+    bad = _static_morph_glb(tmp_path / "visemes.glb", ["viseme_aa", "viseme_O"])
+    with pytest.raises(CaptureError, match="no ARKit names and no face bones") as err:
+        check_character(bad)
+    assert "\n" not in str(err.value)
+    ok = _static_morph_glb(tmp_path / "jaw.glb", ["Jaw_Open"])
+    assert drive_mode(check_character(ok)) == "arkit"
+
+
+@pytest.mark.parametrize("ext", ["KHR_draco_mesh_compression", "KHR_texture_basisu", "KHR_texture_transform"])
+def test_unsupported_required_extension_is_named(tmp_path, ext):
+    path = _static_morph_glb(tmp_path / "x.glb", ["jawOpen"], extensions=[ext])
+    with pytest.raises(CaptureError, match=ext) as err:
+        import_glb(path)
+    assert "\n" not in str(err.value)
+
+
+def test_meshopt_without_its_package_is_named(tmp_path, monkeypatch):
+    path = _static_morph_glb(tmp_path / "x.glb", ["jawOpen"], extensions=["EXT_meshopt_compression"])
+    monkeypatch.setitem(sys.modules, "meshoptimizer", None)  # as where the sdist could not build
+    with pytest.raises(CaptureError, match="EXT_meshopt_compression.*pip install meshoptimizer") as err:
+        import_glb(path)
+    assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("kind", ["undrivable", "draco"])
+def test_cli_refuses_a_bad_character_before_tracking(tmp_path, sample_clip, kind):
+    path = _static_morph_glb(tmp_path / "c.glb", ["viseme_aa"] if kind == "undrivable" else ["jawOpen"],
+                             extensions=["KHR_draco_mesh_compression"] if kind == "draco" else ())
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "capture2face", "run", str(sample_clip), "-o", str(tmp_path / "out"),
+                           "--character", str(path)], capture_output=True, text=True, timeout=120)
+    took = time.perf_counter() - t0
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and ("no ARKit names" in lines[0] if kind == "undrivable" else "KHR_draco_mesh_compression" in lines[0])
+    assert not (tmp_path / "out" / sample_clip.stem).exists()  # nothing tracked, nothing written
+    print(f"refused in {took:.1f} s")
+
+
+# ---- animation.glb for the user's character ---------------------------------------------------
+def _accessor(gltf, binary: bytes, index: int) -> np.ndarray:
+    acc = gltf.accessors[index]
+    view = gltf.bufferViews[acc.bufferView]
+    width = {"SCALAR": 1, "VEC3": 3, "VEC4": 4}[acc.type]
+    return np.frombuffer(binary, np.float32, acc.count * width, view.byteOffset + (acc.byteOffset or 0)).reshape(
+        acc.count, width)
+
+
+@pytest.mark.parametrize("skeleton", [True, False])
+def test_animation_glb_of_the_users_character(tmp_path, avatar, skeleton):
+    import pygltflib
+
+    from capture2face.gltf.animation import head_rotations
+    from capture2face.gltf.character import export_character_animation
+    from capture2face.render.camera import face_centre_and_height, rotation_ypr
+    from capture2face.retarget import retarget
+
+    src = tmp_path / "char.glb"
+    export_arkit_character(avatar, src, naming="_L", skeleton=skeleton, body=skeleton)
+    rig = import_glb(src)
+    track, _ = synthetic_track()
+    angles = np.zeros((track.n_frames, 3))
+    angles[:, 0] = 25 * np.sin(np.linspace(0, 3, track.n_frames))  # yaw
+    track.head_pose[:, :3, :3] = rotation_ypr(angles)
+    anim = retarget(track, rig)
+    out = tmp_path / "animation.glb"
+    export_character_animation(src, rig, anim, out)
+    before, after = pygltflib.GLTF2().load(str(src)), pygltflib.GLTF2().load(str(out))
+    binary = after.binary_blob()
+    assert len(after.meshes) == len(before.meshes) and len(after.materials) == len(before.materials)
+    (a,) = after.animations
+    assert a.extras["fps"] == pytest.approx(track.fps) and a.extras["frames"] == track.n_frames
+    channels = {(c.target.node, c.target.path): a.samplers[c.sampler].output for c in a.channels}
+    times = _accessor(after, binary, a.samplers[0].input)[:, 0]
+    np.testing.assert_allclose(times, np.arange(track.n_frames) / track.fps, atol=1e-5)
+    morph_nodes = [i for i, n in enumerate(after.nodes) if n.mesh is not None and after.meshes[n.mesh].extras]
+    assert len(morph_nodes) >= 2  # head and teeth carry morphs
+    by = _by_arkit(rig)
+    for i in morph_nodes:
+        names = after.meshes[after.nodes[i].mesh].extras["targetNames"]
+        w = _accessor(after, binary, channels[(i, "weights")]).reshape(track.n_frames, len(names))
+        for t, name in enumerate(names):
+            np.testing.assert_allclose(w[:, t], anim.blend_weights[:, by[canonical_arkit(name)]], atol=1e-6)
+    expect = head_rotations(track.head_pose)
+    if skeleton:  # the head joint turns (its rest rotation is the identity here)
+        head = next(j for j in after.skins[0].joints if after.nodes[j].name == "Head")
+        q = _accessor(after, binary, channels[(head, "rotation")])
+        assert not any(path == "rotation" for (node, path) in channels if node != head)  # the body stays
+    else:  # a root over the scene turns the character about its face centre
+        root = next(i for i, n in enumerate(after.nodes) if n.name == "capture2face_root")
+        assert after.scenes[0].nodes == [root]
+        q = _accessor(after, binary, channels[(root, "rotation")])
+        shift = _accessor(after, binary, channels[(root, "translation")])
+        centre = face_centre_and_height(rig)[0] / 100.0
+        turned = np.einsum("fij,j->fi", track.head_pose[:, :3, :3].astype(np.float64), centre) + shift
+        np.testing.assert_allclose(turned, np.broadcast_to(centre, turned.shape), atol=1e-5)
+    np.testing.assert_allclose(np.abs(np.einsum("fi,fi->f", q, expect)), 1.0, atol=1e-5)
+    from gltf_validator import validate
+
+    report = validate(out)
+    assert report["issues"]["numErrors"] == 0, report["issues"]["messages"][:5]
+
+
+def test_run_drives_an_arkit_character_with_no_mapping_file(tmp_path, avatar, sample_clip):
+    import av
+    import pygltflib
+
+    from capture2face.pipeline import RunOptions, run
+
+    char = tmp_path / "char.glb"
+    export_arkit_character(avatar, char, naming=".L", skeleton=True, body=True)
+    report = run(sample_clip, tmp_path / "out", RunOptions(character=char, size=128), progress=False)
+    folder = tmp_path / "out" / sample_clip.stem
+    with av.open(str(folder / "avatar.mp4")) as c:
+        frames = [f.to_ndarray(format="rgb24") for f in c.decode(video=0)]
+    assert len(frames) == report["frames"] == 90
+    # The face, not a blank frame: the middle of every frame differs from the background.
+    bg = frames[0][1, 1].astype(int)
+    middle = np.stack([f[40:88, 40:88] for f in frames]).astype(int)
+    assert np.abs(middle - bg).max(-1).mean(axis=(1, 2)).min() > 30
+    glb = pygltflib.GLTF2().load(str(folder / "animation.glb"))
+    assert [m.name for m in glb.meshes] == ["Head", "Eyes", "Teeth", "Body"]  # the user's own file
+    assert glb.animations[0].extras["frames"] == 90
+
+
+# ---- compressed and WebP files ------------------------------------------------------------------
+def _meshopt_compressed(src, dst) -> int:
+    """``src`` with every vertex-attribute and index view stored as an
+    EXT_meshopt_compression stream (what gltfpack -c writes); returns how many views."""
+    meshoptimizer = pytest.importorskip("meshoptimizer")
+    gltf, binary = GlbReader._parse(src.read_bytes())
+    sizes = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
+    comp = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5125: 4, 5126: 4}
+    kind = {}
+    for acc in gltf["accessors"]:
+        v = acc.get("bufferView")
+        if v is not None and acc["type"] in sizes:
+            kind[v] = sizes[acc["type"]] * comp[acc["componentType"]]
+    out, fallback, n = bytearray(), 0, 0
+    for i, view in enumerate(gltf["bufferViews"]):
+        data = binary[view.get("byteOffset", 0): view.get("byteOffset", 0) + view["byteLength"]]
+        target, stride = view.get("target"), view.get("byteStride") or kind.get(i)
+        out.extend(b"\0" * (-len(out) % 4))
+        if target == 34962 and stride and stride % 4 == 0:
+            count = len(data) // stride
+            enc = meshoptimizer.encode_vertex_buffer(np.frombuffer(data, np.uint8).reshape(count, stride), count, stride)
+            ext = {"buffer": 0, "byteOffset": len(out), "byteLength": len(enc), "byteStride": stride, "count": count,
+                   "mode": "ATTRIBUTES"}
+        elif target == 34963 and stride == 4:
+            idx = np.frombuffer(data, np.uint32)
+            enc = meshoptimizer.encode_index_buffer(idx, len(idx), int(idx.max()) + 1)
+            ext = {"buffer": 0, "byteOffset": len(out), "byteLength": len(enc), "byteStride": 4, "count": len(idx),
+                   "mode": "TRIANGLES"}
+        else:
+            view["byteOffset"] = len(out)
+            out.extend(data)
+            continue
+        out.extend(enc)
+        view.update(buffer=1, byteOffset=fallback, extensions={"EXT_meshopt_compression": ext})
+        if target == 34962:
+            view["byteStride"] = stride
+        fallback += len(data) + (-len(data) % 4)
+        n += 1
+    gltf["buffers"] = [{"byteLength": len(out)},
+                       {"byteLength": fallback, "extensions": {"EXT_meshopt_compression": {"fallback": True}}}]
+    gltf["extensionsUsed"] = gltf["extensionsRequired"] = ["EXT_meshopt_compression"]
+    text = json.dumps(gltf).encode()
+    text += b" " * (-len(text) % 4)
+    out.extend(b"\0" * (-len(out) % 4))
+    total = 12 + 8 + len(text) + 8 + len(out)
+    dst.write_bytes(b"glTF" + (2).to_bytes(4, "little") + total.to_bytes(4, "little") + len(text).to_bytes(4, "little")
+                    + b"JSON" + text + len(out).to_bytes(4, "little") + b"BIN\0" + bytes(out))
+    return n
+
+
+def test_meshopt_compressed_character_reads_like_the_plain_one(tmp_path, avatar):
+    plain = tmp_path / "plain.glb"
+    export_arkit_character(avatar, plain, naming="_L")
+    packed = tmp_path / "packed.glb"
+    assert _meshopt_compressed(plain, packed) >= 10
+    assert packed.stat().st_size < plain.stat().st_size
+    a, b = import_glb(plain), import_glb(packed)
+    np.testing.assert_array_equal(b.vertices, a.vertices)
+    # The index codec keeps each triangle and its winding but may start it at another corner.
+    def rolled(t):
+        k = np.argmin(t, axis=1)
+        return np.stack([t[np.arange(len(t)), (k + i) % 3] for i in range(3)], 1)
+
+    np.testing.assert_array_equal(rolled(b.triangles), rolled(a.triangles))
+    np.testing.assert_array_equal(b.morph_positions, a.morph_positions)
+    assert b.morph_names == a.morph_names
+
+
+def test_webp_textures_are_read(tmp_path, avatar):
+    import cv2
+
+    plain = tmp_path / "plain.glb"
+    export_arkit_character(avatar, plain, naming="_L")
+    gltf, binary = GlbReader._parse(plain.read_bytes())
+    ok, webp = cv2.imencode(".webp", cv2.cvtColor(avatar.albedo, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_WEBP_QUALITY, 101])
+    assert ok
+    bld = GlbBuilder()
+    bld.gltf, bld.bin = gltf, bytearray(binary)
+    image = bld.add("images", {"bufferView": bld.buffer_view(webp.tobytes()), "mimeType": "image/webp"})
+    tex = gltf["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"]["index"]
+    gltf["textures"][tex]["extensions"] = {"EXT_texture_webp": {"source": image}}
+    gltf["textures"][tex]["source"] = gltf["textures"][1]["source"]  # the fallback: another image
+    gltf["extensionsUsed"] = gltf["extensionsRequired"] = ["EXT_texture_webp"]
+    out = tmp_path / "webp.glb"
+    out.write_bytes(bld.to_bytes())
+    rig = import_glb(out)
+    np.testing.assert_array_equal(rig.albedo, avatar.albedo)  # lossless WebP: the same pixels
+
+
+# ---- automatic wrinkle influences ----------------------------------------------------------------
+def test_automatic_wrinkle_influences_follow_the_morphs(tmp_path, avatar):
+    from capture2face.pipeline import load_character
+    from capture2face.retarget import influences as inf
+    from capture2face.rig.arkit_names import is_automatic
+    from capture2face.rig.auto_wrinkles import feature_positions
+
+    path = tmp_path / "char.glb"
+    export_arkit_character(avatar, path, naming="_L", skeleton=True, body=True)
+    rig = load_character(path)  # no mapping file: the front view is tracked
+    assert is_automatic(rig) and drive_mode(rig) == "arkit"
+    # The tracked landmarks land where the avatar's are (the same face): MediaPipe's own
+    # error on a rendered face is ~0.15 cm.
+    ok = (rig.landmark_vertices[:468] >= 0) & (avatar.landmark_vertices[:468] >= 0)
+    err = np.linalg.norm(rig.vertices[rig.landmark_vertices[:468][ok]]
+                         - avatar.vertices[avatar.landmark_vertices[:468][ok]], axis=1)
+    assert ok.sum() == 468 and np.median(err) < 0.4
+    # A frown, then raised brows, then a smile: the glabella's compress influence follows
+    # the frown, the forehead's stretch influence the raised brows.
+    by = _by_arkit(rig)
+    k = np.arange(120)
+    frown, raised, smile = (np.clip(1 - np.abs(k - c) / 15, 0, 1) for c in (25, 60, 95))
+    w = np.zeros((len(k), rig.n_morphs), np.float32)
+    for name in ("browDownLeft", "browDownRight"):
+        w[:, by[name]] = frown
+    for name in ("browInnerUp", "browOuterUpLeft", "browOuterUpRight"):
+        w[:, by[name]] = raised
+    w[:, by["mouthSmileLeft"]] = w[:, by["mouthSmileRight"]] = smile
+    regions = inf.region_influence(inf.rig_influences(feature_positions(rig, w), rig), rig)
+    glabella = regions[:, rig.region_names.index("glabella"), rig.pose_names.index("compress")]
+    forehead = regions[:, rig.region_names.index("forehead"), rig.pose_names.index("stretch")]
+    assert np.corrcoef(glabella, frown)[0, 1] > 0.9 and glabella.max() > 0.3
+    assert np.corrcoef(forehead, raised)[0, 1] > 0.9 and forehead.max() > 0.3
+    assert glabella[raised > 0.5].max() < 0.05 and forehead[frown > 0.5].max() < 0.05
+    # The wrinkle maps and zone masks baked into its UV space (the face's atlas tile, the
+    # left half) are the avatar's (the same face, the same UVs), where the avatar has any.
+    h, w = rig.albedo.shape[:2]
+    assert w == 2 * h == 2 * avatar.wrinkle_maps.shape[1]
+    for name in ("stretch", "compress"):
+        baked = rig.wrinkle_maps[rig.wrinkle_map_names.index(name), :, : w // 2].astype(int)
+        theirs = avatar.wrinkle_maps[avatar.wrinkle_map_names.index(name)].astype(int)
+        lines = (theirs != [128, 128, 255]).any(-1)
+        diff = np.abs(baked - theirs).max(-1)
+        assert np.median(diff[lines]) <= 4 and (diff[lines] > 24).mean() < 0.2, name
+    assert (rig.wrinkle_maps[:, :, w // 2:] == [128, 128, 255]).all()  # the body's tile stays flat
+    zones = rig.zone_masks[:, : w // 2].astype(int)
+    assert np.abs(zones - avatar.zone_masks.astype(int)).max(-1).mean() < 3
+    # The feature points never move the mesh: the Animation keeps them at rest.
+    from capture2face.retarget import retarget
+
+    track, _ = synthetic_track()
+    anim = retarget(track, rig)
+    np.testing.assert_array_equal(anim.bone_positions, np.repeat(rig.bone_rest[None], track.n_frames, 0))
+    assert anim.influences.max() > 0.3  # the synthetic track raises the brows
+
+
+def test_node_transforms_place_every_mesh_in_the_scene(tmp_path, avatar):
+    """An FBX-style file: the meshes under an 'Armature' node turned 90 degrees about x and
+    scaled by 0.01 (centimetre data): vertices, normals and morph deltas come out turned
+    and scaled as the scene shows them."""
+    plain = tmp_path / "plain.glb"
+    export_arkit_character(avatar, plain, naming="_L")
+    gltf, binary = GlbReader._parse(plain.read_bytes())
+    s = np.sqrt(0.5)
+    gltf["nodes"].append({"name": "Armature", "rotation": [s, 0.0, 0.0, s], "scale": [0.01] * 3,
+                          "children": list(gltf["scenes"][0]["nodes"])})
+    gltf["scenes"][0]["nodes"] = [len(gltf["nodes"]) - 1]
+    turned = tmp_path / "turned.glb"
+    _write_glb(turned, gltf, binary)
+    a, b = import_glb(plain), import_glb(turned)
+    rot = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])  # +90 degrees about x
+    np.testing.assert_allclose(b.vertices, a.vertices @ rot.T * 0.01, atol=1e-5)
+    np.testing.assert_allclose(b.normals, a.normals @ rot.T, atol=1e-5)
+    np.testing.assert_allclose(b.morph_positions, a.morph_positions @ rot.T * 0.01, atol=1e-6)
