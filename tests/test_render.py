@@ -132,11 +132,21 @@ def make_test_rig(n=41, tex=128) -> FaceRig:
     )
 
 
-def cpu_deform(rig: FaceRig, bone_positions, blend_weights) -> np.ndarray:
-    """Reference: morph targets, then translation-only linear blend skinning."""
+def cpu_deform(rig: FaceRig, bone_positions, blend_weights, eye_rotation=None) -> np.ndarray:
+    """Reference: morph targets, then translation-only linear blend skinning, then each
+    eyeball turned about its centre by Ry(yaw) Rx(pitch) (yaw, pitch in degrees)."""
     morphed = rig.vertices.astype(np.float64) + np.einsum("m,mvc->vc", blend_weights, rig.morph_positions)
     offsets = (np.asarray(bone_positions, np.float64) - rig.bone_rest)[rig.skin_joints]  # (V, 4, 3)
-    return morphed + np.einsum("vj,vjc->vc", rig.skin_weights, offsets)
+    out = morphed + np.einsum("vj,vjc->vc", rig.skin_weights, offsets)
+    if eye_rotation is not None and rig.eye_centres is not None:
+        from scipy.spatial.transform import Rotation
+
+        for side in (0, 1):
+            yaw, pitch = np.radians(eye_rotation[side])
+            r = Rotation.from_euler("YX", [yaw, pitch]).as_matrix()  # intrinsic: Ry(yaw) @ Rx(pitch)
+            ids = rig.eye_vertex_side == side
+            out[ids] = (out[ids] - rig.eye_centres[side]) @ r.T + rig.eye_centres[side]
+    return out
 
 
 @pytest.fixture(scope="session")
@@ -196,7 +206,7 @@ def view(rig):
 def test_deformation_matches_cpu_reference(request, which):
     rig = request.getfixturevalue(which)
     view = framing_pose(rig, yaw=10.0, pitch=5.0)
-    rng = np.random.default_rng(0)
+    rng, eye_rng = np.random.default_rng(0), np.random.default_rng(1)
     tol = 1e-4 * rig.face_size()
     from capture2face.render.skinning import Deformer
     from capture2face.rig.deform import deform
@@ -207,13 +217,14 @@ def test_deformation_matches_cpu_reference(request, which):
             bones = rig.bone_rest + rng.normal(0, 0.8, rig.bone_rest.shape) * (np.arange(rig.n_bones) > 0)[:, None]
             weights = rng.uniform(0, 1, rig.n_morphs)
             weights[rng.integers(rig.n_morphs)] = 0.0  # an inactive morph is skipped
-            drawn = renderer.deformed_positions(FrameState(bones, weights, view))
-            cpu = cpu_deform(rig, bones, weights)
+            eyes = eye_rng.uniform(-30, 30, (2, 2))
+            drawn = renderer.deformed_positions(FrameState(bones, weights, view, eye_rotation=eyes))
+            cpu = cpu_deform(rig, bones, weights, eyes)
             assert np.abs(cpu - rig.vertices).max() > 0.3  # the deformation is not trivial
             assert np.abs(drawn - cpu).max() < tol
             # and the rig package's own reference agrees, normals included
-            positions, normals = deformer(bones, weights)
-            ref_positions, ref_normals = deform(rig, bones, weights)
+            positions, normals = deformer(bones, weights, eyes)
+            ref_positions, ref_normals = deform(rig, bones, weights, eyes)
             assert np.abs(positions - ref_positions).max() < tol
             assert np.abs(normals - ref_normals).max() < 1e-5
             assert np.abs(normals - rig.normals).max() > 0.05  # the morphs bend them

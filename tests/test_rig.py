@@ -114,6 +114,37 @@ def test_eyes_cover_the_openings(rig):
         assert rig.vertices[iris_vertices[0], 2] == pytest.approx(p[:, 2].max(), abs=1e-5)
 
 
+def test_eyes_turn_about_their_centres_behind_the_lids(rig):
+    from capture2face.rig.face_rig import eye_rotation_matrices, gaze_angles, gaze_directions
+
+    assert rig.has_eyes and rig.eye_centres.shape == (2, 3)
+    for side, first in ((0, 468), (1, 473)):
+        ball = rig.eye_vertex_side == side
+        assert np.all(rig.material[ball] == 1) and ball.sum() > 100
+        iris = rig.landmark_vertices[first:first + 5]
+        assert np.all(rig.eye_vertex_side[iris] == side)
+        # The centre is the sphere's: every eyeball vertex at one distance from it.
+        r = np.linalg.norm(rig.vertices[ball] - rig.eye_centres[side], axis=1)
+        assert r.std() < 1e-4 * r.mean()
+    assert rig.eye_centres[0, 0] < 0 < rig.eye_centres[1, 0]  # right eye at -x
+    # Yaw 30 (towards +x), pitch 20 (down) on both eyes: the iris centres move that way,
+    # the eyeballs turn rigidly, nothing else moves, and the gaze reads back.
+    turn = np.array([[30.0, 20.0], [30.0, 20.0]])
+    pos, nrm = deform(rig, rig.bone_rest, _zero_weights(rig), turn)
+    rest, _ = deform(rig, rig.bone_rest, _zero_weights(rig))
+    moved = np.linalg.norm(pos - rest, axis=1) > 1e-6
+    assert np.array_equal(moved, rig.eye_vertex_side >= 0)
+    for side, first in ((0, 468), (1, 473)):
+        c = rig.eye_centres[side]
+        v = pos[rig.landmark_vertices[first]] - c
+        np.testing.assert_allclose(gaze_angles(v), [30.0, 20.0], atol=1e-3)
+        assert v[0] > 0 and v[1] < 0
+        ball = rig.eye_vertex_side == side
+        np.testing.assert_allclose(np.linalg.norm(pos[ball] - c, axis=1), np.linalg.norm(rest[ball] - c, axis=1), atol=1e-5)
+        np.testing.assert_allclose(nrm[ball], rig.normals[ball] @ eye_rotation_matrices(turn[side]).T, atol=1e-5)
+    np.testing.assert_allclose(gaze_directions(np.zeros(2)), [0.0, 0.0, 1.0], atol=1e-12)
+
+
 def _component(rig, vertex):
     import scipy.sparse as sp
     from scipy.sparse.csgraph import connected_components

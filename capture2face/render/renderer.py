@@ -101,6 +101,8 @@ class FrameState:
         light_direction: (3,) camera-space direction towards the key light; None = default.
         light_color: (3,) linear key-light colour; None = default.
         ambient: (3,) linear ambient colour; None = default.
+        eye_rotation: (2, 2) yaw, pitch (degrees) of the right and left eye
+            (``Animation.eye_rotation``); None = straight ahead.
     """
 
     bone_positions: np.ndarray
@@ -111,6 +113,7 @@ class FrameState:
     light_direction: np.ndarray | None = None
     light_color: np.ndarray | None = None
     ambient: np.ndarray | None = None
+    eye_rotation: np.ndarray | None = None
 
     @classmethod
     def at_pose(cls, rig: FaceRig, head_pose: np.ndarray, pose: str | None = None) -> "FrameState":
@@ -325,7 +328,7 @@ class Renderer:
                            ("u_zone_mask0", _UNIT_MASK0), ("u_zone_mask1", _UNIT_MASK1)):
             _set(prog, name, unit)
 
-        positions, normals = self._deformer(state.bone_positions, state.blend_weights)
+        positions, normals = self._deformer(state.bone_positions, state.blend_weights, state.eye_rotation)
         self._positions = positions
         vertices = self._frame_vertices
         vertices[:, 0:3] = positions
@@ -374,7 +377,7 @@ class Renderer:
     def deformed_positions(self, state: FrameState) -> np.ndarray:
         """(V, 3) float32 deformed positions in head coordinates: the mesh the renderer
         draws for ``state``."""
-        return self._deformer.positions(state.bone_positions, state.blend_weights)
+        return self._deformer.positions(state.bone_positions, state.blend_weights, state.eye_rotation)
 
     def _draw(self, state: FrameState) -> None:
         ctx = self.ctx

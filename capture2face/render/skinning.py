@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from capture2face.rig.face_rig import FaceRig
+from capture2face.rig.face_rig import FaceRig, turn_eyes
 
 
 class Deformer:
@@ -23,6 +23,7 @@ class Deformer:
         self._bone_rest = np.asarray(rig.bone_rest, np.float64)
         # Skinning as one (V, B) matrix: the 4 weights of each vertex in its joints' columns.
         self._skin = rig.dense_skin_weights()
+        self._rig = rig
 
     def _check(self, bone_positions, blend_weights) -> tuple[np.ndarray, np.ndarray]:
         bones = np.asarray(bone_positions, np.float64)
@@ -33,26 +34,33 @@ class Deformer:
             raise ValueError(f"blend_weights must be ({self.n_morphs},), got {weights.shape}")
         return bones, weights
 
-    def positions(self, bone_positions: np.ndarray, blend_weights: np.ndarray) -> np.ndarray:
-        """(V, 3) float32 deformed positions, head coordinates (cm)."""
+    def positions(self, bone_positions: np.ndarray, blend_weights: np.ndarray,
+                  eye_rotation: np.ndarray | None = None) -> np.ndarray:
+        """(V, 3) float32 deformed positions, head coordinates (cm); ``eye_rotation``
+        (2, 2) yaw, pitch degrees per eye turns the eyeballs (None: straight ahead)."""
         bones, weights = self._check(bone_positions, blend_weights)
         active = np.flatnonzero(weights)
         positions = (self._vertices + weights[active] @ self._morph_positions[active]).reshape(-1, 3)
         positions += self._skin @ (bones - self._bone_rest).astype(np.float32)
+        turn_eyes(self._rig, positions, None, eye_rotation)
         return positions
 
-    def normals(self, blend_weights: np.ndarray) -> np.ndarray:
-        """(V, 3) float32 unit normals: translations leave them alone, only morphs bend them."""
+    def normals(self, blend_weights: np.ndarray, eye_rotation: np.ndarray | None = None) -> np.ndarray:
+        """(V, 3) float32 unit normals: translations leave them alone, only morphs bend
+        them (and the eyes' turn, ``eye_rotation``, turns the eyeballs')."""
         weights = np.asarray(blend_weights, np.float32).ravel()
         active = np.flatnonzero(weights)
         normals = (self._normals + weights[active] @ self._morph_normals[active]).reshape(-1, 3)
         normals /= np.maximum(np.sqrt(np.einsum("vc,vc->v", normals, normals)), 1e-12)[:, None]
+        turn_eyes(self._rig, None, normals, eye_rotation)
         return normals
 
     def skin(self, per_bone: np.ndarray) -> np.ndarray:
         """(V, K) float32 per-vertex blend ``sum_i w_vi * per_bone[J_i]`` of (B, K) values."""
         return self._skin @ np.asarray(per_bone, np.float32)
 
-    def __call__(self, bone_positions: np.ndarray, blend_weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def __call__(self, bone_positions: np.ndarray, blend_weights: np.ndarray,
+                 eye_rotation: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(positions, normals), (V, 3) float32 each."""
-        return self.positions(bone_positions, blend_weights), self.normals(blend_weights)
+        return (self.positions(bone_positions, blend_weights, eye_rotation),
+                self.normals(blend_weights, eye_rotation))

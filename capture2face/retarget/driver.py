@@ -11,6 +11,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from capture2face.errors import CaptureError
+from capture2face.retarget import gaze
 from capture2face.retarget import influences as inf
 from capture2face.retarget.animation import Animation
 from capture2face.retarget.arkit import arkit_curves
@@ -57,6 +58,9 @@ class RetargetOptions:
             points the rig fits perfectly do not take all the weight.
         window_frames, window_overlap: the solve runs over windows of this many frames
             sharing this many with the next (:mod:`capture2face.retarget.windows`).
+        eye_radius_iod: the actor's distance from eye centre to iris in inter-ocular
+            distances, which turns the irises' motion into angles
+            (:func:`capture2face.retarget.gaze.eye_rotation`); a human's by default.
     """
 
     # Chosen on 300 synthetic frames (``capture2face eval synthetic``): thin-plate,
@@ -144,6 +148,7 @@ class RetargetOptions:
     # the temporal term's reach, so the result matches one whole-clip solve (tests).
     window_frames: int = 1000
     window_overlap: int = 100
+    eye_radius_iod: float = gaze.HUMAN_RADIUS_IOD
 
 
 def feature_correspondence(rig) -> tuple[np.ndarray, np.ndarray, bool]:
@@ -396,6 +401,8 @@ def _retarget(track, rig, options: RetargetOptions) -> Animation:
         character=rig.name,
         arkit_names=list(track.blendshape_names),
         arkit_weights=arkit_curves(track),
+        eye_rotation=(gaze.eye_rotation(track.landmarks_head, track.neutral_frame, options.eye_radius_iod)
+                      if track.landmarks_head.shape[1] >= 478 else None),
     )
 
 

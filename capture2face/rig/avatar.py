@@ -301,7 +301,8 @@ def _uv_sphere(n_theta: int, n_phi: int):
 def _eyeball(ring_pos: np.ndarray, side: str):
     """A sphere behind an eye opening whose front silhouette covers the opening and which
     stays behind every lid vertex. Returns (vertices, uvs, triangles, iris vertex ids
-    (5,): centre then 4 rim points at phi = 0, 90, 180, 270 degrees)."""
+    (5,): centre then 4 rim points at phi = 0, 90, 180, 270 degrees, the iris rim's polar
+    angle, the sphere's centre (3,): the eye's rotation centre)."""
     centre_xy = 0.5 * (ring_pos[:, :2].max(0) + ring_pos[:, :2].min(0))
     reach = np.linalg.norm(ring_pos[:, :2] - centre_xy, axis=1)
     radius = reach.max() + 0.2
@@ -327,7 +328,7 @@ def _eyeball(ring_pos: np.ndarray, side: str):
     r_uv = maps.eye_uv_radius(theta)
     uvs = np.stack([cu + r_uv * np.cos(phi), cv - r_uv * np.sin(phi)], 1)
     rim = 1 + (k - 1) * n_phi + np.array([0, 6, 12, 18])
-    return verts, uvs, tris, np.concatenate([[0], rim]), iris_theta
+    return verts, uvs, tris, np.concatenate([[0], rim]), iris_theta, centre
 
 
 def _mouth_interior(lip_loop: np.ndarray, pos: np.ndarray, upper: np.ndarray):
@@ -658,9 +659,12 @@ def build_avatar(variant: str = "default") -> FaceRig:
     landmark_vertices[:468] = np.arange(468)
     offset = n_skin
     iris_theta = {}
-    for side, first_landmark in (("R", 468), ("L", 473)):
+    eye_centres, eye_side = [], []
+    for k, (side, first_landmark) in enumerate((("R", 468), ("L", 473))):
         ring = sets["eye"][side]["ring"]
-        ev, euv, etri, iris, iris_theta[side] = _eyeball(pos[ring], side)
+        ev, euv, etri, iris, iris_theta[side], centre = _eyeball(pos[ring], side)
+        eye_centres.append(centre)
+        eye_side.append(np.full(len(ev), k, np.int8))
         parts_pos.append(ev)
         parts_uv.append(euv)
         parts_tri.append(etri + offset)
@@ -684,6 +688,8 @@ def build_avatar(variant: str = "default") -> FaceRig:
     all_tri = np.vstack(parts_tri).astype(np.int32)
     material = np.concatenate(parts_mat)
     V = len(all_pos)
+    eye_vertex_side = np.full(V, -1, np.int8)
+    eye_vertex_side[n_skin:n_skin + sum(map(len, eye_side))] = np.concatenate(eye_side)
     n_eye = mouth_start - n_skin
 
     # Skinning of the extra parts: eyes ride the head; the mouth interior copies the
@@ -756,6 +762,7 @@ def build_avatar(variant: str = "default") -> FaceRig:
         wrinkle_maps=np.stack([textures["stretch"], textures["compress"]]),
         zone_names=list(ZONE_NAMES), zone_masks=textures["zones"], zone_table=f32(zone_table),
         region_names=list(REGION_NAMES), region_weights=f32(region_weights),
+        eye_centres=f32(eye_centres), eye_vertex_side=eye_vertex_side,
     )
 
 
