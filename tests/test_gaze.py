@@ -77,3 +77,37 @@ def test_livelink_eye_columns_come_from_the_gaze(avatar, tmp_path):
     np.testing.assert_allclose(rows[:, col["RightEyeYaw"]], truth[:, 0, 0] / ANGLE_UNIT_DEG, atol=2e-6)
     np.testing.assert_allclose(rows[:, col["RightEyePitch"]], truth[:, 0, 1] / ANGLE_UNIT_DEG, atol=2e-6)
     assert np.all(rows[:, col["LeftEyeRoll"]] == 0) and np.all(rows[:, col["RightEyeRoll"]] == 0)
+
+
+def test_animation_glb_turns_the_eye_joints(avatar, tmp_path):
+    import dataclasses
+    import sys
+    from pathlib import Path
+
+    from scipy.spatial.transform import Rotation
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from gltf_validator import validate
+
+    from capture2face.export.animation_glb import read_glb_animation
+    from capture2face.rig.face_rig import eye_rotation_matrices
+    from capture2face.rig.gltf import export_glb, import_glb
+    from tests.test_export import make_animation
+
+    truth, _, _ = _gaze_clip(avatar, frames=20)
+    anim = dataclasses.replace(make_animation(avatar, frames=20), eye_rotation=truth.astype(np.float32))
+    path = tmp_path / "a.glb"
+    export_glb(avatar, path, animation=anim)
+    report = validate(path)
+    assert report["issues"]["numErrors"] == 0 and report["issues"]["numWarnings"] == 0
+    back = read_glb_animation(path)
+    assert back.joint_names == avatar.bone_names  # the eye joints are no bones
+    for side in (0, 1):
+        expect = Rotation.from_matrix(eye_rotation_matrices(truth[:, side])).as_quat()
+        assert np.abs(np.abs((expect * back.eye_rotation[:, side]).sum(1)) - 1).max() < 1e-6
+    # The character comes back with its turning eyes and its bones' skinning.
+    rig = import_glb(path)
+    assert rig.bone_names == avatar.bone_names
+    np.testing.assert_array_equal(rig.eye_vertex_side, avatar.eye_vertex_side)
+    np.testing.assert_allclose(rig.eye_centres, avatar.eye_centres, atol=1e-6)
+    np.testing.assert_array_equal(rig.skin_joints, avatar.skin_joints)

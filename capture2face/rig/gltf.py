@@ -21,6 +21,9 @@ What an exported .glb holds (it passes the Khronos glTF validator without errors
   translated relative to its parent (bones translate only); bone 0 ``head`` hangs under a
   root node ``capture2face_root`` (the skeleton root, which carries the head rotation of
   an animation). Inverse bind matrices are translations by minus the rest positions.
+  A rig with turning eyes (``FaceRig.eye_centres``) gets two more joints after the
+  bones, ``eye_R`` and ``eye_L`` (children of ``head``, at the eye centres): its eyeball
+  vertices are skinned to them alone, so an animation turns the eyes by rotating them.
 * **Textures** (PNG): the albedo as baseColorTexture, the base normal map as
   normalTexture; the wrinkle maps and the two RGBA zone masks as further images.
 * **``extras.capture2face``** at the top level: everything else a FaceRig has (bone
@@ -45,6 +48,7 @@ CM_PER_METRE = 100.0
 EXTRAS_KEY = "capture2face"
 EXTRAS_FORMAT = "capture2face.FaceRig.glb/1"
 ROOT_NODE_NAME = "capture2face_root"
+EYE_JOINT_NAMES = ("eye_R", "eye_L")  # the subject's right eye first, as FaceRig.eye_centres
 SAMPLER_LINEAR_CLAMP = {"magFilter": 9729, "minFilter": 9987, "wrapS": 33071, "wrapT": 33071}
 
 
@@ -107,7 +111,12 @@ def build_rig_gltf(rig: FaceRig) -> tuple[GlbBuilder, dict]:
     tangents[:, :3] = _unit(tangents[:, :3])
     tangents[:, 3] = np.where(tangents[:, 3] < 0, -1.0, 1.0)
     joints, weights = _skin_attributes(rig)
-    joint_dtype = np.uint8 if rig.n_bones <= 256 else np.uint16
+    if rig.has_eyes:  # eyeballs ride their eye joints (after the bones) alone
+        eye = rig.eye_vertex_side >= 0
+        joints[eye] = 0
+        joints[eye, 0] = rig.n_bones + rig.eye_vertex_side[eye]
+        weights[eye] = [1.0, 0.0, 0.0, 0.0]
+    joint_dtype = np.uint8 if rig.n_bones + 2 <= 256 else np.uint16
     attributes = {
         "POSITION": b.accessor(rig.vertices.astype(np.float32) * np.float32(METRES_PER_CM), ARRAY_BUFFER, minmax=True),
         "NORMAL": b.accessor(_unit(rig.normals), ARRAY_BUFFER),
@@ -180,13 +189,21 @@ def build_rig_gltf(rig: FaceRig) -> tuple[GlbBuilder, dict]:
             node["children"] = children
         b.add("nodes", node)
     b.gltf["nodes"][root_node]["children"] = [joint_nodes[i] for i in np.flatnonzero(parents < 0)]
-    ibm = np.tile(np.eye(4, dtype=np.float32), (rig.n_bones, 1, 1))
-    ibm[:, 3, :3] = -(rest * METRES_PER_CM)  # column-major: translation in the last column
+    eye_nodes, joint_rest = [], rest
+    if rig.has_eyes:
+        centres = rig.eye_centres.astype(np.float64)
+        for side, name in enumerate(EYE_JOINT_NAMES):
+            eye_nodes.append(b.add("nodes", {"name": name, "translation": ((centres[side] - rest[0]) * METRES_PER_CM).tolist()}))
+        b.gltf["nodes"][joint_nodes[0]].setdefault("children", []).extend(eye_nodes)
+        joint_rest = np.vstack([rest, centres])
+    n_joints = len(joint_rest)
+    ibm = np.tile(np.eye(4, dtype=np.float32), (n_joints, 1, 1))
+    ibm[:, 3, :3] = -(joint_rest * METRES_PER_CM)  # column-major: translation in the last column
     skin = b.add("skins", {
         "name": f"{rig.name}_skin",
-        "joints": joint_nodes,
+        "joints": joint_nodes + eye_nodes,
         "skeleton": root_node,
-        "inverseBindMatrices": b.accessor(ibm.reshape(rig.n_bones, 16), gltf_type="MAT4"),
+        "inverseBindMatrices": b.accessor(ibm.reshape(n_joints, 16), gltf_type="MAT4"),
     })
     b.gltf["nodes"][mesh_node]["skin"] = skin
     b.gltf["scenes"] = [{"name": rig.name or "face", "nodes": [mesh_node, root_node]}]
@@ -213,14 +230,16 @@ def build_rig_gltf(rig: FaceRig) -> tuple[GlbBuilder, dict]:
         "region_names": list(rig.region_names),
         "region_attributes": [f"_REGIONS_{c}" for c in range(n_chunks)],
     }}
-    return b, {"mesh": mesh_node, "root": root_node, "joints": joint_nodes}
+    if rig.has_eyes:
+        b.gltf["extras"][EXTRAS_KEY].update(eye_joints=list(EYE_JOINT_NAMES), eye_centres_cm=_tolist(rig.eye_centres))
+    return b, {"mesh": mesh_node, "root": root_node, "joints": joint_nodes, "eyes": eye_nodes}
 
 
 def export_glb(rig: FaceRig, path: str | os.PathLike, animation=None, fps: float | None = None) -> None:
     """Write ``rig`` as a .glb (atomically); with ``animation`` (an
     :class:`~capture2face.retarget.animation.Animation` of this rig) also one glTF
-    animation: per-bone translation channels, a morph ``weights`` channel and the head
-    rotation, sampled per frame. ``fps`` replaces the clip's timestamps by frame / fps."""
+    animation: per-bone translation channels, a morph ``weights`` channel, the head
+    rotation and the eye joints' rotations (gaze), sampled per frame. ``fps`` replaces the clip's timestamps by frame / fps."""
     builder, nodes = build_rig_gltf(rig)
     if animation is not None:
         from capture2face.export.animation_glb import add_animation

@@ -312,6 +312,10 @@ def import_glb(path: str | os.PathLike, mapping_json: str | os.PathLike | None =
     ours = g.get("extras", {}).get(EXTRAS_KEY) if isinstance(g.get("extras"), dict) else None
     if ours is not None and ours.get("format") != EXTRAS_FORMAT:
         ours = None
+    if ours and ours.get("eye_joints"):
+        # Our eye joints (the skin's last joints) turn the eyeballs; they are no bones.
+        for skin in g.get("skins", []):
+            skin["joints"] = skin["joints"][: len(ours["bone_names"])]
     try:
         return _build(r, g, glb, mapping, mapping_dir, ours, vertex_normals, uv_tangents)
     except (KeyError, IndexError, TypeError, ValueError) as exc:
@@ -517,7 +521,18 @@ def _apply_ours(rig: FaceRig, ours: dict, m: dict) -> FaceRig:
     if m["regions"] is not None:
         regions = np.ascontiguousarray(m["regions"][:, : len(regions)].T).astype(np.float32)
     P = len(ours["pose_names"])
+    eyes = {}
+    if ours.get("eye_joints") and m["joints"] is not None:
+        # Eyeball vertices: skinned to an eye joint (indices after the bones), back to the head.
+        raw = np.asarray(m["joints"], np.int64)
+        heavy = np.take_along_axis(raw, np.argmax(m["weights"], axis=1)[:, None], 1)[:, 0]
+        side = np.where(heavy >= rig.n_bones, heavy - rig.n_bones, -1).astype(np.int8)
+        joints, weights = rig.skin_joints.copy(), rig.skin_weights.copy()
+        joints[side >= 0], weights[side >= 0] = 0, [1.0, 0.0, 0.0, 0.0]
+        eyes = dict(eye_centres=np.asarray(ours["eye_centres_cm"], np.float32).reshape(2, 3),
+                    eye_vertex_side=side, skin_joints=joints, skin_weights=weights)
     return rig.replace(
+        **eyes,
         bone_rest=np.asarray(ours["bone_rest_cm"], np.float32).reshape(-1, 3),
         bone_parents=np.asarray(ours["bone_parents"], np.int32),
         bone_landmarks=np.asarray(ours["bone_landmarks"], np.int32),
