@@ -32,8 +32,9 @@ dimensionless) and how each is measured:
 * ``gaze_error_deg_median`` / ``_p95``: the angle in degrees between the true and the
   estimated gaze direction (``Animation.eye_rotation``, head coordinates) per eye and
   frame, over frames whose eye is open in the truth (its ``eyeBlink`` weight below 0.5:
-  a closed lid hides the iris); ``baseline_straight_gaze_error_deg_median``: the eyes kept
-  straight ahead. The actor is the default avatar, so the gaze is estimated with its eye
+  a closed lid hides the iris); ``gaze_yaw_error_deg_median`` / ``gaze_pitch_...``: the
+  same per angle, with ``gaze_yaw_r`` / ``gaze_pitch_r`` (Pearson r against the truth);
+  ``baseline_straight_gaze_error_deg_median``: the eyes kept straight ahead. The actor is the default avatar, so the gaze is estimated with its eye
   radius (``RetargetOptions.eye_radius_iod`` = ``retarget.gaze.eye_radius_iod(source)``)
   unless ``options`` are given.
 * Retargeting starts from a frame the truth holds at neutral, and again from the
@@ -329,6 +330,8 @@ def gaze_errors(animation, truth, use: np.ndarray) -> dict:
     return {
         "gaze_error_deg_median": float(np.median(err)),
         "gaze_error_deg_p95": float(np.percentile(err, 95)),
+        "gaze_yaw_error_deg_median": float(np.median(np.abs(animation.eye_rotation[..., 0][sel] - truth.eye_rotation[..., 0][sel]))),
+        "gaze_pitch_error_deg_median": float(np.median(np.abs(animation.eye_rotation[..., 1][sel] - truth.eye_rotation[..., 1][sel]))),
         "gaze_yaw_r": pearson(animation.eye_rotation[..., 0][sel], truth.eye_rotation[..., 0][sel]),
         "gaze_pitch_r": pearson(animation.eye_rotation[..., 1][sel], truth.eye_rotation[..., 1][sel]),
         "baseline_straight_gaze_error_deg_median": float(np.median(straight)),

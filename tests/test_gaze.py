@@ -111,3 +111,27 @@ def test_animation_glb_turns_the_eye_joints(avatar, tmp_path):
     np.testing.assert_array_equal(rig.eye_vertex_side, avatar.eye_vertex_side)
     np.testing.assert_allclose(rig.eye_centres, avatar.eye_centres, atol=1e-6)
     np.testing.assert_array_equal(rig.skin_joints, avatar.skin_joints)
+
+
+def test_fidelity_judges_eye_yaw_against_the_eyelook_scores():
+    from capture2face.fidelity import GAZE_CHECKS, ClipFidelity, summary_line
+
+    T = 200
+    t = np.arange(T) / 30.0
+    rng = np.random.default_rng(0)
+    look = np.sin(2 * np.pi * 0.4 * t)  # the tracker's in/out difference, std ~0.7
+    gaze = np.zeros((T, 2, 2))
+    gaze[:, 0, 0] = 25 * look + rng.normal(0, 3, T)  # right eye follows
+    gaze[:, 1, 0] = rng.normal(0, 10, T)  # left eye does not
+    scores = np.stack([look, look, 0.01 * look, 0.01 * look], 1)  # pitch: the gaze barely moves
+    z = np.zeros((T, 6))
+    fid = ClipFidelity(name="x", times=t, source=z, character=z, direct=z, arkit=np.zeros((T, 0)),
+                       arkit_names=[], arkit_source="animation", gaze=gaze, gaze_scores=scores)
+    fig = fid.figures()["gaze"]
+    assert list(fig) == list(GAZE_CHECKS)
+    assert fig["yaw_right"]["judged"] and fig["yaw_right"]["met"] and fig["yaw_right"]["r"] > 0.95
+    assert fig["yaw_left"]["judged"] and not fig["yaw_left"]["met"]
+    assert not fig["pitch_right"]["judged"] and "met" not in fig["pitch_right"]
+    line = summary_line([{"summary": {"judged": 0, "faithful": 0, "not_worse_than_direct": 0}, "arkit": {},
+                          "gaze": fig}])
+    assert "eye yaw 1/2 follows" in line
