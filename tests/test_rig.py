@@ -65,7 +65,7 @@ def test_geometry(rig, canon):
         assert np.linalg.norm(rig.vertices[upper] - rig.vertices[lower]) < 1e-5
     assert np.linalg.norm(canon.vertices[13] - canon.vertices[14]) > 0.4
     assert rig.triangles.min() >= 0 and rig.triangles.max() < rig.n_vertices
-    assert set(np.unique(rig.material)) == {0, 1, 2}
+    assert set(np.unique(rig.material)) == {0, 1, 2, 3}
     np.testing.assert_allclose(np.linalg.norm(rig.normals, axis=1), 1.0, atol=1e-5)
     # Skin normals face the camera on the front of the face.
     front = (rig.material == 0) & (np.abs(rig.vertices[:, 0]) < 3)
@@ -167,10 +167,45 @@ def test_mouth_interior_behind_the_lips(rig):
     assert (n[:, 2] > -1e-9).mean() > 0.5
 
 
+def test_teeth_and_tongue(rig):
+    from scipy.spatial import cKDTree
+
+    parts = rig.material == 3
+    assert parts.sum() > 300
+    head, jaw = 0, rig.bone_index("jaw")
+    joints = rig.skin_joints[parts, 0]
+    assert np.all(rig.skin_weights[parts, 0] == 1.0) and set(joints.tolist()) == {head, jaw}
+    upper = np.flatnonzero(parts)[joints == head]
+    lower = np.flatnonzero(parts)[joints == jaw]  # lower teeth and tongue
+    lip_y = rig.vertices[13, 1]
+    assert rig.vertices[upper, 1].min() < lip_y < rig.vertices[upper, 1].max()  # upper edge below the lip line
+    assert rig.vertices[lower, 1].max() < lip_y
+    # Behind the lips: every skin vertex over a tooth (within 0.3 cm seen from the front)
+    # is in front of it, so a closed mouth hides the teeth.
+    skin = np.flatnonzero(rig.material == 0)
+    tree = cKDTree(rig.vertices[skin, :2])
+    for v in np.flatnonzero(parts):
+        near = tree.query_ball_point(rig.vertices[v, :2], 0.3)
+        assert near and rig.vertices[skin[near], 2].min() > rig.vertices[v, 2]
+    # The jaw opens the lower teeth and the tongue with the lower lip; the upper teeth stay.
+    w = _zero_weights(rig)
+    w[rig.morph_index("jawOpen")] = 1.0
+    bones = rig.bone_rest.copy()
+    bones[jaw] += [0.0, -0.5, 0.0]
+    pos, _ = deform(rig, bones, w)
+    assert np.abs(pos[upper] - rig.vertices[upper]).max() < 1e-6
+    drop = rig.vertices[lower, 1] - pos[lower, 1]
+    assert drop.min() > 0.5 and rig.vertices[14, 1] - pos[14, 1] > 0.5
+    # The lower teeth move as one piece (a rigid jaw turn plus the bone's shift).
+    d = np.linalg.norm(pos[lower][:, None] - pos[lower][None, ::50], axis=-1)
+    d0 = np.linalg.norm(rig.vertices[lower][:, None] - rig.vertices[lower][None, ::50], axis=-1)
+    assert np.abs(d - d0).max() < 1e-4
+
+
 def test_texture_layout_keeps_eyes_and_mouth_off_the_skin(rig):
     skin_tris = rig.triangles[(rig.material[rig.triangles] == 0).all(1)]
     covered = maps_mod._coverage(rig.uvs, skin_tris, 1024)
-    for material in (1, 2):
+    for material in (1, 2, 3):
         uv = rig.uvs[rig.material == material]
         texels = np.clip((uv * 1024).astype(int), 0, 1023)
         assert not covered[texels[:, 1], texels[:, 0]].any()

@@ -6,7 +6,9 @@ every builder module, so a code change rebuilds it. Nothing is downloaded.
 
 Vertex layout: canonical vertices 0..467 (vertex i *is* landmark i), then the edge
 midpoints of one subdivision step (skin, material 0), then the right and left eyeballs
-(material 1), then the mouth interior (material 2).
+(material 1), then the mouth interior (material 2), then the upper teeth, lower teeth and
+tongue (material 3). The eyeballs turn about their centres with the gaze; the upper teeth
+ride the head, the lower teeth and the tongue the jaw bone and the jaw morphs.
 
 Sides are the subject's: ``_L`` bones and ``...Left`` morphs are on the subject's left,
 +x in head coordinates, u > 0.5 in texture space.
@@ -372,6 +374,100 @@ def _mouth_interior(lip_loop: np.ndarray, pos: np.ndarray, upper: np.ndarray):
     return verts, source, depth, tris
 
 
+# Teeth: widths (cm, along the arch from the midline) of the incisors, canine and
+# premolars of one side; what shows between open lips. Upper teeth overlap the lower ones
+# in front (overbite) and stand a little further forward (overjet).
+TOOTH_WIDTHS = (0.85, 0.68, 0.78, 0.7, 0.7)
+TEETH = {  # row: (edge y offset from the lip line, height up (+) or down (-), z back from the upper row)
+    "upper": (-0.22, 1.1, 0.0),
+    "lower": (-0.1, -0.9, 0.14),
+}
+TEETH_BEHIND_LIPS_CM = 0.42  # the upper incisors' front behind the inner lip contour
+TOOTH_THICKNESS = 0.28
+
+
+def _teeth_row(front: np.ndarray, edge_y: float, height: float, back_dir: np.ndarray):
+    """One row of teeth as a strip folded over the biting edge: the front face (root,
+    middle, edge), then the back face (edge, middle, root). ``front`` (N, 3) points along
+    the arch on the front face, ``back_dir`` (N, 3) unit vectors into the mouth.
+    Returns (vertices (6N, 3), row fraction (6N,) from 0 at the front root to 1 at the back
+    root, triangles (local), core (6N, 3): the middle of the tooth behind each vertex, for
+    facing the triangles outwards)."""
+    n = len(front)
+    rows = []
+    for up, back in ((1.0, 0.0), (0.5, 0.0), (0.0, 0.0), (0.0, 1.0), (0.5, 1.0), (1.0, 1.0)):
+        p = front + back * TOOTH_THICKNESS * back_dir
+        p[:, 1] = edge_y + up * height
+        rows.append(p)
+    core = front + 0.5 * TOOTH_THICKNESS * back_dir
+    core[:, 1] = edge_y + 0.5 * height
+    tris = [(r * n + j, (r + 1) * n + j, (r + 1) * n + j + 1) for r in range(5) for j in range(n - 1)]
+    tris += [(r * n + j, (r + 1) * n + j + 1, r * n + j + 1) for r in range(5) for j in range(n - 1)]
+    return np.concatenate(rows), np.repeat(np.arange(6) / 5.0, n), np.array(tris, np.int32), np.tile(core, (6, 1))
+
+
+def _teeth_and_tongue(ring: np.ndarray):
+    """Upper and lower teeth along a dental arch behind the inner lip contour ``ring``
+    (N, 3), and a tongue on the floor of the mouth behind the lower teeth.
+
+    Returns (vertices (K, 3), uvs (K, 2), triangles (local), part (K,): 0 upper teeth,
+    1 lower teeth, 2 tongue)."""
+    from capture2face.rig import maps
+
+    lip_y = float(ring[np.argmax(ring[:, 2]), 1])  # the lips meet here on the midline
+    z_front = float(ring[:, 2].max()) - TEETH_BEHIND_LIPS_CM
+    half = float(np.abs(ring[:, 0]).max())
+    # The arch: a parabola from the front teeth to just inside the lip corners, 1.3 cm
+    # further back at the corners than at the front (what a dental arch does).
+    ends = sum(TOOTH_WIDTHS)
+    xs = np.linspace(-1.0, 1.0, 41)
+    curve = lambda x, dz: np.stack([x * (half - 0.15), np.zeros_like(x), z_front - dz - 1.3 * x**2], 1)
+    verts, uvs, tris, part = [], [], [], []
+    offset = 0
+    for k, (row, (edge_dy, height, back)) in enumerate(TEETH.items()):
+        front = curve(xs, back)
+        # Arc length from the midline, for the texture's tooth boundaries.
+        seg = np.linalg.norm(np.diff(front, axis=0), axis=1)
+        arc = np.concatenate([[0.0], np.cumsum(seg)])
+        arc -= arc[len(xs) // 2]
+        tangent = np.gradient(front, axis=0)
+        back_dir = np.cross(tangent, [0.0, 1.0, 0.0])
+        back_dir /= np.linalg.norm(back_dir, axis=1, keepdims=True)
+        back_dir *= -np.sign(back_dir[len(xs) // 2, 2])  # into the mouth (-z at the front)
+        v, frac, t, core = _teeth_row(front, lip_y + edge_dy, height, back_dir)
+        # Face every triangle away from the tooth's core.
+        c = v[t].mean(1)
+        nrm = np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]])
+        flip = (nrm * (c - core[t[:, 0]])).sum(1) < 0
+        t[flip] = t[flip][:, ::-1]
+        u = maps.TEETH_U[0] + (maps.TEETH_U[1] - maps.TEETH_U[0]) * (0.5 + 0.5 * np.tile(arc, 6) / ends)
+        v0, v1 = maps.TEETH_V[row]
+        uvs.append(np.stack([u, v0 + (v1 - v0) * frac], 1))
+        verts.append(v)
+        tris.append(t + offset)
+        part.append(np.full(len(v), k))
+        offset += len(v)
+    # Tongue: the upper half of a flattened ellipsoid resting behind the lower teeth.
+    dirs, _, _, ttri = _uv_sphere(8, 20)
+    radii = np.array([half - 0.55, 0.5, 1.5])
+    centre = np.array([0.0, lip_y - 0.75, z_front - 0.14 - TOOTH_THICKNESS - 0.1 - radii[2]])
+    # The sphere is around +z; turn it so its poles point along y (up).
+    d = np.stack([dirs[:, 0], dirs[:, 2], -dirs[:, 1]], 1)
+    tv = centre + radii * d
+    tv[:, 1] = np.maximum(tv[:, 1], centre[1] - 0.1)  # flat underside
+    tu = maps.TONGUE_UV[0] + (maps.TONGUE_UV[1] - maps.TONGUE_UV[0]) * (0.5 + 0.5 * d[:, 0])
+    tvv = maps.TONGUE_UV[2] + (maps.TONGUE_UV[3] - maps.TONGUE_UV[2]) * (0.5 - 0.5 * d[:, 2])
+    c = tv[ttri].mean(1)
+    nrm = np.cross(tv[ttri[:, 1]] - tv[ttri[:, 0]], tv[ttri[:, 2]] - tv[ttri[:, 0]])
+    flip = (nrm * (c - centre)).sum(1) < 0
+    ttri[flip] = ttri[flip][:, ::-1]
+    verts.append(tv)
+    uvs.append(np.stack([tu, tvv], 1))
+    tris.append(ttri + offset)
+    part.append(np.full(len(tv), 2))
+    return np.vstack(verts), np.vstack(uvs), np.vstack(tris).astype(np.int32), np.concatenate(part)
+
+
 # ---------------------------------------------------------------------------------------
 # Skinning
 
@@ -484,6 +580,22 @@ def _mirror_map(v: np.ndarray) -> np.ndarray:
     return idx
 
 
+JAW_PIVOT = np.array([0.0, 0.3, -3.0])  # the jaw joints' axis (x) passes through here
+JAW_OPEN_RAD = 0.2
+
+
+def _jaw_morphs(points: np.ndarray, amount: np.ndarray) -> dict[str, np.ndarray]:
+    """jawOpen (a turn of ``amount`` (N,) x JAW_OPEN_RAD about the jaw axis), jawLeft and
+    jawRight deltas (N, 3) of ``points`` (N, 3) that follow the jaw by ``amount``."""
+    r = points - JAW_PIVOT
+    ang = JAW_OPEN_RAD * amount
+    cos, sin = np.cos(ang), np.sin(ang)
+    rotated = np.stack([r[:, 0], r[:, 1] * cos - r[:, 2] * sin, r[:, 1] * sin + r[:, 2] * cos], 1)
+    return {"jawOpen": rotated - r,
+            "jawLeft": amount[:, None] * np.array([0.5, 0.0, 0.0]),
+            "jawRight": amount[:, None] * np.array([-0.5, 0.0, 0.0])}
+
+
 def _build_morphs(mb: _MorphBuilder, sets: dict, mirror: np.ndarray) -> dict[str, np.ndarray]:
     """All morph targets as (n_skin, 3) displacement fields (cm)."""
     pos = mb.pos
@@ -564,14 +676,7 @@ def _build_morphs(mb: _MorphBuilder, sets: dict, mirror: np.ndarray) -> dict[str
 
     # Jaw: the lower face rotates about an axis through the jaw joints.
     s = sets["lowerness"]
-    pivot = np.array([0.0, 0.3, -3.0])
-    ang = 0.2 * s
-    r = pos - pivot
-    cos, sin = np.cos(ang), np.sin(ang)
-    rotated = np.stack([r[:, 0], r[:, 1] * cos - r[:, 2] * sin, r[:, 1] * sin + r[:, 2] * cos], 1)
-    out["jawOpen"] = rotated - r
-    out["jawLeft"] = s[:, None] * np.array([0.5, 0.0, 0.0])
-    out["jawRight"] = s[:, None] * np.array([-0.5, 0.0, 0.0])
+    out.update(_jaw_morphs(pos, s))
 
     # Cheeks puff out along the normal.
     bump = np.zeros(len(pos))
@@ -682,6 +787,13 @@ def build_avatar(variant: str = "default") -> FaceRig:
     parts_uv.append(mouth_uv)
     parts_tri.append(mtri + offset)
     parts_mat.append(np.full(len(mv), 2, np.uint8))
+    mouth_end = mouth_start + len(mv)
+    # Teeth and tongue: the upper teeth ride the head, the lower ones and the tongue the jaw.
+    tv, tuv, ttri, tpart = _teeth_and_tongue(pos[lip_loop])
+    parts_pos.append(tv)
+    parts_uv.append(tuv)
+    parts_tri.append(ttri + mouth_end)
+    parts_mat.append(np.full(len(tv), 3, np.uint8))
 
     all_pos = np.vstack(parts_pos)
     all_uv = np.vstack(parts_uv)
@@ -701,10 +813,13 @@ def build_avatar(variant: str = "default") -> FaceRig:
     np.add.at(cap_dense[0], joints[last_ring].ravel(), weights[last_ring].ravel() / len(last_ring))
     cj, cw = _top4(cap_dense)
     m_joints[msource < 0], m_weights[msource < 0] = cj, cw
-    all_joints = np.vstack([joints, np.zeros((n_eye, 4), np.int32), m_joints]).astype(np.int32)
-    eye_w = np.zeros((n_eye, 4), np.float32)
+    jaw = [b.name for b in BONES].index("jaw")
+    t_joints = np.zeros((len(tv), 4), np.int32)
+    t_joints[tpart > 0, 0] = jaw
+    all_joints = np.vstack([joints, np.zeros((n_eye, 4), np.int32), m_joints, t_joints]).astype(np.int32)
+    eye_w = np.zeros((n_eye + len(tv), 4), np.float32)
     eye_w[:, 0] = 1.0
-    all_weights = np.vstack([weights, eye_w, m_weights]).astype(np.float32)
+    all_weights = np.vstack([weights, eye_w[:n_eye], m_weights, eye_w[n_eye:]]).astype(np.float32)
 
     # Morphs over all vertices: eyes still; mouth interior follows its contour vertex,
     # less so deeper in.
@@ -717,7 +832,11 @@ def build_avatar(variant: str = "default") -> FaceRig:
         inner = d[src] * attenuation
         inner[msource < 0] = d[last_ring].mean(0) * attenuation[-1]
         mp[i, :n_skin] = d
-        mp[i, mouth_start:] = inner
+        mp[i, mouth_start:mouth_end] = inner
+    jaw_follow = _jaw_morphs(tv, (tpart > 0).astype(np.float64))
+    for name, d in jaw_follow.items():
+        if name in morph_names:
+            mp[morph_names.index(name), mouth_end:] = d
     morphed_normals = mesh_ops.vertex_normals(all_pos[None] + mp, all_tri)
     mn = morphed_normals - rest_normals[None]
 

@@ -56,7 +56,8 @@ class FaceRig:
         triangles: (T, 3) int32 vertex indices, counter-clockwise seen from outside.
         position_ids: (V,) int32; vertices that share a position (split at UV seams or
             material borders) share an id, so area-based wrinkles show no seam.
-        material: (V,) uint8; 0 skin, 1 eye, 2 mouth interior.
+        material: (V,) uint8; 0 skin, 1 eye, 2 mouth interior (dark cavity), 3 teeth and
+            tongue.
         landmark_vertices: (L,) int32; the vertex that tracker landmark l sits on, or -1.
         bone_names: B names; bone_names[0] == "head".
         bone_rest: (B, 3) float32 rest positions, head coordinates.

@@ -24,7 +24,7 @@ relative to the JSON file)::
       "bones": {"Brow_Inner_L": 336, "Brow_Inner_R": 107, "Jaw": 152},
       "bone_groups": [["Brow_Inner_L", "Brow_Inner_R"]],
       "landmark_vertices": {"33": 1043, "263": 2211},
-      "materials": {"EyeMaterial": "eye", "Teeth": "mouth"},
+      "materials": {"EyeMaterial": "eye", "MouthBag": "mouth", "Teeth": "teeth"},
       "wrinkle_maps": {"stretch": "maps/stretch_n.png", "compress": "maps/compress_n.png"},
       "poses": {
         "stretch":  {"offsets": {"Brow_Inner_L": [0, 0.8, 0.1]}, "wrinkle_map": "stretch",
@@ -35,6 +35,9 @@ relative to the JSON file)::
       "zone_table": {"browInnerUp": [-1, -1, 0, 0, 0, 0, 0, 0]}
     }
 
+* ``materials``: material name -> "skin", "eye", "mouth" (the dark mouth cavity) or
+  "teeth" (teeth and tongue); unnamed ones are guessed from the material's name (eye,
+  iris, ... -> eye; teeth, tooth, tongue -> teeth; mouth, gum -> mouth; else skin).
 * ``head_bone``: the joint that becomes bone 0 ``head`` (default: a joint named ``head``,
   else a synthetic root bone that takes the weight nothing else has).
 * ``bones``: joint name -> MediaPipe landmark index (0-477) the bone follows.
@@ -74,9 +77,10 @@ from capture2face.rig.gltf import EXTRAS_FORMAT, EXTRAS_KEY
 
 N_LANDMARKS = 478
 DEFAULT_TEXTURE_SIZE = 256
-MATERIAL_CODES = {"skin": 0, "eye": 1, "mouth": 2}
+MATERIAL_CODES = {"skin": 0, "eye": 1, "mouth": 2, "teeth": 3}
 _EYE_WORDS = ("eye", "iris", "cornea", "sclera", "pupil")
-_MOUTH_WORDS = ("mouth", "teeth", "tooth", "tongue", "gum")
+_TEETH_WORDS = ("teeth", "tooth", "tongue")
+_MOUTH_WORDS = ("mouth", "gum")
 
 
 # ---- node transforms ------------------------------------------------------------------
@@ -192,6 +196,8 @@ def _material_code(g: dict, prim: dict, mapping: dict) -> int:
     low = name.lower()
     if any(w in low for w in _EYE_WORDS):
         return 1
+    if any(w in low for w in _TEETH_WORDS):
+        return 3
     if any(w in low for w in _MOUTH_WORDS):
         return 2
     return 0

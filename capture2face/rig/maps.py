@@ -33,6 +33,14 @@ EYE_TEXTURE_RADIUS = 0.08
 EYE_VISIBLE_THETA = 0.95  # polar angle (rad) of the eyeball front that gets most of the disc
 MOUTH_TEXTURE_CENTRE = (0.085, 0.915)
 MOUTH_TEXTURE_RADIUS = 0.07
+# Bottom-right corner: the teeth (u along the arch, v from the front root over the edge
+# to the back root, per row) and the tongue.
+TEETH_U = (0.845, 0.985)
+TEETH_V = {"upper": (0.865, 0.905), "lower": (0.91, 0.95)}
+TONGUE_UV = (0.85, 0.98, 0.955, 0.99)  # u0, u1, v0, v1
+TEETH_SRGB = np.array([232.0, 222.0, 200.0])
+GUM_SRGB = np.array([190.0, 104.0, 108.0])
+TONGUE_SRGB = np.array([196.0, 104.0, 108.0])
 
 SKIN_SRGB = np.array([222.0, 172.0, 148.0])
 LIP_SRGB = np.array([178.0, 88.0, 88.0])
@@ -279,7 +287,37 @@ def _albedo(u, v, landmark_uvs, layout, rng, eye_iris_theta: dict) -> np.ndarray
     r = np.hypot(u - MOUTH_TEXTURE_CENTRE[0], v - MOUTH_TEXTURE_CENTRE[1]) / MOUTH_TEXTURE_RADIUS
     mouth = (np.array([110.0, 42.0, 46.0])[None, None] * (1.0 - 0.75 * np.clip(r, 0, 1))[..., None])
     colour = np.where((r < 1.1)[..., None], mouth, colour)
+    colour = _teeth_and_tongue_albedo(u, v, colour)
     return np.clip(np.round(colour), 0, 255).astype(np.uint8)
+
+
+def _teeth_and_tongue_albedo(u, v, colour: np.ndarray) -> np.ndarray:
+    """Paint the teeth (ivory crowns, dark gaps between teeth, gums at the roots; the
+    avatar's TOOTH_WIDTHS along the arch) and the tongue into ``colour`` (H, W, 3)."""
+    from capture2face.rig.avatar import TOOTH_WIDTHS
+
+    u0, u1 = TEETH_U
+    ends = sum(TOOTH_WIDTHS)
+    arc = ((u - u0) / (u1 - u0) * 2.0 - 1.0) * ends  # arc length from the midline (cm)
+    bounds = np.concatenate([[0.0], np.cumsum(TOOTH_WIDTHS)])
+    gap_dist = np.min(np.abs(np.abs(arc)[..., None] - bounds[None, None]), axis=-1)
+    gap = np.exp(-((gap_dist / 0.035) ** 2))
+    inside_u = (u >= u0 - 0.002) & (u <= u1 + 0.002)
+    for v0, v1 in TEETH_V.values():
+        frac = (v - v0) / (v1 - v0)  # 0 front root, 0.4 edge, 1 back root
+        band = inside_u & (frac >= -0.05) & (frac <= 1.05)
+        root = np.minimum(frac, 1.0 - frac)  # 0 at the roots, 0.5 at the edge
+        gum = 1.0 - features.smoothstep((root - 0.06) / 0.08)
+        tooth = TEETH_SRGB * (1.0 - 0.1 * (1.0 - 2.0 * np.clip(root, 0, 0.5)))[..., None]
+        tooth = tooth * (1.0 - 0.6 * gap[..., None])
+        col = tooth * (1.0 - gum[..., None]) + GUM_SRGB * gum[..., None]
+        colour = np.where(band[..., None], col, colour)
+    tu0, tu1, tv0, tv1 = TONGUE_UV
+    x = (u - 0.5 * (tu0 + tu1)) / (0.5 * (tu1 - tu0))
+    y = (v - 0.5 * (tv0 + tv1)) / (0.5 * (tv1 - tv0))
+    tongue = (x * x + y * y) <= 1.3
+    shade = TONGUE_SRGB * (1.0 - 0.25 * np.exp(-(x / 0.12) ** 2))[..., None]  # the median groove
+    return np.where(tongue[..., None], shade, colour)
 
 
 # ---------------------------------------------------------------------------------------
