@@ -445,13 +445,22 @@ def test_avatar_wrinkles_fade_in_with_the_influence(avatar, avatar_looks):
 
 
 def test_avatar_fills_the_frame(avatar, avatar_looks):
-    """framing_pose makes the rendered face about 60% of the frame tall, centred."""
-    _, looks = avatar_looks
+    """framing_pose makes the rendered face about 60% of the frame tall, centred; the rest
+    of the head (scalp, ears, neck) goes on around it."""
+    from capture2face.render.camera import project
+
+    view, looks = avatar_looks
     img = looks["off", "compress"].astype(int)
-    face = np.abs(img - img[0, 0]).sum(2) > 30
-    rows, cols = np.flatnonzero(face.any(1)), np.flatnonzero(face.any(0))
+    drawn = np.abs(img - img[0, 0]).sum(2) > 30
+    face_px = project(avatar.vertices[avatar.material == 0], view, 30.0, LOOK_SIZE)
+    rows, cols = face_px[:, 1], face_px[:, 0]
     assert 0.57 < (rows.max() - rows.min()) / LOOK_SIZE < 0.67
     assert abs((cols.max() + cols.min()) / 2 - LOOK_SIZE / 2) < 0.02 * LOOK_SIZE
+    # The face's silhouette is drawn, and the head beyond it: scalp above, neck below.
+    inside = face_px[(face_px >= 0).all(1) & (face_px < LOOK_SIZE).all(1)].astype(int)
+    assert drawn[inside[:, 1], inside[:, 0]].mean() > 0.98
+    hit = np.flatnonzero(drawn.any(1))
+    assert hit.min() < rows.min() - 0.04 * LOOK_SIZE and hit.max() > rows.max() + 0.1 * LOOK_SIZE
 
 
 def test_zones_driver_follows_zone_weights(rig, view):

@@ -438,8 +438,8 @@ def _teeth_and_tongue(ring: np.ndarray):
         # Face every triangle away from the tooth's core.
         c = v[t].mean(1)
         nrm = np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]])
-        flip = (nrm * (c - core[t[:, 0]])).sum(1) < 0
-        t[flip] = t[flip][:, ::-1]
+        if ((nrm * (c - core[t[:, 0]])).sum(1) < 0).mean() > 0.5:  # one strip, one orientation
+            t = t[:, ::-1].copy()
         u = maps.TEETH_U[0] + (maps.TEETH_U[1] - maps.TEETH_U[0]) * (0.5 + 0.5 * np.tile(arc, 6) / ends)
         v0, v1 = maps.TEETH_V[row]
         uvs.append(np.stack([u, v0 + (v1 - v0) * frac], 1))
@@ -459,13 +459,141 @@ def _teeth_and_tongue(ring: np.ndarray):
     tvv = maps.TONGUE_UV[2] + (maps.TONGUE_UV[3] - maps.TONGUE_UV[2]) * (0.5 - 0.5 * d[:, 2])
     c = tv[ttri].mean(1)
     nrm = np.cross(tv[ttri[:, 1]] - tv[ttri[:, 0]], tv[ttri[:, 2]] - tv[ttri[:, 0]])
-    flip = (nrm * (c - centre)).sum(1) < 0
-    ttri[flip] = ttri[flip][:, ::-1]
+    if ((nrm * (c - centre)).sum(1) < 0).mean() > 0.5:
+        ttri = ttri[:, ::-1].copy()
     verts.append(tv)
     uvs.append(np.stack([tu, tvv], 1))
     tris.append(ttri + offset)
     part.append(np.full(len(tv), 2))
     return np.vstack(verts), np.vstack(uvs), np.vstack(tris).astype(np.int32), np.concatenate(part)
+
+
+# Head: the scalp, the back of the head and the neck grow from the face mask's outer
+# edge in HEAD_RINGS rings towards a pole behind and below the head; ears sit on the sides.
+HEAD_RINGS = 28
+HEAD_POLE = np.array([0.0, -0.35, -1.0]) / np.hypot(0.35, 1.0)
+FACE_BLEND_RINGS = 6  # rings over which the face edge's own shape, skinning and morphs fade out
+# The neck ends here (cm): out of a synthetic clip's frame below the chin even with the
+# head tipped back, and within 32 cm of the origin (a glTF's float32 metres give the
+# centimetres back within 2e-6 there).
+NECK_BOTTOM_Y = -27.0
+
+
+def _ellipsoid_exit(origin: np.ndarray, d: np.ndarray, centre: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """(N,) distance along unit rays ``d`` (N, 3) from ``origin`` (inside) to an ellipsoid."""
+    o, dd = (origin - centre) / radii, d / radii
+    a, b, c = (dd * dd).sum(1), 2 * (o * dd).sum(1), (o * o).sum() - 1.0
+    return (-b + np.sqrt(np.maximum(b * b - 4 * a * c, 0.0))) / (2 * a)
+
+
+def _neck_exit(origin: np.ndarray, d: np.ndarray, axis_xz: np.ndarray, radii_xz: np.ndarray, bottom: float,
+               top: float) -> np.ndarray:
+    """(N,) distance along rays ``d`` from ``origin`` (inside) to a vertical elliptic
+    cylinder (axis through ``axis_xz``, radii ``radii_xz``) cut at y = ``bottom`` and ``top``."""
+    o = (origin[[0, 2]] - axis_xz) / radii_xz
+    dd = d[:, [0, 2]] / radii_xz
+    a, b, c = (dd * dd).sum(1), 2 * (dd @ o), (o * o).sum() - 1.0
+    side = (-b + np.sqrt(np.maximum(b * b - 4 * a * c, 0.0))) / np.maximum(2 * a, 1e-12)
+    side = np.where(a > 1e-12, side, np.inf)
+    cap = np.where(d[:, 1] < -1e-9, (bottom - origin[1]) / np.minimum(d[:, 1], -1e-9),
+                   np.where(d[:, 1] > 1e-9, (top - origin[1]) / np.maximum(d[:, 1], 1e-9), np.inf))
+    return np.minimum(side, cap)
+
+
+def _head_shell(edge: np.ndarray, chin: np.ndarray):
+    """The head beyond the face: rings grown from the face's outer edge loop ``edge``
+    (N, 3) towards :data:`HEAD_POLE`, on the smooth union of a skull ellipsoid and a neck
+    cylinder sized from the face, bent at the edge to meet the face exactly.
+
+    Returns (vertices ((HEAD_RINGS + 1) * (N + 1), 3) ring by ring, the first ring the
+    edge itself, each ring closed by a copy of its first vertex; ring index (per vertex);
+    column index (0..N, N = the copy of 0); triangles (local))."""
+    n = len(edge)
+    half_width = float(np.abs(edge[:, 0]).max())
+    centre = np.array([0.0, 0.25 * half_width, edge[:, 2].min() - 0.1 * half_width])
+    radii = np.array([1.03, 1.38, 1.35]) * half_width
+    neck_axis = np.array([0.0, centre[2] - 0.05 * half_width])
+    neck_radii = np.array([0.66, 0.72]) * half_width
+    origin = centre + np.array([0.0, -0.2 * half_width, 0.0])
+    bottom = min(NECK_BOTTOM_Y, float(chin[1]) - 4.0)
+
+    def radius(d):
+        a = _ellipsoid_exit(origin, d, centre, radii)
+        b = _neck_exit(origin, d, neck_axis, neck_radii, bottom, float(centre[1]))
+        k = 0.12 * half_width  # a soft fillet where the neck meets the skull
+        return 0.5 * (a + b + np.sqrt((a - b) ** 2 + k * k))
+
+    rel = edge - origin
+    rho = np.linalg.norm(rel, axis=1)
+    d0 = rel / rho[:, None]
+    gap = rho - radius(d0)  # the face's edge against the smooth head: bent away over the first rings
+    rings, ring_ids, cols = [], [], []
+    for k in range(HEAD_RINGS + 1):
+        t = k / HEAD_RINGS
+        # Slerp from the edge direction to the pole (never through the face).
+        omega = np.arccos(np.clip(d0 @ HEAD_POLE, -1.0, 1.0))[:, None]
+        so = np.maximum(np.sin(omega), 1e-9)
+        d = (np.sin((1 - t) * omega) * d0 + np.sin(t * omega) * HEAD_POLE) / so
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        fade = 1.0 - features.smoothstep(np.full(1, k / FACE_BLEND_RINGS))[0]
+        p = origin + d * (radius(d) + gap * fade)[:, None]
+        if k == 0:
+            p = edge.copy()
+        rings.append(np.vstack([p, p[:1]]))
+        ring_ids.append(np.full(n + 1, k))
+        cols.append(np.arange(n + 1))
+    verts = np.vstack(rings)
+    m = n + 1
+    tris = []
+    for k in range(HEAD_RINGS):
+        for j in range(n):
+            a, b = k * m + j, k * m + j + 1
+            tris += [(a, a + m, b + m), (a, b + m, b)]
+    tris = np.array(tris, np.int32)
+    # Face outwards, away from the head's inside.
+    c = verts[tris].mean(1)
+    nrm = np.cross(verts[tris[:, 1]] - verts[tris[:, 0]], verts[tris[:, 2]] - verts[tris[:, 0]])
+    if ((nrm * (c - origin)).sum(1) < 0).mean() > 0.5:  # the grid has one orientation: the majority's
+        tris = tris[:, ::-1].copy()
+    return verts, np.concatenate(ring_ids), np.concatenate(cols), tris
+
+
+def _ear(centre: np.ndarray, side: float, height: float, width: float):
+    """An ear: a thin shell (outer face with a raised rim and a hollow concha, folded at
+    the rim onto its back) centred at ``centre``, facing outwards (``side`` = +1: +x) and
+    a little forwards. Returns (vertices, (radius, angle) per vertex in [0, 1] x [0, 1)
+    for the texture, front (bool per vertex), triangles (local))."""
+    n_r, n_a = 7, 24
+    rs = np.linspace(0.0, 1.0, n_r)
+    angles = np.arange(n_a) * 2 * np.pi / n_a
+    out = np.array([side * np.cos(0.35), 0.0, np.sin(0.35)])  # outward, turned 20 degrees forwards
+    up = np.array([0.0, 1.0, 0.0])
+    along = np.cross(up, out) * side  # towards the back of the head
+    depth = lambda r: 0.45 * np.exp(-((r - 0.88) / 0.1) ** 2) - 0.35 * np.exp(-((r - 0.35) / 0.2) ** 2)
+    verts, coords, front = [], [], []
+    for face, (sign, thick) in enumerate(((1.0, 0.0), (-1.0, 0.45))):
+        for r in (rs if face == 0 else rs[::-1]):
+            for a in angles:
+                # A slightly pear-shaped outline: wider at the top.
+                w = width * (1.0 + 0.15 * np.sin(a))
+                p = centre + r * (0.5 * w * np.cos(a) * along + 0.5 * height * np.sin(a) * up)
+                p = p + out * (depth(r) if face == 0 else -thick * (1.0 - r**4))
+                verts.append(p)
+                coords.append((r, a / (2 * np.pi)))
+                front.append(face == 0)
+    verts, coords, front = np.array(verts), np.array(coords), np.array(front)
+    rows = 2 * n_r
+    tris = []
+    for i in range(rows - 1):
+        for j in range(n_a):
+            a, b = i * n_a + j, i * n_a + (j + 1) % n_a
+            tris += [(a, a + n_a, b + n_a), (a, b + n_a, b)]
+    tris = np.array(tris, np.int32)
+    nrm = np.cross(verts[tris[:, 1]] - verts[tris[:, 0]], verts[tris[:, 2]] - verts[tris[:, 0]])
+    is_front = front[tris].all(1)
+    if ((nrm[is_front] @ out) < 0).mean() > 0.5:  # one folded sheet: the front faces out
+        tris = tris[:, ::-1].copy()
+    return verts, coords, front, tris
 
 
 # ---------------------------------------------------------------------------------------
@@ -794,6 +922,37 @@ def build_avatar(variant: str = "default") -> FaceRig:
     parts_uv.append(tuv)
     parts_tri.append(ttri + mouth_end)
     parts_mat.append(np.full(len(tv), 3, np.uint8))
+    # The head beyond the face (material 4): scalp, back of the head and neck grown from
+    # the face's outer edge (its first ring shares the edge's positions), then the ears.
+    head_start = mouth_end + len(tv)
+    edge = max(loops, key=len)
+    hv, hring, hcol, htri = _head_shell(pos[edge], pos[152])
+    n_edge = len(edge)
+    parts_pos.append(hv)
+    parts_uv.append(np.stack([maps.HEAD_U[0] + (maps.HEAD_U[1] - maps.HEAD_U[0]) * hcol / n_edge,
+                              maps.HEAD_V[0] + (maps.HEAD_V[1] - maps.HEAD_V[0]) * hring / HEAD_RINGS], 1))
+    parts_tri.append(htri + head_start)
+    parts_mat.append(np.full(len(hv), 4, np.uint8))
+    ears_start = head_start + len(hv)
+    ear_parts = []
+    ear_y = 0.5 * (pos[[33, 263], 1].mean() + pos[2, 1])  # between eye and nose base levels
+    ear_z = float(pos[edge, 2].min()) - 2.2
+    for side, (u0, u1) in ((-1.0, maps.EAR_U["R"]), (1.0, maps.EAR_U["L"])):
+        near = (np.abs(hv[:, 1] - ear_y) < 1.0) & (np.abs(hv[:, 2] - ear_z) < 1.0) & (hv[:, 0] * side > 0)
+        x = float(np.abs(hv[near, 0]).max()) if near.any() else float(np.abs(pos[edge, 0]).max())
+        ev, ecoord, efront, etri = _ear(np.array([side * (x + 0.35), ear_y, ear_z]), side, 6.0, 3.3)
+        r_uv = np.where(efront, 0.5 * ecoord[:, 0], 1.0 - 0.5 * ecoord[:, 0]) * 0.5 * (maps.EAR_V[1] - maps.EAR_V[0])
+        a = 2 * np.pi * ecoord[:, 1]
+        c = np.array([0.5 * (u0 + u1), 0.5 * (maps.EAR_V[0] + maps.EAR_V[1])])
+        ear_parts.append((ev, c + r_uv[:, None] * np.stack([np.cos(a), np.sin(a)], 1), etri))
+    offset_e = ears_start
+    for ev, euv, etri in ear_parts:
+        parts_pos.append(ev)
+        parts_uv.append(euv)
+        parts_tri.append(etri + offset_e)
+        parts_mat.append(np.full(len(ev), 4, np.uint8))
+        offset_e += len(ev)
+    n_ears = offset_e - ears_start
 
     all_pos = np.vstack(parts_pos)
     all_uv = np.vstack(parts_uv)
@@ -816,16 +975,32 @@ def build_avatar(variant: str = "default") -> FaceRig:
     jaw = [b.name for b in BONES].index("jaw")
     t_joints = np.zeros((len(tv), 4), np.int32)
     t_joints[tpart > 0, 0] = jaw
-    all_joints = np.vstack([joints, np.zeros((n_eye, 4), np.int32), m_joints, t_joints]).astype(np.int32)
-    eye_w = np.zeros((n_eye + len(tv), 4), np.float32)
+    # The head's first rings take the face edge's skinning, fading to the head bone.
+    head_src = edge[hcol % n_edge]
+    follow = (1.0 - features.smoothstep(hring / FACE_BLEND_RINGS))[:, None]
+    h_dense = np.zeros((len(hv), len(BONES)))
+    np.add.at(h_dense, (np.repeat(np.arange(len(hv)), 4), joints[head_src].ravel()),
+              (follow * weights[head_src]).ravel())
+    h_dense[:, 0] += 1.0 - follow[:, 0]
+    h_joints, h_weights = _top4(h_dense)
+    all_joints = np.vstack([joints, np.zeros((n_eye, 4), np.int32), m_joints, t_joints, h_joints,
+                            np.zeros((n_ears, 4), np.int32)]).astype(np.int32)
+    eye_w = np.zeros((n_eye + len(tv) + n_ears, 4), np.float32)
     eye_w[:, 0] = 1.0
-    all_weights = np.vstack([weights, eye_w[:n_eye], m_weights, eye_w[n_eye:]]).astype(np.float32)
+    all_weights = np.vstack([weights, eye_w[:n_eye], m_weights, eye_w[n_eye:n_eye + len(tv)], h_weights,
+                             eye_w[n_eye + len(tv):]]).astype(np.float32)
+    # Vertices that share a position: the head's first ring and the face's edge, and each
+    # ring's closing copy of its first vertex (UV seams without a shading seam).
+    position_ids = np.arange(V, dtype=np.int32)
+    head_ids = head_start + np.arange(len(hv))
+    position_ids[head_ids[hcol == n_edge]] = head_ids[hcol == 0]
+    position_ids[head_ids[hring == 0]] = edge[hcol[hring == 0] % n_edge]
 
     # Morphs over all vertices: eyes still; mouth interior follows its contour vertex,
     # less so deeper in.
     morph_names = list(skin_morphs)
     attenuation = (1.0 - 0.5 * mdepth)[:, None]
-    rest_normals = mesh_ops.vertex_normals(all_pos, all_tri)
+    rest_normals = _welded_normals(all_pos, all_tri, position_ids)
     mp = np.zeros((len(morph_names), V, 3))
     for i, name in enumerate(morph_names):
         d = skin_morphs[name]
@@ -836,8 +1011,9 @@ def build_avatar(variant: str = "default") -> FaceRig:
     jaw_follow = _jaw_morphs(tv, (tpart > 0).astype(np.float64))
     for name, d in jaw_follow.items():
         if name in morph_names:
-            mp[morph_names.index(name), mouth_end:] = d
-    morphed_normals = mesh_ops.vertex_normals(all_pos[None] + mp, all_tri)
+            mp[morph_names.index(name), mouth_end:head_start] = d
+    mp[:, head_start:ears_start] = mp[:, head_src] * follow[None]
+    morphed_normals = _welded_normals(all_pos[None] + mp, all_tri, position_ids)
     mn = morphed_normals - rest_normals[None]
 
     # Bones.
@@ -861,8 +1037,9 @@ def build_avatar(variant: str = "default") -> FaceRig:
     zone_table = _zone_table(morph_names)
 
     tangents = mesh_ops.uv_tangents(all_pos, rest_normals, all_uv, all_tri)
-    position_ids = np.arange(V, dtype=np.int32)
-    textures = maps.build_maps(mesh.uvs, all_uv, all_tri, material, iris_theta)
+    textures = maps.build_maps(mesh.uvs, all_uv, all_tri, material, iris_theta,
+                               head_hair=_hair_grid(hv, hring, hcol, n_edge),
+                               head_edge_uvs=all_uv[edge[np.arange(n_edge + 1) % n_edge]])
 
     f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)
     return FaceRig(
@@ -883,6 +1060,25 @@ def build_avatar(variant: str = "default") -> FaceRig:
         region_names=list(REGION_NAMES), region_weights=f32(region_weights),
         eye_centres=f32(eye_centres), eye_vertex_side=eye_vertex_side,
     )
+
+
+def _welded_normals(positions: np.ndarray, triangles: np.ndarray, position_ids: np.ndarray) -> np.ndarray:
+    """Vertex normals (..., V, 3) computed over positions, not vertices: copies of one
+    position (a UV seam) share one normal, so no shading seam shows."""
+    return mesh_ops.vertex_normals(positions, position_ids[triangles])[..., position_ids, :]
+
+
+def _hair_grid(hv: np.ndarray, hring: np.ndarray, hcol: np.ndarray, n_edge: int) -> np.ndarray:
+    """(HEAD_RINGS + 1, n_edge + 1) hair coverage in [0, 1] at the head shell's vertices:
+    above a hairline that runs from the forehead's edge over the ears to the nape, and
+    at least a centimetre from the face's edge (skin meets skin there)."""
+    grid = lambda a: a.reshape(HEAD_RINGS + 1, n_edge + 1, *a.shape[1:])
+    p = grid(hv)
+    step = np.linalg.norm(np.diff(p, axis=0), axis=-1)
+    from_edge = np.vstack([np.zeros((1, n_edge + 1)), np.cumsum(step, axis=0)])
+    z_front = float(p[0, :, 2].max())
+    hairline = np.interp(p[..., 2] - z_front, [-19.0, -13.0, -8.5, -4.5], [-3.5, 0.5, 4.2, 7.5])
+    return (features.smoothstep((from_edge - 0.8) / 1.5) * features.smoothstep((p[..., 1] - hairline) / 1.2)).astype(np.float32)
 
 
 def _pose_displacements(pose: str) -> np.ndarray:

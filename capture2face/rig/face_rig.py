@@ -56,8 +56,9 @@ class FaceRig:
         triangles: (T, 3) int32 vertex indices, counter-clockwise seen from outside.
         position_ids: (V,) int32; vertices that share a position (split at UV seams or
             material borders) share an id, so area-based wrinkles show no seam.
-        material: (V,) uint8; 0 skin, 1 eye, 2 mouth interior (dark cavity), 3 teeth and
-            tongue.
+        material: (V,) uint8; 0 skin of the face, 1 eye, 2 mouth interior (dark cavity),
+            3 teeth and tongue, 4 the rest of the head (scalp, ears, neck: shaded as skin,
+            no wrinkles; framing and face size go by the face's skin alone).
         landmark_vertices: (L,) int32; the vertex that tracker landmark l sits on, or -1.
         bone_names: B names; bone_names[0] == "head".
         bone_rest: (B, 3) float32 rest positions, head coordinates.

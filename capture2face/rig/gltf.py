@@ -8,8 +8,8 @@ What an exported .glb holds (it passes the Khronos glTF validator without errors
   deltas, joint translations, inverse bind matrices, animation translations) is written in
   metres = cm * 0.01 (``METRES_PER_CM``); :func:`import_glb` multiplies by 100. A float32
   round trip through metres changes a coordinate by at most one float32 ulp of its cm
-  value (< 1e-6 cm for |x| < 16 cm, which covers a head), so vertices come back within
-  1e-6 cm; the rig's exact bone and pose positions (cm) are also kept in ``extras``.
+  value (< 2e-6 cm for |x| < 32 cm, which covers a head with its neck), so vertices come
+  back within 2e-6 cm; the rig's exact bone and pose positions (cm) are also kept in ``extras``.
 * **One mesh, one primitive** (skin, eyes and mouth interior together, so vertex order and
   indices survive a round trip) with POSITION, NORMAL, TANGENT, TEXCOORD_0, JOINTS_0
   (unsigned byte, or short for > 255 bones), WEIGHTS_0 (float, rows sum to 1), and

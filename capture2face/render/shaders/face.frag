@@ -144,7 +144,7 @@ void main() {
     f_influence = influence_color(ng, l, w);
 #endif
     vec3 n = ng;
-    if (v_material == 0) {
+    if (v_material == 0 || v_material == 4) {
         vec3 t = normalize(v_tangent.xyz - ng * dot(ng, v_tangent.xyz));
         vec3 b = v_tangent.w * cross(ng, t);
         vec3 tn = tangent_normal(w);
@@ -155,7 +155,7 @@ void main() {
     // One lighting path for every material (a software GL runs every side of a branch):
     // skin wraps its diffuse; eyes are glossy; the mouth interior dark and matte;
     // Teeth and tongue (3) sit inside the mouth: half lit (no shadows here), a little gloss.
-    bool skin = v_material == 0, eye = v_material == 1, teeth = v_material == 3;
+    bool skin = v_material == 0 || v_material == 4, eye = v_material == 1, teeth = v_material == 3;
     vec3 diffuse = skin ? skin_diffuse(ndotl) : vec3(max(ndotl, 0.0));
     float specular = ksk_specular(n, l, v, eye ? 0.08 : 0.3, eye ? 1.2 : (skin ? 0.18 : (teeth ? 0.06 : 0.018)));
     if (v_material == 2) albedo *= 0.25;
