@@ -202,10 +202,59 @@ def test_teeth_and_tongue(rig):
     assert np.abs(d - d0).max() < 1e-4
 
 
+def test_head_is_joined_to_the_face_without_a_crack(rig):
+    head = rig.material == 4
+    assert head.sum() > 1000
+    # The face keeps its canonical vertices; the head only adds.
+    assert np.all(rig.landmark_vertices[:468] == np.arange(468)) and np.all(rig.material[:468] == 0)
+    # Face and head are one closed surface once copies of a position are welded: its only
+    # borders are the eye openings and the mouth.
+    shell = rig.triangles[np.isin(rig.material[rig.triangles], (0, 4)).all(1)]
+    loops = mesh_ops.boundary_loops(rig.position_ids[shell])
+    assert len(loops) == 3
+    assert sorted(len(set(l) & {33, 263, 13}) for l in loops) == [1, 1, 1]
+    shared = np.flatnonzero(rig.position_ids != np.arange(rig.n_vertices))
+    assert np.all(head[shared]) and (rig.material[rig.position_ids[shared]] == 0).sum() > 50
+    # Copies share their normal, and stay together under any bones and morphs (the head's
+    # first ring follows the face's edge): no crack, no shading seam.
+    rng = np.random.default_rng(0)
+    bones = rig.bone_rest + rng.normal(0, 0.5, rig.bone_rest.shape) * (np.arange(rig.n_bones) > 0)[:, None]
+    w = rng.uniform(0, 1, rig.n_morphs).astype(np.float32)
+    for b, weights in ((rig.bone_rest, _zero_weights(rig)), (bones, w)):
+        pos, nrm = deform(rig, b, weights)
+        assert np.abs(pos[shared] - pos[rig.position_ids[shared]]).max() < 1e-5
+        assert np.abs(nrm[shared] - nrm[rig.position_ids[shared]]).max() < 1e-5
+    # A head: the scalp over the forehead, ears at the sides, a neck under the chin.
+    v = rig.vertices
+    assert v[head, 1].max() > v[rig.material == 0, 1].max() + 2.0
+    assert v[head, 2].min() < v[:, 2].max() - 18.0  # ~20 cm front to back
+    assert v[head, 1].min() < v[152, 1] - 10.0
+    for side in (-1, 1):
+        ear = head & (side * v[:, 0] > np.abs(v[rig.material == 0, 0]).max()) & (np.abs(v[:, 1] - v[33, 1]) < 4)
+        assert ear.sum() > 50
+
+
+def test_scalp_is_hair_and_the_neck_skin(rig):
+    head = np.flatnonzero(rig.material == 4)
+    texel = np.clip((rig.uvs[head] * rig.albedo.shape[0]).astype(int), 0, rig.albedo.shape[0] - 1)
+    colour = rig.albedo[texel[:, 1], texel[:, 0]].astype(float)
+    v = rig.vertices[head]
+    crown = v[:, 1] > v[:, 1].max() - 2.0
+    neck = v[:, 1] < rig.vertices[152, 1] - 3.0
+    skin = rig.albedo[_uv_texel(rig, 234)].astype(float)  # the face's edge at the cheek
+    assert colour[crown].mean() < 0.5 * skin.mean()  # dark hair
+    assert np.abs(colour[neck].mean(0) - skin).max() < 25  # the face's skin tone
+
+
+def _uv_texel(rig, vertex):
+    t = np.clip((rig.uvs[vertex] * rig.albedo.shape[0]).astype(int), 0, rig.albedo.shape[0] - 1)
+    return t[1], t[0]
+
+
 def test_texture_layout_keeps_eyes_and_mouth_off_the_skin(rig):
     skin_tris = rig.triangles[(rig.material[rig.triangles] == 0).all(1)]
     covered = maps_mod._coverage(rig.uvs, skin_tris, 1024)
-    for material in (1, 2, 3):
+    for material in (1, 2, 3, 4):
         uv = rig.uvs[rig.material == material]
         texels = np.clip((uv * 1024).astype(int), 0, 1023)
         assert not covered[texels[:, 1], texels[:, 0]].any()

@@ -505,9 +505,10 @@ def _head_shell(edge: np.ndarray, chin: np.ndarray):
     (N, 3) towards :data:`HEAD_POLE`, on the smooth union of a skull ellipsoid and a neck
     cylinder sized from the face, bent at the edge to meet the face exactly.
 
-    Returns (vertices ((HEAD_RINGS + 1) * (N + 1), 3) ring by ring, the first ring the
-    edge itself, each ring closed by a copy of its first vertex; ring index (per vertex);
-    column index (0..N, N = the copy of 0); triangles (local))."""
+    Returns (vertices (HEAD_RINGS * (N + 1) + 1, 3) ring by ring, the first ring the edge
+    itself, each ring closed by a copy of its first vertex, then the pole; ring index (per
+    vertex, HEAD_RINGS for the pole); column index (0..N, N = the copy of 0); triangles
+    (local))."""
     n = len(edge)
     half_width = float(np.abs(edge[:, 0]).max())
     centre = np.array([0.0, 0.25 * half_width, edge[:, 2].min() - 0.1 * half_width])
@@ -528,7 +529,7 @@ def _head_shell(edge: np.ndarray, chin: np.ndarray):
     d0 = rel / rho[:, None]
     gap = rho - radius(d0)  # the face's edge against the smooth head: bent away over the first rings
     rings, ring_ids, cols = [], [], []
-    for k in range(HEAD_RINGS + 1):
+    for k in range(HEAD_RINGS):
         t = k / HEAD_RINGS
         # Slerp from the edge direction to the pole (never through the face).
         omega = np.arccos(np.clip(d0 @ HEAD_POLE, -1.0, 1.0))[:, None]
@@ -542,20 +543,20 @@ def _head_shell(edge: np.ndarray, chin: np.ndarray):
         rings.append(np.vstack([p, p[:1]]))
         ring_ids.append(np.full(n + 1, k))
         cols.append(np.arange(n + 1))
-    verts = np.vstack(rings)
+    pole = origin + HEAD_POLE * radius(HEAD_POLE[None])[0]  # the rings close on one vertex
+    verts = np.vstack(rings + [pole[None]])
     m = n + 1
-    tris = []
-    for k in range(HEAD_RINGS):
-        for j in range(n):
-            a, b = k * m + j, k * m + j + 1
-            tris += [(a, a + m, b + m), (a, b + m, b)]
+    tris = [(k * m + j, (k + 1) * m + j, (k + 1) * m + j + 1) for k in range(HEAD_RINGS - 1) for j in range(n)]
+    tris += [(k * m + j, (k + 1) * m + j + 1, k * m + j + 1) for k in range(HEAD_RINGS - 1) for j in range(n)]
+    last, pole_id = (HEAD_RINGS - 1) * m, len(verts) - 1
+    tris += [(last + j, pole_id, last + j + 1) for j in range(n)]
     tris = np.array(tris, np.int32)
     # Face outwards, away from the head's inside.
     c = verts[tris].mean(1)
     nrm = np.cross(verts[tris[:, 1]] - verts[tris[:, 0]], verts[tris[:, 2]] - verts[tris[:, 0]])
     if ((nrm * (c - origin)).sum(1) < 0).mean() > 0.5:  # the grid has one orientation: the majority's
         tris = tris[:, ::-1].copy()
-    return verts, np.concatenate(ring_ids), np.concatenate(cols), tris
+    return verts, np.concatenate(ring_ids + [[HEAD_RINGS]]), np.concatenate(cols + [[n // 2]]), tris
 
 
 def _ear(centre: np.ndarray, side: float, height: float, width: float):
@@ -564,30 +565,34 @@ def _ear(centre: np.ndarray, side: float, height: float, width: float):
     a little forwards. Returns (vertices, (radius, angle) per vertex in [0, 1] x [0, 1)
     for the texture, front (bool per vertex), triangles (local))."""
     n_r, n_a = 7, 24
-    rs = np.linspace(0.0, 1.0, n_r)
+    rs = np.linspace(0.0, 1.0, n_r)[1:]  # the centre is one vertex per face
     angles = np.arange(n_a) * 2 * np.pi / n_a
     out = np.array([side * np.cos(0.35), 0.0, np.sin(0.35)])  # outward, turned 20 degrees forwards
     up = np.array([0.0, 1.0, 0.0])
     along = np.cross(up, out) * side  # towards the back of the head
     depth = lambda r: 0.45 * np.exp(-((r - 0.88) / 0.1) ** 2) - 0.35 * np.exp(-((r - 0.35) / 0.2) ** 2)
-    verts, coords, front = [], [], []
-    for face, (sign, thick) in enumerate(((1.0, 0.0), (-1.0, 0.45))):
+    thick = 0.45
+    verts, coords, front = [centre + out * depth(0.0)], [(0.0, 0.0)], [True]
+    for face in (0, 1):
         for r in (rs if face == 0 else rs[::-1]):
             for a in angles:
-                # A slightly pear-shaped outline: wider at the top.
-                w = width * (1.0 + 0.15 * np.sin(a))
+                w = width * (1.0 + 0.15 * np.sin(a))  # a slightly pear-shaped outline: wider at the top
                 p = centre + r * (0.5 * w * np.cos(a) * along + 0.5 * height * np.sin(a) * up)
-                p = p + out * (depth(r) if face == 0 else -thick * (1.0 - r**4))
-                verts.append(p)
+                verts.append(p + out * (depth(r) if face == 0 else -thick * (1.0 - r**4)))
                 coords.append((r, a / (2 * np.pi)))
                 front.append(face == 0)
+    verts.append(centre - out * thick)
+    coords.append((0.0, 0.0))
+    front.append(False)
     verts, coords, front = np.array(verts), np.array(coords), np.array(front)
-    rows = 2 * n_r
-    tris = []
+    rows = 2 * len(rs)
+    ring = lambda i, j: 1 + i * n_a + j % n_a
+    tris = [(0, ring(0, j), ring(0, j + 1)) for j in range(n_a)]
     for i in range(rows - 1):
         for j in range(n_a):
-            a, b = i * n_a + j, i * n_a + (j + 1) % n_a
-            tris += [(a, a + n_a, b + n_a), (a, b + n_a, b)]
+            tris += [(ring(i, j), ring(i + 1, j), ring(i + 1, j + 1)), (ring(i, j), ring(i + 1, j + 1), ring(i, j + 1))]
+    back = len(verts) - 1
+    tris += [(ring(rows - 1, j), back, ring(rows - 1, j + 1)) for j in range(n_a)]
     tris = np.array(tris, np.int32)
     nrm = np.cross(verts[tris[:, 1]] - verts[tris[:, 0]], verts[tris[:, 2]] - verts[tris[:, 0]])
     is_front = front[tris].all(1)
@@ -1038,7 +1043,7 @@ def build_avatar(variant: str = "default") -> FaceRig:
 
     tangents = mesh_ops.uv_tangents(all_pos, rest_normals, all_uv, all_tri)
     textures = maps.build_maps(mesh.uvs, all_uv, all_tri, material, iris_theta,
-                               head_hair=_hair_grid(hv, hring, hcol, n_edge),
+                               head_hair=_hair_grid(hv, n_edge),
                                head_edge_uvs=all_uv[edge[np.arange(n_edge + 1) % n_edge]])
 
     f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)
@@ -1068,12 +1073,11 @@ def _welded_normals(positions: np.ndarray, triangles: np.ndarray, position_ids: 
     return mesh_ops.vertex_normals(positions, position_ids[triangles])[..., position_ids, :]
 
 
-def _hair_grid(hv: np.ndarray, hring: np.ndarray, hcol: np.ndarray, n_edge: int) -> np.ndarray:
+def _hair_grid(hv: np.ndarray, n_edge: int) -> np.ndarray:
     """(HEAD_RINGS + 1, n_edge + 1) hair coverage in [0, 1] at the head shell's vertices:
     above a hairline that runs from the forehead's edge over the ears to the nape, and
     at least a centimetre from the face's edge (skin meets skin there)."""
-    grid = lambda a: a.reshape(HEAD_RINGS + 1, n_edge + 1, *a.shape[1:])
-    p = grid(hv)
+    p = np.concatenate([hv[:-1].reshape(HEAD_RINGS, n_edge + 1, 3), np.repeat(hv[-1:], n_edge + 1, 0)[None]])
     step = np.linalg.norm(np.diff(p, axis=0), axis=-1)
     from_edge = np.vstack([np.zeros((1, n_edge + 1)), np.cumsum(step, axis=0)])
     z_front = float(p[0, :, 2].max())
