@@ -513,8 +513,8 @@ def _head_shell(edge: np.ndarray, chin: np.ndarray):
     half_width = float(np.abs(edge[:, 0]).max())
     centre = np.array([0.0, 0.25 * half_width, edge[:, 2].min() - 0.1 * half_width])
     radii = np.array([1.03, 1.38, 1.35]) * half_width
-    neck_axis = np.array([0.0, centre[2] - 0.05 * half_width])
-    neck_radii = np.array([0.66, 0.72]) * half_width
+    neck_axis = np.array([0.0, centre[2] - 0.18 * half_width])
+    neck_radii = np.array([0.64, 0.58]) * half_width  # the throat ~5 cm behind the chin
     origin = centre + np.array([0.0, -0.2 * half_width, 0.0])
     bottom = min(NECK_BOTTOM_Y, float(chin[1]) - 4.0)
 
@@ -1044,6 +1044,7 @@ def build_avatar(variant: str = "default") -> FaceRig:
     tangents = mesh_ops.uv_tangents(all_pos, rest_normals, all_uv, all_tri)
     textures = maps.build_maps(mesh.uvs, all_uv, all_tri, material, iris_theta,
                                head_hair=_hair_grid(hv, n_edge),
+                               head_shadow=_jaw_shadow_grid(hv, n_edge, float(pos[[61, 291], 1].mean())),
                                head_edge_uvs=all_uv[edge[np.arange(n_edge + 1) % n_edge]])
 
     f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)
@@ -1073,11 +1074,30 @@ def _welded_normals(positions: np.ndarray, triangles: np.ndarray, position_ids: 
     return mesh_ops.vertex_normals(positions, position_ids[triangles])[..., position_ids, :]
 
 
+def _head_grid(hv: np.ndarray, n_edge: int) -> np.ndarray:
+    """(HEAD_RINGS + 1, n_edge + 1, 3) the head shell's vertices as a grid (the pole's row
+    repeated)."""
+    return np.concatenate([hv[:-1].reshape(HEAD_RINGS, n_edge + 1, 3), np.repeat(hv[-1:], n_edge + 1, 0)[None]])
+
+
+def _jaw_shadow_grid(hv: np.ndarray, n_edge: int, mouth_y: float) -> np.ndarray:
+    """(HEAD_RINGS + 1, n_edge + 1) how much darker the neck's skin is painted just under
+    the jaw (the jaw's shadow: on people it draws the jaw line a tracker follows; on a
+    uniformly lit neck the chin melts into it). 0 on the face's edge itself."""
+    p = _head_grid(hv, n_edge)
+    below = p[0, :, 1][None] - p[..., 1]  # cm under the jaw's edge, per column
+    lower = features.smoothstep((mouth_y - p[0, :, 1]) / 2.0)[None]  # columns along the jaw
+    along = np.vstack([np.zeros((1, n_edge + 1)), np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=-1), axis=0)])
+    near = 1.0 - features.smoothstep((along - 3.0) / 2.0)  # the jaw's underside, not the nape
+    return (0.45 * lower * near * features.smoothstep(below / 1.2)
+            * (1.0 - features.smoothstep((below - 2.0) / 3.0))).astype(np.float32)
+
+
 def _hair_grid(hv: np.ndarray, n_edge: int) -> np.ndarray:
     """(HEAD_RINGS + 1, n_edge + 1) hair coverage in [0, 1] at the head shell's vertices:
     above a hairline that runs from the forehead's edge over the ears to the nape, and
     at least a centimetre from the face's edge (skin meets skin there)."""
-    p = np.concatenate([hv[:-1].reshape(HEAD_RINGS, n_edge + 1, 3), np.repeat(hv[-1:], n_edge + 1, 0)[None]])
+    p = _head_grid(hv, n_edge)
     step = np.linalg.norm(np.diff(p, axis=0), axis=-1)
     from_edge = np.vstack([np.zeros((1, n_edge + 1)), np.cumsum(step, axis=0)])
     z_front = float(p[0, :, 2].max())

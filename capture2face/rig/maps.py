@@ -328,7 +328,7 @@ def _teeth_and_tongue_albedo(u, v, colour: np.ndarray) -> np.ndarray:
 
 
 def _head_albedo(u, v, albedo: np.ndarray, hair_grid: np.ndarray, edge_uvs: np.ndarray,
-                 rng: np.random.Generator) -> np.ndarray:
+                 rng: np.random.Generator, shadow_grid: np.ndarray | None = None) -> np.ndarray:
     """Paint the head shell's band (skin, short hair combed back where ``hair_grid``
     says) and the ears' discs (skin, darker in the hollow) into ``albedo``. The skin
     starts at the colour of the face's texture along its edge (``edge_uvs``: the face
@@ -340,6 +340,8 @@ def _head_albedo(u, v, albedo: np.ndarray, hair_grid: np.ndarray, edge_uvs: np.n
     edge = ndimage.uniform_filter(colour, (9, 9, 1))[texel[:, 1], texel[:, 0]]  # (cols, 3), pores averaged out
     fade = features.smoothstep(np.arange(rows) / 5.0)[:, None, None]
     tone = edge[None] * (1 - fade) + edge.mean(0) * fade  # (rows, cols, 3)
+    if shadow_grid is not None:
+        tone = tone * (1.0 - shadow_grid[..., None])
     band = (u >= HEAD_U[0] - 0.003) & (u <= HEAD_U[1] + 0.003) & (v >= HEAD_V[0] - 0.003) & (v <= HEAD_V[1] + 0.003)
     ring = np.clip((v - HEAD_V[0]) / (HEAD_V[1] - HEAD_V[0]), 0, 1) * (rows - 1)
     col = np.clip((u - HEAD_U[0]) / (HEAD_U[1] - HEAD_U[0]), 0, 1) * (cols - 1)
@@ -366,7 +368,8 @@ def _head_albedo(u, v, albedo: np.ndarray, hair_grid: np.ndarray, edge_uvs: np.n
 
 def build_maps(landmark_uvs: np.ndarray, uvs: np.ndarray, triangles: np.ndarray, material: np.ndarray,
                eye_iris_theta: dict, size: int = SIZE, seed: int = 7, head_hair: np.ndarray | None = None,
-               head_edge_uvs: np.ndarray | None = None) -> dict[str, np.ndarray]:
+               head_edge_uvs: np.ndarray | None = None, head_shadow: np.ndarray | None = None
+               ) -> dict[str, np.ndarray]:
     """All textures of the avatar.
 
     Args:
@@ -375,7 +378,8 @@ def build_maps(landmark_uvs: np.ndarray, uvs: np.ndarray, triangles: np.ndarray,
         eye_iris_theta: {"R": rad, "L": rad} polar angle of each iris rim on its eyeball.
         head_hair: (rings, columns) hair coverage of the head shell's vertex grid (its UVs
             span ``HEAD_U`` x ``HEAD_V``), or None for no head; ``head_edge_uvs`` (columns,
-            2): the UVs of the face's edge vertex under each column.
+            2): the UVs of the face's edge vertex under each column; ``head_shadow`` (rings,
+            columns): how much darker the shell's skin is painted (the jaw's shadow).
     Returns:
         dict with "albedo" (H, W, 3), "normal", "stretch", "compress" (H, W, 3) uint8
         normal maps, "zones" (H, W, 8) uint8.
@@ -398,7 +402,7 @@ def build_maps(landmark_uvs: np.ndarray, uvs: np.ndarray, triangles: np.ndarray,
     zones = features.zone_fields(u, v, layout) * skin
     albedo = _albedo(u, v, landmark_uvs, layout, rng, eye_iris_theta)
     if head_hair is not None:
-        albedo = _head_albedo(u, v, albedo, head_hair, head_edge_uvs, rng)
+        albedo = _head_albedo(u, v, albedo, head_hair, head_edge_uvs, rng, head_shadow)
     return {
         "albedo": albedo,
         "normal": encode_normals(height_to_normal(pores, 0.6)),
