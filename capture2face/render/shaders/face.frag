@@ -144,7 +144,7 @@ void main() {
     f_influence = influence_color(ng, l, w);
 #endif
     vec3 n = ng;
-    if (v_material == 0 || v_material == 4) {
+    if (v_material == 0) {  // the head beyond the face (4) has a flat normal map: no fetch
         vec3 t = normalize(v_tangent.xyz - ng * dot(ng, v_tangent.xyz));
         vec3 b = v_tangent.w * cross(ng, t);
         vec3 tn = tangent_normal(w);
