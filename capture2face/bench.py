@@ -178,7 +178,9 @@ def _render_rounds(rig, animation, options, progress: bool = True) -> tuple[list
     poses = avatar_head_poses(rig, animation.head_pose, base.fov_y_degrees)
     states = [FrameState(bone_positions=animation.bone_positions[i], blend_weights=animation.blend_weights[i],
                          head_pose=poses[i], influences=animation.influences[i],
-                         zone_weights=animation.zone_weights[i]) for i in range(n_render)]
+                         zone_weights=animation.zone_weights[i],
+                         eye_rotation=None if animation.eye_rotation is None else animation.eye_rotation[i])
+              for i in range(n_render)]
     fps: dict[str, list[float]] = {d: [] for d in drivers}
     cpu: dict[str, float] = {d: 0.0 for d in drivers}
     rendered: list[np.ndarray] = []

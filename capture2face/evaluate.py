@@ -36,6 +36,14 @@ dimensionless) and how each is measured:
   solved character against the tracker (what ``eval fidelity`` reports on real clips).
   Each is ``{"r", "gain"}``. The character cannot be expected to move more faithfully
   than the tracker sees: the tracker's figure is its floor.
+* ``gaze_error_deg_median`` / ``_p95``: the angle in degrees between the true and the
+  estimated gaze direction (``Animation.eye_rotation``, head coordinates) per eye and
+  frame, over frames whose eye is open in the truth (its ``eyeBlink`` weight below 0.5:
+  a closed lid hides the iris); ``gaze_yaw_error_deg_median`` / ``gaze_pitch_...``: the
+  same per angle, with ``gaze_yaw_r`` / ``gaze_pitch_r`` (Pearson r against the truth);
+  ``baseline_straight_gaze_error_deg_median``: the eyes kept straight ahead. The actor is the default avatar, so the gaze is estimated with its eye
+  radius (``RetargetOptions.eye_radius_iod`` = ``retarget.gaze.eye_radius_iod(source)``)
+  unless ``options`` are given.
 * Retargeting starts from a frame the truth holds at neutral, and again from the
   tracker's own pick (``neutral_frame_auto``; one tracking pass, two retargets): the
   second set of figures, same keys, is the nested ``auto_neutral`` block, so the cost of a
@@ -77,9 +85,11 @@ RATIOS: dict[str, str] = {
     "bone_error_iod_mean": "baseline_rest_bone_error_iod_mean",
     "blendweight_mae": "baseline_zero_blendweight_mae",
     "blendweight_active_mae": "baseline_zero_blendweight_active_mae",
+    "gaze_error_deg_median": "baseline_straight_gaze_error_deg_median",
     "blendweight_mae_shared": "baseline_zero_blendweight_mae_shared",
     "mediapipe_blendshape_mae": "baseline_zero_blendweight_mae_shared",
     "wrinkle_influence_mae": "baseline_zero_influence_mae",
+    "gaze_error_deg_median": "baseline_straight_gaze_error_deg_median",
     "wrinkle_influence_mae_vertex": "baseline_zero_influence_mae",
     "wrinkle_influence_mae_bone": "baseline_zero_influence_mae_bone",
     "region_influence_mae": "baseline_zero_region_influence_mae",
@@ -199,7 +209,9 @@ def summary_line(result: dict, label: str = "") -> str:
             f"wrinkles {result['wrinkle_influence_mae_ratio']:.2f}x zero; "
             f"mouth gain {result['mouth_open_gain']:.2f} r {result['mouth_open_r']:.2f} "
             f"(tracker's own {result['measures']['mouth_open']['tracker']['gain']:.2f}); "
-            f"goals met {met}/{len(GOALS)}" + ("" if g["frames_as_stated"] else f" (stated for {GOAL_FRAMES} frames)"))
+            + (f"gaze error {result['gaze_error_deg_median']:.1f} deg median, "
+               f"{result['gaze_error_deg_p95']:.1f} p95; " if "gaze_error_deg_median" in result else "")
+            + f"goals met {met}/{len(GOALS)}" + ("" if g["frames_as_stated"] else f" (stated for {GOAL_FRAMES} frames)"))
 
 
 def score(track, animation, truth, source, target) -> dict:
@@ -276,6 +288,7 @@ def score(track, animation, truth, source, target) -> dict:
     vertex_err = np.abs(vertex_influences(animation.influences[use] - inf_true[use], skin))
     region_true = region_influence(inf_true, target)
 
+    result_gaze = gaze_errors(animation, truth, use)
     neutral = track.neutral_frame
     rest_err = np.linalg.norm(true_bones[use][:, bones] - target.bone_rest[bones], axis=2) / target.interocular()
     result = {
@@ -289,6 +302,7 @@ def score(track, animation, truth, source, target) -> dict:
         **result_mp,
         **result_active,
         **result_mouth,
+        **result_gaze,
         # Per vertex: what the renderer shows (a bone skinning a large patch of
         # forehead matters more than a lid bone skinning a sliver); per bone alongside.
         "wrinkle_influence_mae": float(vertex_err.mean()),
@@ -316,6 +330,37 @@ def score(track, animation, truth, source, target) -> dict:
         result["face_size_ratio"] = float(target.face_size() / source.face_size())
         result["interocular_ratio"] = float(target.interocular() / source.interocular())
     return add_ratios(result)
+
+
+def gaze_errors(animation, truth, use: np.ndarray) -> dict:
+    """Gaze figures (see the module docstring) over the frames ``use`` (F,) bool; empty
+    when the truth or the animation has no gaze."""
+    from capture2face.rig.face_rig import gaze_directions
+
+    if getattr(truth, "eye_rotation", None) is None or getattr(animation, "eye_rotation", None) is None:
+        return {}
+    names = list(truth.blend_names)
+    open_ = np.ones((len(truth.blend_weights), 2), bool)
+    for e, name in enumerate(("eyeBlinkRight", "eyeBlinkLeft")):
+        if name in names:
+            open_[:, e] = truth.blend_weights[:, names.index(name)] < 0.5
+    sel = use[:, None] & open_  # (F, 2)
+    if not sel.any():
+        return {}
+    true_dir = gaze_directions(truth.eye_rotation)[sel]
+    pred_dir = gaze_directions(animation.eye_rotation)[sel]
+    err = np.degrees(np.arccos(np.clip((true_dir * pred_dir).sum(-1), -1.0, 1.0)))
+    straight = np.degrees(np.arccos(np.clip(true_dir[:, 2], -1.0, 1.0)))
+    return {
+        "gaze_error_deg_median": float(np.median(err)),
+        "gaze_error_deg_p95": float(np.percentile(err, 95)),
+        "gaze_yaw_error_deg_median": float(np.median(np.abs(animation.eye_rotation[..., 0][sel] - truth.eye_rotation[..., 0][sel]))),
+        "gaze_pitch_error_deg_median": float(np.median(np.abs(animation.eye_rotation[..., 1][sel] - truth.eye_rotation[..., 1][sel]))),
+        "gaze_yaw_r": pearson(animation.eye_rotation[..., 0][sel], truth.eye_rotation[..., 0][sel]),
+        "gaze_pitch_r": pearson(animation.eye_rotation[..., 1][sel], truth.eye_rotation[..., 1][sel]),
+        "baseline_straight_gaze_error_deg_median": float(np.median(straight)),
+        "gaze_eye_frames": int(sel.sum()),
+    }
 
 
 def synthetic_case(frames: int = 300, seed: int = 0, size: int = 512, folder: str | Path | None = None,
@@ -354,10 +399,14 @@ def evaluate_track(track, truth, target_variant: str | None = None,
 
     from capture2face.rig.avatar import default_avatar
 
+    from capture2face.retarget.gaze import eye_radius_iod
+
     auto = int(track.neutral_frame)
     held = truth.pose_frames("neutral")
     source = default_avatar()
     target = default_avatar(variant=target_variant) if target_variant else source
+    if options is None:  # the actor's eyes are the source avatar's
+        options = RetargetOptions(eye_radius_iod=eye_radius_iod(source))
 
     def run(neutral: int) -> dict:
         posed = dataclasses.replace(track, neutral_frame=int(neutral))

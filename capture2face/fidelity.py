@@ -20,6 +20,11 @@ A measure is judged where the source moves enough to judge it (range >= 0.04 IOD
 The ARKit curves (``Animation.arkit_weights`` when present, else the tracker's scores)
 are judged against the same geometry: JawOpen vs mouth opening, EyeBlink vs eye opening
 (negated), BrowInnerUp vs brow height.
+The gaze (``Animation.eye_rotation``, from the irises' geometry) is judged against the
+tracker's own gaze scores: each eye's yaw against its eyeLookIn/Out difference (towards
+the subject's left: left eye out - in, right eye in - out), pitch against eyeLookDown -
+eyeLookUp; a yaw is judged where that difference moves (std >= :data:`MIN_GAZE_STD`),
+goal r >= :data:`GAZE_R_GOAL`.
 """
 
 from __future__ import annotations
@@ -58,6 +63,16 @@ ARKIT_CHECKS: dict[str, tuple[str, float, float]] = {
     "eyeBlinkRight": ("eye_right", -1.0, 0.9),
     "browInnerUp": ("brow", 1.0, 0.8),
 }
+
+# Gaze: (eye angle, score pairs (plus, minus) whose difference it should follow).
+GAZE_CHECKS: dict[str, tuple[int, int, tuple[str, str]]] = {
+    "yaw_right": (0, 0, ("eyeLookInRight", "eyeLookOutRight")),
+    "yaw_left": (1, 0, ("eyeLookOutLeft", "eyeLookInLeft")),
+    "pitch_right": (0, 1, ("eyeLookDownRight", "eyeLookUpRight")),
+    "pitch_left": (1, 1, ("eyeLookDownLeft", "eyeLookUpLeft")),
+}
+MIN_GAZE_STD = 0.1  # std of the score difference below which the gaze barely moves
+GAZE_R_GOAL = 0.8
 
 
 # ---- measures ----------------------------------------------------------------------------
@@ -203,6 +218,8 @@ class ClipFidelity:
         source, character, direct: (T, 6) the measures (see module doc).
         arkit: (T, A) ARKit curves judged, names in ``arkit_names``.
         arkit_source: which curves were judged ("animation" or "tracker").
+        gaze: (T, 2, 2) the animation's eye yaw and pitch (degrees), or None.
+        gaze_scores: (T, 4) the tracker's score differences of :data:`GAZE_CHECKS`.
     """
 
     name: str
@@ -213,6 +230,8 @@ class ClipFidelity:
     arkit: np.ndarray
     arkit_names: list[str]
     arkit_source: str
+    gaze: np.ndarray | None = None
+    gaze_scores: np.ndarray | None = None
 
     def figures(self) -> dict:
         """Per measure r, gain, source range, judged and faithful for the character and
@@ -246,6 +265,17 @@ class ClipFidelity:
             out["arkit"][name] = {"against": measure, "r": round(r, 3), "goal": goal, "max": round(float(curve.max()), 3),
                                   "met": bool(r >= goal)}
         out["arkit_source"] = self.arkit_source
+        if self.gaze is not None and self.gaze_scores is not None:
+            out["gaze"] = {}
+            for k, (name, (eye, angle, _)) in enumerate(GAZE_CHECKS.items()):
+                score = self.gaze_scores[:, k]
+                spread = float(score.std()) if len(score) else 0.0
+                r = pearson(self.gaze[:, eye, angle], score)
+                entry = {"r": round(r, 3), "score_std": round(spread, 3),
+                         "judged": bool(name.startswith("yaw") and spread >= MIN_GAZE_STD)}
+                if entry["judged"]:
+                    entry.update(goal=GAZE_R_GOAL, met=bool(r >= GAZE_R_GOAL))
+                out["gaze"][name] = entry
         out["summary"] = {"judged": judged, "faithful": int(passed), "not_worse_than_direct": int(beats)}
         return out
 
@@ -262,9 +292,17 @@ def clip_fidelity(track, animation, rig, name: str = "") -> ClipFidelity:
         arkit, names, which = np.asarray(animation.arkit_weights), list(animation.arkit_names), "animation"
     else:
         arkit, names, which = scores, list(track.blendshape_names), "tracker"
+    gaze = gaze_scores = None
+    if getattr(animation, "eye_rotation", None) is not None:
+        col = {n: i for i, n in enumerate(track.blendshape_names)}
+        if all(a in col and b in col for _, _, (a, b) in GAZE_CHECKS.values()):
+            gaze = np.asarray(animation.eye_rotation, np.float64)[keep]
+            gaze_scores = np.stack([scores[:, col[a]].astype(np.float64) - scores[:, col[b]]
+                                    for _, _, (a, b) in GAZE_CHECKS.values()], 1)[keep]
     return ClipFidelity(name=name or Path(str(track.source)).stem, times=np.asarray(track.times)[keep],
                         source=source[keep], character=character[keep], direct=direct[keep],
-                        arkit=np.asarray(arkit[keep], np.float64), arkit_names=names, arkit_source=which)
+                        arkit=np.asarray(arkit[keep], np.float64), arkit_names=names, arkit_source=which,
+                        gaze=gaze, gaze_scores=gaze_scores)
 
 
 # ---- clips and run folders -----------------------------------------------------------------
@@ -306,9 +344,12 @@ def summary_line(results: list[dict]) -> str:
     ok = sum(r["summary"]["faithful"] for r in results)
     beats = sum(r["summary"]["not_worse_than_direct"] for r in results)
     arkit = [a for r in results for a in r["arkit"].values()]
+    gaze = [g for r in results for g in r.get("gaze", {}).values() if g["judged"]]
     return (f"{len(results)} clips: {ok}/{judged} judged measures faithful (r >= {R_MIN}, gain "
             f"{GAIN_MIN}-{GAIN_MAX}), {beats}/{judged} not worse than the direct scores; "
-            f"ARKit curves {sum(a['met'] for a in arkit)}/{len(arkit)} meet their r goal")
+            f"ARKit curves {sum(a['met'] for a in arkit)}/{len(arkit)} meet their r goal"
+            + (f"; eye yaw {sum(g['met'] for g in gaze)}/{len(gaze)} follows eyeLookIn/Out (r >= {GAZE_R_GOAL})"
+               if gaze else ""))
 
 
 def table(results: list[dict]) -> str:

@@ -343,6 +343,7 @@ def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder
                 bone_positions=animation.bone_positions[i], blend_weights=animation.blend_weights[i],
                 head_pose=poses[i], influences=animation.influences[i], zone_weights=animation.zone_weights[i],
                 head_rotation=None if turns is None else turns[i],
+                eye_rotation=None if animation.eye_rotation is None else animation.eye_rotation[i],
             )
             if options.compare:
                 image, heat = renderer.render_with_influence(state)

@@ -52,7 +52,7 @@ def test_multi_mesh_arkit_character_imports_every_mesh_and_merges_morphs(tmp_pat
     order = part_order(avatar)
     assert rig.n_vertices == avatar.n_vertices
     np.testing.assert_allclose(rig.vertices, avatar.vertices[order], atol=1e-5)
-    known = avatar.material[order] <= 2  # skin, eye, mouth: named by their meshes
+    known = avatar.material[order] <= 3  # skin, eye, mouth, teeth: named by their meshes (the scalp imports as skin)
     np.testing.assert_array_equal(rig.material[known], avatar.material[order][known])
     assert drive_mode(rig) == "arkit"
     mine = _by_arkit(rig)
@@ -121,7 +121,7 @@ def test_head_joint_turns_the_head_and_not_the_body(tmp_path, avatar):
     rot = rotation_matrix(30.0, 0.0, 0.0)
     d = Deformer(rig)
     zero = np.zeros(rig.n_morphs)
-    turned = d.positions(rig.bone_rest, zero, rot)
+    turned = d.positions(rig.bone_rest, zero, head_rotation=rot)
     pivot = rig.bone_rest[0].astype(np.float64)
     np.testing.assert_allclose(turned[face], (rig.vertices[face] - pivot) @ rot.T + pivot, atol=1e-4)
     np.testing.assert_allclose(turned[~face], rig.vertices[~face], atol=1e-6)
@@ -321,7 +321,7 @@ def test_run_drives_an_arkit_character_with_no_mapping_file(tmp_path, avatar, sa
     middle = np.stack([f[40:88, 40:88] for f in frames]).astype(int)
     assert np.abs(middle - bg).max(-1).mean(axis=(1, 2)).min() > 30
     glb = pygltflib.GLTF2().load(str(folder / "animation.glb"))
-    assert [m.name for m in glb.meshes] == ["Head", "Eyes", "Teeth", "Body"]  # the user's own file
+    assert [m.name for m in glb.meshes] == ["Head", "Eyes", "Mouth", "Teeth", "Scalp", "Body"]  # the user's own file
     assert glb.animations[0].extras["frames"] == 90
 
 

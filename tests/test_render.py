@@ -132,11 +132,21 @@ def make_test_rig(n=41, tex=128) -> FaceRig:
     )
 
 
-def cpu_deform(rig: FaceRig, bone_positions, blend_weights) -> np.ndarray:
-    """Reference: morph targets, then translation-only linear blend skinning."""
+def cpu_deform(rig: FaceRig, bone_positions, blend_weights, eye_rotation=None) -> np.ndarray:
+    """Reference: morph targets, then translation-only linear blend skinning, then each
+    eyeball turned about its centre by Ry(yaw) Rx(pitch) (yaw, pitch in degrees)."""
     morphed = rig.vertices.astype(np.float64) + np.einsum("m,mvc->vc", blend_weights, rig.morph_positions)
     offsets = (np.asarray(bone_positions, np.float64) - rig.bone_rest)[rig.skin_joints]  # (V, 4, 3)
-    return morphed + np.einsum("vj,vjc->vc", rig.skin_weights, offsets)
+    out = morphed + np.einsum("vj,vjc->vc", rig.skin_weights, offsets)
+    if eye_rotation is not None and rig.eye_centres is not None:
+        from scipy.spatial.transform import Rotation
+
+        for side in (0, 1):
+            yaw, pitch = np.radians(eye_rotation[side])
+            r = Rotation.from_euler("YX", [yaw, pitch]).as_matrix()  # intrinsic: Ry(yaw) @ Rx(pitch)
+            ids = rig.eye_vertex_side == side
+            out[ids] = (out[ids] - rig.eye_centres[side]) @ r.T + rig.eye_centres[side]
+    return out
 
 
 @pytest.fixture(scope="session")
@@ -196,7 +206,7 @@ def view(rig):
 def test_deformation_matches_cpu_reference(request, which):
     rig = request.getfixturevalue(which)
     view = framing_pose(rig, yaw=10.0, pitch=5.0)
-    rng = np.random.default_rng(0)
+    rng, eye_rng = np.random.default_rng(0), np.random.default_rng(1)
     tol = 1e-4 * rig.face_size()
     from capture2face.render.skinning import Deformer
     from capture2face.rig.deform import deform
@@ -207,13 +217,14 @@ def test_deformation_matches_cpu_reference(request, which):
             bones = rig.bone_rest + rng.normal(0, 0.8, rig.bone_rest.shape) * (np.arange(rig.n_bones) > 0)[:, None]
             weights = rng.uniform(0, 1, rig.n_morphs)
             weights[rng.integers(rig.n_morphs)] = 0.0  # an inactive morph is skipped
-            drawn = renderer.deformed_positions(FrameState(bones, weights, view))
-            cpu = cpu_deform(rig, bones, weights)
+            eyes = eye_rng.uniform(-30, 30, (2, 2))
+            drawn = renderer.deformed_positions(FrameState(bones, weights, view, eye_rotation=eyes))
+            cpu = cpu_deform(rig, bones, weights, eyes)
             assert np.abs(cpu - rig.vertices).max() > 0.3  # the deformation is not trivial
             assert np.abs(drawn - cpu).max() < tol
             # and the rig package's own reference agrees, normals included
-            positions, normals = deformer(bones, weights)
-            ref_positions, ref_normals = deform(rig, bones, weights)
+            positions, normals = deformer(bones, weights, eye_rotation=eyes)
+            ref_positions, ref_normals = deform(rig, bones, weights, eyes)
             assert np.abs(positions - ref_positions).max() < tol
             assert np.abs(normals - ref_normals).max() < 1e-5
             assert np.abs(normals - rig.normals).max() > 0.05  # the morphs bend them
@@ -434,13 +445,22 @@ def test_avatar_wrinkles_fade_in_with_the_influence(avatar, avatar_looks):
 
 
 def test_avatar_fills_the_frame(avatar, avatar_looks):
-    """framing_pose makes the rendered face about 60% of the frame tall, centred."""
-    _, looks = avatar_looks
+    """framing_pose makes the rendered face about 60% of the frame tall, centred; the rest
+    of the head (scalp, ears, neck) goes on around it."""
+    from capture2face.render.camera import project
+
+    view, looks = avatar_looks
     img = looks["off", "compress"].astype(int)
-    face = np.abs(img - img[0, 0]).sum(2) > 30
-    rows, cols = np.flatnonzero(face.any(1)), np.flatnonzero(face.any(0))
+    drawn = np.abs(img - img[0, 0]).sum(2) > 30
+    face_px = project(avatar.vertices[avatar.material == 0], view, 30.0, LOOK_SIZE)
+    rows, cols = face_px[:, 1], face_px[:, 0]
     assert 0.57 < (rows.max() - rows.min()) / LOOK_SIZE < 0.67
     assert abs((cols.max() + cols.min()) / 2 - LOOK_SIZE / 2) < 0.02 * LOOK_SIZE
+    # The face's silhouette is drawn, and the head beyond it: scalp above, neck below.
+    inside = face_px[(face_px >= 0).all(1) & (face_px < LOOK_SIZE).all(1)].astype(int)
+    assert drawn[inside[:, 1], inside[:, 0]].mean() > 0.98
+    hit = np.flatnonzero(drawn.any(1))
+    assert hit.min() < rows.min() - 0.04 * LOOK_SIZE and hit.max() > rows.max() + 0.1 * LOOK_SIZE
 
 
 def test_zones_driver_follows_zone_weights(rig, view):

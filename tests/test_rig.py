@@ -65,7 +65,7 @@ def test_geometry(rig, canon):
         assert np.linalg.norm(rig.vertices[upper] - rig.vertices[lower]) < 1e-5
     assert np.linalg.norm(canon.vertices[13] - canon.vertices[14]) > 0.4
     assert rig.triangles.min() >= 0 and rig.triangles.max() < rig.n_vertices
-    assert set(np.unique(rig.material)) == {0, 1, 2}
+    assert set(np.unique(rig.material)) == {0, 1, 2, 3, 4}
     np.testing.assert_allclose(np.linalg.norm(rig.normals, axis=1), 1.0, atol=1e-5)
     # Skin normals face the camera on the front of the face.
     front = (rig.material == 0) & (np.abs(rig.vertices[:, 0]) < 3)
@@ -114,6 +114,37 @@ def test_eyes_cover_the_openings(rig):
         assert rig.vertices[iris_vertices[0], 2] == pytest.approx(p[:, 2].max(), abs=1e-5)
 
 
+def test_eyes_turn_about_their_centres_behind_the_lids(rig):
+    from capture2face.rig.face_rig import eye_rotation_matrices, gaze_angles, gaze_directions
+
+    assert rig.has_eyes and rig.eye_centres.shape == (2, 3)
+    for side, first in ((0, 468), (1, 473)):
+        ball = rig.eye_vertex_side == side
+        assert np.all(rig.material[ball] == 1) and ball.sum() > 100
+        iris = rig.landmark_vertices[first:first + 5]
+        assert np.all(rig.eye_vertex_side[iris] == side)
+        # The centre is the sphere's: every eyeball vertex at one distance from it.
+        r = np.linalg.norm(rig.vertices[ball] - rig.eye_centres[side], axis=1)
+        assert r.std() < 1e-4 * r.mean()
+    assert rig.eye_centres[0, 0] < 0 < rig.eye_centres[1, 0]  # right eye at -x
+    # Yaw 30 (towards +x), pitch 20 (down) on both eyes: the iris centres move that way,
+    # the eyeballs turn rigidly, nothing else moves, and the gaze reads back.
+    turn = np.array([[30.0, 20.0], [30.0, 20.0]])
+    pos, nrm = deform(rig, rig.bone_rest, _zero_weights(rig), turn)
+    rest, _ = deform(rig, rig.bone_rest, _zero_weights(rig))
+    moved = np.linalg.norm(pos - rest, axis=1) > 1e-6
+    assert np.array_equal(moved, rig.eye_vertex_side >= 0)
+    for side, first in ((0, 468), (1, 473)):
+        c = rig.eye_centres[side]
+        v = pos[rig.landmark_vertices[first]] - c
+        np.testing.assert_allclose(gaze_angles(v), [30.0, 20.0], atol=1e-3)
+        assert v[0] > 0 and v[1] < 0
+        ball = rig.eye_vertex_side == side
+        np.testing.assert_allclose(np.linalg.norm(pos[ball] - c, axis=1), np.linalg.norm(rest[ball] - c, axis=1), atol=1e-5)
+        np.testing.assert_allclose(nrm[ball], rig.normals[ball] @ eye_rotation_matrices(turn[side]).T, atol=1e-5)
+    np.testing.assert_allclose(gaze_directions(np.zeros(2)), [0.0, 0.0, 1.0], atol=1e-12)
+
+
 def _component(rig, vertex):
     import scipy.sparse as sp
     from scipy.sparse.csgraph import connected_components
@@ -136,10 +167,94 @@ def test_mouth_interior_behind_the_lips(rig):
     assert (n[:, 2] > -1e-9).mean() > 0.5
 
 
+def test_teeth_and_tongue(rig):
+    from scipy.spatial import cKDTree
+
+    parts = rig.material == 3
+    assert parts.sum() > 300
+    head, jaw = 0, rig.bone_index("jaw")
+    joints = rig.skin_joints[parts, 0]
+    assert np.all(rig.skin_weights[parts, 0] == 1.0) and set(joints.tolist()) == {head, jaw}
+    upper = np.flatnonzero(parts)[joints == head]
+    lower = np.flatnonzero(parts)[joints == jaw]  # lower teeth and tongue
+    lip_y = rig.vertices[13, 1]
+    assert rig.vertices[upper, 1].min() < lip_y < rig.vertices[upper, 1].max()  # upper edge below the lip line
+    assert rig.vertices[lower, 1].max() < lip_y
+    # Behind the lips: every skin vertex over a tooth (within 0.3 cm seen from the front)
+    # is in front of it, so a closed mouth hides the teeth.
+    skin = np.flatnonzero(rig.material == 0)
+    tree = cKDTree(rig.vertices[skin, :2])
+    for v in np.flatnonzero(parts):
+        near = tree.query_ball_point(rig.vertices[v, :2], 0.3)
+        assert near and rig.vertices[skin[near], 2].min() > rig.vertices[v, 2]
+    # The jaw opens the lower teeth and the tongue with the lower lip; the upper teeth stay.
+    w = _zero_weights(rig)
+    w[rig.morph_index("jawOpen")] = 1.0
+    bones = rig.bone_rest.copy()
+    bones[jaw] += [0.0, -0.5, 0.0]
+    pos, _ = deform(rig, bones, w)
+    assert np.abs(pos[upper] - rig.vertices[upper]).max() < 1e-6
+    drop = rig.vertices[lower, 1] - pos[lower, 1]
+    assert drop.min() > 0.5 and rig.vertices[14, 1] - pos[14, 1] > 0.5
+    # The lower teeth move as one piece (a rigid jaw turn plus the bone's shift).
+    d = np.linalg.norm(pos[lower][:, None] - pos[lower][None, ::50], axis=-1)
+    d0 = np.linalg.norm(rig.vertices[lower][:, None] - rig.vertices[lower][None, ::50], axis=-1)
+    assert np.abs(d - d0).max() < 1e-4
+
+
+def test_head_is_joined_to_the_face_without_a_crack(rig):
+    head = rig.material == 4
+    assert head.sum() > 1000
+    # The face keeps its canonical vertices; the head only adds.
+    assert np.all(rig.landmark_vertices[:468] == np.arange(468)) and np.all(rig.material[:468] == 0)
+    # Face and head are one closed surface once copies of a position are welded: its only
+    # borders are the eye openings and the mouth.
+    shell = rig.triangles[np.isin(rig.material[rig.triangles], (0, 4)).all(1)]
+    loops = mesh_ops.boundary_loops(rig.position_ids[shell])
+    assert len(loops) == 3
+    assert sorted(len(set(l) & {33, 263, 13}) for l in loops) == [1, 1, 1]
+    shared = np.flatnonzero(rig.position_ids != np.arange(rig.n_vertices))
+    assert np.all(head[shared]) and (rig.material[rig.position_ids[shared]] == 0).sum() > 50
+    # Copies share their normal, and stay together under any bones and morphs (the head's
+    # first ring follows the face's edge): no crack, no shading seam.
+    rng = np.random.default_rng(0)
+    bones = rig.bone_rest + rng.normal(0, 0.5, rig.bone_rest.shape) * (np.arange(rig.n_bones) > 0)[:, None]
+    w = rng.uniform(0, 1, rig.n_morphs).astype(np.float32)
+    for b, weights in ((rig.bone_rest, _zero_weights(rig)), (bones, w)):
+        pos, nrm = deform(rig, b, weights)
+        assert np.abs(pos[shared] - pos[rig.position_ids[shared]]).max() < 1e-5
+        assert np.abs(nrm[shared] - nrm[rig.position_ids[shared]]).max() < 1e-5
+    # A head: the scalp over the forehead, ears at the sides, a neck under the chin.
+    v = rig.vertices
+    assert v[head, 1].max() > v[rig.material == 0, 1].max() + 2.0
+    assert v[head, 2].min() < v[:, 2].max() - 18.0  # ~20 cm front to back
+    assert v[head, 1].min() < v[152, 1] - 10.0
+    for side in (-1, 1):
+        ear = head & (side * v[:, 0] > np.abs(v[rig.material == 0, 0]).max()) & (np.abs(v[:, 1] - v[33, 1]) < 4)
+        assert ear.sum() > 50
+
+
+def test_scalp_is_hair_and_the_neck_skin(rig):
+    head = np.flatnonzero(rig.material == 4)
+    texel = np.clip((rig.uvs[head] * rig.albedo.shape[0]).astype(int), 0, rig.albedo.shape[0] - 1)
+    colour = rig.albedo[texel[:, 1], texel[:, 0]].astype(float)
+    v = rig.vertices[head]
+    crown = v[:, 1] > v[:, 1].max() - 2.0
+    neck = v[:, 1] < rig.vertices[152, 1] - 3.0
+    skin = rig.albedo[_uv_texel(rig, 234)].astype(float)  # the face's edge at the cheek
+    assert colour[crown].mean() < 0.5 * skin.mean()  # dark hair
+    assert np.abs(colour[neck].mean(0) - skin).max() < 25  # the face's skin tone
+
+
+def _uv_texel(rig, vertex):
+    t = np.clip((rig.uvs[vertex] * rig.albedo.shape[0]).astype(int), 0, rig.albedo.shape[0] - 1)
+    return t[1], t[0]
+
+
 def test_texture_layout_keeps_eyes_and_mouth_off_the_skin(rig):
     skin_tris = rig.triangles[(rig.material[rig.triangles] == 0).all(1)]
     covered = maps_mod._coverage(rig.uvs, skin_tris, 1024)
-    for material in (1, 2):
+    for material in (1, 2, 3, 4):
         uv = rig.uvs[rig.material == material]
         texels = np.clip((uv * 1024).astype(int), 0, 1023)
         assert not covered[texels[:, 1], texels[:, 0]].any()
@@ -219,8 +334,9 @@ def test_morph_at_weight_one_reproduces_target(rig):
         pos, nrm = deform(rig, rig.bone_rest, w)
         target = rig.vertices.astype(np.float64) + rig.morph_positions[m]
         np.testing.assert_allclose(pos, target, atol=1e-5, err_msg=name)
-        # Normal deltas are the normals of the morphed mesh minus the rest normals.
-        expected = mesh_ops.vertex_normals(target, rig.triangles)
+        # Normal deltas are the normals of the morphed mesh minus the rest normals (copies
+        # of one position, at UV seams, share theirs).
+        expected = mesh_ops.vertex_normals(target, rig.position_ids[rig.triangles])[rig.position_ids]
         np.testing.assert_allclose(nrm, expected, atol=2e-4, err_msg=name)
         assert np.abs(rig.morph_positions[m]).max() > 0.1, name  # it does something
 

@@ -21,8 +21,10 @@ two eyes' yaw/pitch/roll. Each row: ``HH:MM:SS:FF.fff,61,<61 values>``.
   left, +y up, +z out of the face): yaw > 0 turns the face / gaze towards the subject's
   left, pitch > 0 tips it down, roll > 0 tilts the head towards the subject's right
   shoulder (rotation about +z). Head angles come from the head pose (rotation = Ry(yaw)
-  Rx(pitch) Rz(roll)); eye yaw and pitch from MediaPipe's eyeLook* scores, a score of 1
-  being ``EYE_LOOK_MAX_DEG`` degrees; eye roll is 0.
+  Rx(pitch) Rz(roll)); eye yaw and pitch from the tracked irises' geometry
+  (``Animation.eye_rotation``, degrees, same signs), or, for an animation saved before it
+  had them, from MediaPipe's eyeLook* scores, a score of 1 being ``EYE_LOOK_MAX_DEG``
+  degrees; eye roll is 0.
 """
 
 from __future__ import annotations
@@ -130,6 +132,13 @@ def livelink_values(animation, track_or_blendshapes=None) -> np.ndarray:
         i = mp.get(name.lower())
         return scores[:, i].astype(np.float64) if i is not None else np.zeros(F)
 
+    gaze = getattr(animation, "eye_rotation", None)
+    if gaze is not None:
+        gaze = np.asarray(gaze, np.float64) / ANGLE_UNIT_DEG  # (F, 2 eyes (right, left), 2)
+        out[:, 55], out[:, 56] = gaze[:, 1, 0], gaze[:, 1, 1]
+        out[:, 58], out[:, 59] = gaze[:, 0, 0], gaze[:, 0, 1]
+        out[:, 52:] = np.clip(np.nan_to_num(out[:, 52:]), -1.0, 1.0)
+        return out
     eye = EYE_LOOK_MAX_DEG / ANGLE_UNIT_DEG
     out[:, 55] = (s("eyeLookOutLeft") - s("eyeLookInLeft")) * eye  # left eye: out = towards +x
     out[:, 56] = (s("eyeLookDownLeft") - s("eyeLookUpLeft")) * eye

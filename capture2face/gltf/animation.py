@@ -8,7 +8,9 @@ one time accessor (seconds from the first frame):
 * one ``weights`` channel on the mesh node: F x M morph weights in [0, 1] in the order of
   ``mesh.extras.targetNames``;
 * a ``rotation`` channel on the skeleton root node ``capture2face_root``: the head's
-  rotation from the track's head pose (rotation only, so the face turns in place).
+  rotation from the track's head pose (rotation only, so the face turns in place);
+* a ``rotation`` channel on each eye joint (``eye_R``, ``eye_L``) when the rig has them
+  and the animation has a gaze: ``Animation.eye_rotation`` as Ry(yaw) Rx(pitch).
 
 glTF has no frame rate: the animation's ``extras`` carry ``{"fps": ..., "frames": F}``.
 
@@ -144,6 +146,16 @@ def add_animation(builder: GlbBuilder, rig, animation, nodes: dict, fps: float |
         q = head_rotations(animation.head_pose).astype(np.float32)
         channel(builder.accessor(q), nodes["root"], "rotation")
 
+    gaze = getattr(animation, "eye_rotation", None)
+    if nodes.get("eyes") and gaze is not None and len(gaze) == F:
+        from capture2face.rig.face_rig import eye_rotation_matrices
+
+        rot = eye_rotation_matrices(np.nan_to_num(np.asarray(gaze, np.float64)))  # (F, 2, 3, 3)
+        for side, node in enumerate(nodes["eyes"]):
+            pose = np.tile(np.eye(4), (F, 1, 1))
+            pose[:, :3, :3] = rot[:, side]
+            channel(builder.accessor(head_rotations(pose).astype(np.float32)), node, "rotation")
+
     # glTF keeps seconds, not frames: the rate goes along for tools that need one (Blender).
     extras = {"fps": float(fps or animation.fps), "frames": int(F)}
     return builder.add("animations", {"name": name, "samplers": samplers, "channels": channels, "extras": extras})
@@ -161,6 +173,7 @@ class GlbAnimation:
         target_names: M morph names (``mesh.extras.targetNames``).
         weights: (F, M) float32 morph weights, or None.
         root_rotation: (F, 4) float32 quaternions (x, y, z, w) of the root, or None.
+        eye_rotation: (F, 2, 4) float32 quaternions of the eye joints (right, left), or None.
     """
 
     times: np.ndarray
@@ -169,6 +182,7 @@ class GlbAnimation:
     target_names: list[str]
     weights: np.ndarray | None
     root_rotation: np.ndarray | None
+    eye_rotation: np.ndarray | None = None
 
 
 def read_glb_animation(path: str | os.PathLike, index: int = 0, cm_per_unit: float = 100.0) -> GlbAnimation:
@@ -183,7 +197,10 @@ def read_glb_animation(path: str | os.PathLike, index: int = 0, cm_per_unit: flo
     if not skins:
         raise CaptureError(f"{path}: has no skin")
     nodes = g["nodes"]
+    ours = g.get("extras", {}).get("capture2face", {}) if isinstance(g.get("extras"), dict) else {}
     joints = skins[0]["joints"]
+    eye_joints = joints[len(ours["bone_names"]):] if ours.get("eye_joints") else []
+    joints = joints[: len(joints) - len(eye_joints)]
     times = None
     per_node: dict[tuple[int, str], np.ndarray] = {}
     for ch in anim["channels"]:
@@ -221,6 +238,8 @@ def read_glb_animation(path: str | os.PathLike, index: int = 0, cm_per_unit: flo
         times=times.astype(np.float32), joint_names=[nodes[j].get("name", "") for j in joints],
         bone_positions=pos * cm_per_unit, target_names=names, weights=weights,
         root_rotation=None if rot is None else rot.astype(np.float32),
+        eye_rotation=np.stack([per_node[(j, "rotation")] for j in eye_joints], 1).astype(np.float32)
+        if eye_joints and all((j, "rotation") in per_node for j in eye_joints) else None,
     )
 
 

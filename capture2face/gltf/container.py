@@ -32,6 +32,7 @@ CM_PER_METRE = 100.0
 EXTRAS_KEY = "capture2face"
 EXTRAS_FORMAT = "capture2face.FaceRig.glb/1"
 ROOT_NODE_NAME = "capture2face_root"
+EYE_JOINT_NAMES = ("eye_R", "eye_L")  # the subject's right eye first, as FaceRig.eye_centres
 SAMPLER_LINEAR_CLAMP = {"magFilter": 9729, "minFilter": 9987, "wrapS": 33071, "wrapT": 33071}
 
 GLB_MAGIC = 0x46546C67  # "glTF"

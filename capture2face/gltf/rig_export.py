@@ -8,8 +8,8 @@ What an exported .glb holds (it passes the Khronos glTF validator without errors
   deltas, joint translations, inverse bind matrices, animation translations) is written in
   metres = cm * 0.01 (``METRES_PER_CM``); :func:`import_glb` multiplies by 100. A float32
   round trip through metres changes a coordinate by at most one float32 ulp of its cm
-  value (< 1e-6 cm for |x| < 16 cm, which covers a head), so vertices come back within
-  1e-6 cm; the rig's exact bone and pose positions (cm) are also kept in ``extras``.
+  value (< 2e-6 cm for |x| < 32 cm, which covers a head with its neck), so vertices come
+  back within 2e-6 cm; the rig's exact bone and pose positions (cm) are also kept in ``extras``.
 * **One mesh, one primitive** (skin, eyes and mouth interior together, so vertex order and
   indices survive a round trip) with POSITION, NORMAL, TANGENT, TEXCOORD_0, JOINTS_0
   (unsigned byte, or short for > 255 bones), WEIGHTS_0 (float, rows sum to 1), and
@@ -21,6 +21,9 @@ What an exported .glb holds (it passes the Khronos glTF validator without errors
   translated relative to its parent (bones translate only); bone 0 ``head`` hangs under a
   root node ``capture2face_root`` (the skeleton root, which carries the head rotation of
   an animation). Inverse bind matrices are translations by minus the rest positions.
+  A rig with turning eyes (``FaceRig.eye_centres``) gets two more joints after the
+  bones, ``eye_R`` and ``eye_L`` (children of ``head``, at the eye centres): its eyeball
+  vertices are skinned to them alone, so an animation turns the eyes by rotating them.
 * **Textures** (PNG): the albedo as baseColorTexture, the base normal map as
   normalTexture; the wrinkle maps and the two RGBA zone masks as further images.
 * **``extras.capture2face``** at the top level: everything else a FaceRig has (bone
@@ -39,8 +42,8 @@ from capture2face.errors import CaptureError
 from capture2face.io.atomic import write_bytes_atomic
 from capture2face.gltf.animation import add_animation
 from capture2face.gltf.container import (
-    ARRAY_BUFFER, CM_PER_METRE, ELEMENT_ARRAY_BUFFER, EXTRAS_FORMAT, EXTRAS_KEY, METRES_PER_CM, ROOT_NODE_NAME,
-    SAMPLER_LINEAR_CLAMP, GlbBuilder,
+    ARRAY_BUFFER, CM_PER_METRE, ELEMENT_ARRAY_BUFFER, EXTRAS_FORMAT, EXTRAS_KEY, EYE_JOINT_NAMES, METRES_PER_CM,
+    ROOT_NODE_NAME, SAMPLER_LINEAR_CLAMP, GlbBuilder,
 )
 from capture2face.gltf.rig_import import import_glb as _import
 from capture2face.rig.face_rig import FaceRig
@@ -106,7 +109,12 @@ def build_rig_gltf(rig: FaceRig) -> tuple[GlbBuilder, dict]:
     tangents[:, :3] = _unit(tangents[:, :3])
     tangents[:, 3] = np.where(tangents[:, 3] < 0, -1.0, 1.0)
     joints, weights = _skin_attributes(rig)
-    joint_dtype = np.uint8 if rig.n_bones <= 256 else np.uint16
+    if rig.has_eyes:  # eyeballs ride their eye joints (after the bones) alone
+        eye = rig.eye_vertex_side >= 0
+        joints[eye] = 0
+        joints[eye, 0] = rig.n_bones + rig.eye_vertex_side[eye]
+        weights[eye] = [1.0, 0.0, 0.0, 0.0]
+    joint_dtype = np.uint8 if rig.n_bones + 2 <= 256 else np.uint16
     attributes = {
         "POSITION": b.accessor(rig.vertices.astype(np.float32) * np.float32(METRES_PER_CM), ARRAY_BUFFER, minmax=True),
         "NORMAL": b.accessor(_unit(rig.normals), ARRAY_BUFFER),
@@ -179,13 +187,21 @@ def build_rig_gltf(rig: FaceRig) -> tuple[GlbBuilder, dict]:
             node["children"] = children
         b.add("nodes", node)
     b.gltf["nodes"][root_node]["children"] = [joint_nodes[i] for i in np.flatnonzero(parents < 0)]
-    ibm = np.tile(np.eye(4, dtype=np.float32), (rig.n_bones, 1, 1))
-    ibm[:, 3, :3] = -(rest * METRES_PER_CM)  # column-major: translation in the last column
+    eye_nodes, joint_rest = [], rest
+    if rig.has_eyes:
+        centres = rig.eye_centres.astype(np.float64)
+        for side, name in enumerate(EYE_JOINT_NAMES):
+            eye_nodes.append(b.add("nodes", {"name": name, "translation": ((centres[side] - rest[0]) * METRES_PER_CM).tolist()}))
+        b.gltf["nodes"][joint_nodes[0]].setdefault("children", []).extend(eye_nodes)
+        joint_rest = np.vstack([rest, centres])
+    n_joints = len(joint_rest)
+    ibm = np.tile(np.eye(4, dtype=np.float32), (n_joints, 1, 1))
+    ibm[:, 3, :3] = -(joint_rest * METRES_PER_CM)  # column-major: translation in the last column
     skin = b.add("skins", {
         "name": f"{rig.name}_skin",
-        "joints": joint_nodes,
+        "joints": joint_nodes + eye_nodes,
         "skeleton": root_node,
-        "inverseBindMatrices": b.accessor(ibm.reshape(rig.n_bones, 16), gltf_type="MAT4"),
+        "inverseBindMatrices": b.accessor(ibm.reshape(n_joints, 16), gltf_type="MAT4"),
     })
     b.gltf["nodes"][mesh_node]["skin"] = skin
     b.gltf["scenes"] = [{"name": rig.name or "face", "nodes": [mesh_node, root_node]}]
@@ -212,14 +228,16 @@ def build_rig_gltf(rig: FaceRig) -> tuple[GlbBuilder, dict]:
         "region_names": list(rig.region_names),
         "region_attributes": [f"_REGIONS_{c}" for c in range(n_chunks)],
     }}
-    return b, {"mesh": mesh_node, "root": root_node, "joints": joint_nodes}
+    if rig.has_eyes:
+        b.gltf["extras"][EXTRAS_KEY].update(eye_joints=list(EYE_JOINT_NAMES), eye_centres_cm=_tolist(rig.eye_centres))
+    return b, {"mesh": mesh_node, "root": root_node, "joints": joint_nodes, "eyes": eye_nodes}
 
 
 def export_glb(rig: FaceRig, path: str | os.PathLike, animation=None, fps: float | None = None) -> None:
     """Write ``rig`` as a .glb (atomically); with ``animation`` (an
     :class:`~capture2face.retarget.animation.Animation` of this rig) also one glTF
-    animation: per-bone translation channels, a morph ``weights`` channel and the head
-    rotation, sampled per frame. ``fps`` replaces the clip's timestamps by frame / fps."""
+    animation: per-bone translation channels, a morph ``weights`` channel, the head
+    rotation and the eye joints' rotations (gaze), sampled per frame. ``fps`` replaces the clip's timestamps by frame / fps."""
     builder, nodes = build_rig_gltf(rig)
     if animation is not None:
         add_animation(builder, rig, animation, nodes, fps=fps)

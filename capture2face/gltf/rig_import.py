@@ -38,7 +38,7 @@ relative to the JSON file)::
       "bones": {"Brow_Inner_L": 336, "Brow_Inner_R": 107, "Jaw": 152},
       "bone_groups": [["Brow_Inner_L", "Brow_Inner_R"]],
       "landmark_vertices": {"33": 1043, "263": 2211},
-      "materials": {"EyeMaterial": "eye", "Teeth": "mouth"},
+      "materials": {"EyeMaterial": "eye", "MouthBag": "mouth", "Teeth": "teeth"},
       "wrinkle_maps": {"stretch": "maps/stretch_n.png", "compress": "maps/compress_n.png"},
       "poses": {
         "stretch":  {"offsets": {"Brow_Inner_L": [0, 0.8, 0.1]}, "wrinkle_map": "stretch",
@@ -50,6 +50,9 @@ relative to the JSON file)::
       "morphs": {"Fcl_MTH_A": "jawOpen", "Fcl_EYE_Close_L": "eyeBlinkLeft"}
     }
 
+* ``materials``: material name -> "skin", "eye", "mouth" (the dark mouth cavity) or
+  "teeth" (teeth and tongue); unnamed ones are guessed from the material's name (eye,
+  iris, ... -> eye; teeth, tooth, tongue -> teeth; mouth, gum -> mouth; else skin).
 * ``head_bone``: the joint that becomes bone 0 ``head`` (default: a joint named ``head``,
   else a synthetic root bone that takes the weight nothing else has).
 * ``bones``: joint name -> MediaPipe landmark index (0-477) the bone follows.
@@ -93,9 +96,10 @@ from capture2face.rig.face_rig import REGION_NAMES, ZONE_NAMES, FaceRig
 
 N_LANDMARKS = 478
 DEFAULT_TEXTURE_SIZE = 256
-MATERIAL_CODES = {"skin": 0, "eye": 1, "mouth": 2}
+MATERIAL_CODES = {"skin": 0, "eye": 1, "mouth": 2, "teeth": 3}
 _EYE_WORDS = ("eye", "iris", "cornea", "sclera", "pupil")
-_MOUTH_WORDS = ("mouth", "teeth", "tooth", "tongue", "gum")
+_TEETH_WORDS = ("teeth", "tooth", "tongue")
+_MOUTH_WORDS = ("mouth", "gum")
 
 
 # ---- node transforms ------------------------------------------------------------------
@@ -213,6 +217,8 @@ def _material_code(g: dict, prim: dict, mapping: dict, mesh_name: str = "") -> i
     for text in (name.lower(), str(mesh_name).lower()):
         if any(w in text for w in _EYE_WORDS):
             return 1
+        if any(w in text for w in _TEETH_WORDS):
+            return 3
         if any(w in text for w in _MOUTH_WORDS):
             return 2
     return 0
@@ -352,6 +358,10 @@ def import_glb(path: str | os.PathLike, mapping_json: str | os.PathLike | None =
     ours = g.get("extras", {}).get(EXTRAS_KEY) if isinstance(g.get("extras"), dict) else None
     if ours is not None and ours.get("format") != EXTRAS_FORMAT:
         ours = None
+    if ours and ours.get("eye_joints"):
+        # Our eye joints (the skin's last joints) turn the eyeballs; they are no bones.
+        for skin in g.get("skins", []):
+            skin["joints"] = skin["joints"][: len(ours["bone_names"])]
     try:
         return _build(r, glb, mapping, mapping_dir, ours)
     except (KeyError, IndexError, TypeError) as exc:
@@ -546,6 +556,7 @@ def _surface(r: GlbReader, picked: list[int], world, skel: dict, mapping: dict, 
         parts.append({
             "pos": pos * scale, "normals": normals, "tangents": tangents, "uv": uvs, "tris": m["tris"] + offset,
             "material": m["material"], "gltf_material": m["gltf_material"], "bones": bones, "weights": m["weights"],
+            "joints": m["joints"],  # the file's own JOINTS_0 (our export's eye joints are no bones)
             "posid": m["posid"], "regions": m["regions"], "mpos": m["mpos"] @ lin.T * scale, "mnrm": mnrm,
             "names": m["target_names"], "largest_material": m["largest_material"], "tri_count": m["tri_count"],
             "offset": offset,
@@ -569,8 +580,11 @@ def _surface(r: GlbReader, picked: list[int], world, skel: dict, mapping: dict, 
         "tris": np.concatenate([p["tris"] for p in parts]),
         "material": np.concatenate([p["material"] for p in parts]),
         "gltf_material": np.concatenate([p["gltf_material"] for p in parts]),
+        # What only our own (single-mesh) export has: vertex ids, regions, raw skin indices.
         "posid": parts[0]["posid"] if single else None,
         "regions": parts[0]["regions"] if single else None,
+        "joints": parts[0]["joints"] if single else None,
+        "weights": parts[0]["weights"] if single else None,
         "largest_material": max(parts, key=lambda p: p["tri_count"])["largest_material"],
     }
 
@@ -795,7 +809,18 @@ def _apply_ours(rig: FaceRig, ours: dict, m: dict) -> FaceRig:
     if m["regions"] is not None:
         regions = np.ascontiguousarray(m["regions"][:, : len(regions)].T).astype(np.float32)
     P = len(ours["pose_names"])
+    eyes = {}
+    if ours.get("eye_joints") and m["joints"] is not None:
+        # Eyeball vertices: skinned to an eye joint (indices after the bones), back to the head.
+        raw = np.asarray(m["joints"], np.int64)
+        heavy = np.take_along_axis(raw, np.argmax(m["weights"], axis=1)[:, None], 1)[:, 0]
+        side = np.where(heavy >= rig.n_bones, heavy - rig.n_bones, -1).astype(np.int8)
+        joints, weights = rig.skin_joints.copy(), rig.skin_weights.copy()
+        joints[side >= 0], weights[side >= 0] = 0, [1.0, 0.0, 0.0, 0.0]
+        eyes = dict(eye_centres=np.asarray(ours["eye_centres_cm"], np.float32).reshape(2, 3),
+                    eye_vertex_side=side, skin_joints=joints, skin_weights=weights)
     return rig.replace(
+        **eyes,
         bone_rest=np.asarray(ours["bone_rest_cm"], np.float32).reshape(-1, 3),
         bone_parents=np.asarray(ours["bone_parents"], np.int32),
         bone_landmarks=np.asarray(ours["bone_landmarks"], np.int32),

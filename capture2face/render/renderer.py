@@ -104,6 +104,8 @@ class FrameState:
         head_rotation: (3, 3) rotation of the head joint's vertices about it, for a rig
             with ``head_weights`` (the camera, ``head_pose``, then keeps the body still);
             None: no turn of the head within the rig.
+        eye_rotation: (2, 2) yaw, pitch (degrees) of the right and left eye
+            (``Animation.eye_rotation``); None = straight ahead.
     """
 
     bone_positions: np.ndarray
@@ -115,6 +117,7 @@ class FrameState:
     light_color: np.ndarray | None = None
     ambient: np.ndarray | None = None
     head_rotation: np.ndarray | None = None
+    eye_rotation: np.ndarray | None = None
 
     @classmethod
     def at_pose(cls, rig: FaceRig, head_pose: np.ndarray, pose: str | None = None) -> "FrameState":
@@ -329,7 +332,8 @@ class Renderer:
                            ("u_zone_mask0", _UNIT_MASK0), ("u_zone_mask1", _UNIT_MASK1)):
             _set(prog, name, unit)
 
-        positions, normals = self._deformer(state.bone_positions, state.blend_weights, state.head_rotation)
+        positions, normals = self._deformer(state.bone_positions, state.blend_weights,
+                                            eye_rotation=state.eye_rotation, head_rotation=state.head_rotation)
         self._positions = positions
         vertices = self._frame_vertices
         vertices[:, 0:3] = positions
@@ -378,7 +382,8 @@ class Renderer:
     def deformed_positions(self, state: FrameState) -> np.ndarray:
         """(V, 3) float32 deformed positions in head coordinates: the mesh the renderer
         draws for ``state``."""
-        return self._deformer.positions(state.bone_positions, state.blend_weights, state.head_rotation)
+        return self._deformer.positions(state.bone_positions, state.blend_weights,
+                                        eye_rotation=state.eye_rotation, head_rotation=state.head_rotation)
 
     def _draw(self, state: FrameState) -> None:
         ctx = self.ctx

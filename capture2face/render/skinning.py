@@ -1,15 +1,27 @@
 """The rig's deformation in NumPy, prepared once per renderer: morph targets (Yang), then
 translation-only linear blend skinning (Dutreve), as ``capture2face.rig.deform`` defines
-it, then, for a character with a head joint (``FaceRig.head_weights``), the head rotation
-blended by each vertex's share of it, in float32 and over the active morphs only (~0.15 ms for the default avatar, against
-~5 ms for the batched reference).
+it, then the eyeballs' turn (``FaceRig.eye_centres``) and, for a character with a head
+joint (``FaceRig.head_weights``), the head rotation blended by each vertex's share of it;
+float32, over the active morphs only (~1 ms for the default head, against ~5 ms for the
+batched reference).
 """
 
 from __future__ import annotations
 
 import numpy as np
+from threadpoolctl import ThreadpoolController
 
-from capture2face.rig.face_rig import FaceRig
+from capture2face.rig.face_rig import FaceRig, turn_eyes
+
+# The per-frame products are small (V x 26 bones, a few active morphs x 3V): one BLAS
+# thread does them in ~1 ms, while a threaded BLAS on a loaded 2-core machine spent 8-17
+# ms synchronising once the default head's 5.8k vertices crossed its threading threshold.
+# A controller made once limits the threads for ~7 us a call.
+_BLAS = ThreadpoolController()
+
+
+def _one_blas_thread():
+    return _BLAS.limit(limits=1, user_api="blas")
 
 
 class Deformer:
@@ -27,6 +39,7 @@ class Deformer:
         hw = getattr(rig, "head_weights", None)
         self._head = None if hw is None else np.asarray(hw, np.float32)[:, None]
         self._pivot = np.asarray(rig.bone_rest[0], np.float32)
+        self._rig = rig
 
     def _turn(self, points: np.ndarray, rotation, about: np.ndarray | float) -> np.ndarray:
         """``points`` turned by ``rotation`` about ``about``, blended by the head weights."""
@@ -44,31 +57,45 @@ class Deformer:
             raise ValueError(f"blend_weights must be ({self.n_morphs},), got {weights.shape}")
         return bones, weights
 
-    def positions(self, bone_positions: np.ndarray, blend_weights: np.ndarray, head_rotation=None) -> np.ndarray:
-        """(V, 3) float32 deformed positions, head coordinates (cm); ``head_rotation``
-        (3, 3) turns the head joint's vertices about it (rigs with ``head_weights``)."""
+    def positions(self, bone_positions: np.ndarray, blend_weights: np.ndarray, *,
+                  eye_rotation: np.ndarray | None = None, head_rotation: np.ndarray | None = None) -> np.ndarray:
+        """(V, 3) float32 deformed positions, head coordinates (cm); ``eye_rotation``
+        (2, 2) yaw, pitch degrees per eye turns the eyeballs (None: straight ahead), then
+        ``head_rotation`` (3, 3) turns the head joint's vertices about it (rigs with
+        ``head_weights``)."""
         bones, weights = self._check(bone_positions, blend_weights)
         active = np.flatnonzero(weights)
-        positions = (self._vertices + weights[active] @ self._morph_positions[active]).reshape(-1, 3)
-        positions += self._skin @ (bones - self._bone_rest).astype(np.float32)
+        with _one_blas_thread():
+            positions = (self._vertices + weights[active] @ self._morph_positions[active]).reshape(-1, 3)
+            positions += self._skin @ (bones - self._bone_rest).astype(np.float32)
+        turn_eyes(self._rig, positions, None, eye_rotation)
         return self._turn(positions, head_rotation, self._pivot)
 
-    def normals(self, blend_weights: np.ndarray, head_rotation=None) -> np.ndarray:
+    def normals(self, blend_weights: np.ndarray, *, eye_rotation: np.ndarray | None = None,
+                head_rotation: np.ndarray | None = None) -> np.ndarray:
         """(V, 3) float32 unit normals: translations leave them alone, morphs bend them
-        (and the head rotation turns them)."""
+        (the eyes' turn turns the eyeballs', and the head rotation the head's)."""
         weights = np.asarray(blend_weights, np.float32).ravel()
         active = np.flatnonzero(weights)
-        normals = (self._normals + weights[active] @ self._morph_normals[active]).reshape(-1, 3)
+        with _one_blas_thread():
+            normals = (self._normals + weights[active] @ self._morph_normals[active]).reshape(-1, 3)
+        normals /= np.maximum(np.sqrt(np.einsum("vc,vc->v", normals, normals)), 1e-12)[:, None]
+        turn_eyes(self._rig, None, normals, eye_rotation)
+        if head_rotation is None or self._head is None:
+            return normals
+        # A vertex shared between head and body turns part way: normalise again.
         normals = self._turn(normals, head_rotation, 0.0)
         normals /= np.maximum(np.sqrt(np.einsum("vc,vc->v", normals, normals)), 1e-12)[:, None]
         return normals
 
     def skin(self, per_bone: np.ndarray) -> np.ndarray:
         """(V, K) float32 per-vertex blend ``sum_i w_vi * per_bone[J_i]`` of (B, K) values."""
-        return self._skin @ np.asarray(per_bone, np.float32)
+        with _one_blas_thread():
+            return self._skin @ np.asarray(per_bone, np.float32)
 
     def __call__(self, bone_positions: np.ndarray, blend_weights: np.ndarray,
-                 head_rotation=None) -> tuple[np.ndarray, np.ndarray]:
+                 *, eye_rotation: np.ndarray | None = None,
+                 head_rotation: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(positions, normals), (V, 3) float32 each."""
-        return (self.positions(bone_positions, blend_weights, head_rotation),
-                self.normals(blend_weights, head_rotation))
+        return (self.positions(bone_positions, blend_weights, eye_rotation=eye_rotation, head_rotation=head_rotation),
+                self.normals(blend_weights, eye_rotation=eye_rotation, head_rotation=head_rotation))

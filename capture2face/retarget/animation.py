@@ -42,6 +42,13 @@ class Animation:
         arkit_weights: (F, S) float32 ARKit curves in [0, 1] with ARKit meaning (0 at rest,
             1 at the full pose; :func:`capture2face.retarget.arkit.arkit_curves`), or None
             in files written before they existed.
+        eye_rotation: (F, 2, 2) float32 gaze in head coordinates, degrees:
+            ``[f, eye, (yaw, pitch)]``, eye 0 the subject's right (tracker landmarks
+            468-472), eye 1 the left (473-477); yaw > 0 towards the subject's left (+x),
+            pitch > 0 down (Live Link Face's signs; rotation Ry(yaw) Rx(pitch) of the
+            straight-ahead +z gaze). From the tracked irises
+            (:func:`capture2face.retarget.gaze.eye_rotation`); None in files written
+            before it existed.
     """
 
     times: np.ndarray
@@ -64,6 +71,7 @@ class Animation:
     character: str = ""
     arkit_names: list[str] = field(default_factory=list)
     arkit_weights: np.ndarray | None = None
+    eye_rotation: np.ndarray | None = None
 
     @property
     def n_frames(self) -> int:

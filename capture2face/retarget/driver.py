@@ -11,6 +11,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from capture2face.errors import CaptureError
+from capture2face.retarget import gaze
 from capture2face.retarget import influences as inf
 from capture2face.retarget.animation import Animation
 from capture2face.retarget.arkit import arkit_curves
@@ -59,6 +60,9 @@ class RetargetOptions:
             points the rig fits perfectly do not take all the weight.
         window_frames, window_overlap: the solve runs over windows of this many frames
             sharing this many with the next (:mod:`capture2face.retarget.windows`).
+        eye_radius_iod: the actor's distance from eye centre to iris in inter-ocular
+            distances, which turns the irises' motion into angles
+            (:func:`capture2face.retarget.gaze.eye_rotation`); a human's by default.
     """
 
     # Chosen on 300 synthetic frames (``capture2face eval synthetic``): thin-plate,
@@ -146,6 +150,7 @@ class RetargetOptions:
     # the temporal term's reach, so the result matches one whole-clip solve (tests).
     window_frames: int = 1000
     window_overlap: int = 100
+    eye_radius_iod: float = gaze.HUMAN_RADIUS_IOD
 
 
 def feature_correspondence(rig) -> tuple[np.ndarray, np.ndarray, bool]:
@@ -367,7 +372,7 @@ def retarget(track, rig, options: RetargetOptions | None = None) -> Animation:
 
 def _retarget(track, rig, options: RetargetOptions) -> Animation:
     if drive_mode(rig) == "arkit":
-        return _retarget_arkit(track, rig)
+        return _retarget_arkit(track, rig, options)
     landmarks, target, per_vertex = feature_correspondence(rig)
     network = _fit_network(track, rig, landmarks, target, options)
     windows = frame_windows(track.n_frames, options.window_frames, options.window_overlap)
@@ -376,10 +381,10 @@ def _retarget(track, rig, options: RetargetOptions) -> Animation:
         bones, weights = solve_bones_weights(mapped, rig, landmarks, per_vertex, options, track.neutral_frame)
     if weights is None:
         weights = _mediapipe_weights(track, rig)
-    return _animation(track, rig, bones, weights, arkit_curves(track))
+    return _animation(track, rig, bones, weights, arkit_curves(track), options)
 
 
-def _retarget_arkit(track, rig) -> Animation:
+def _retarget_arkit(track, rig, options: RetargetOptions) -> Animation:
     """A character without face bones: its ARKit-named morphs (any spelling, on every
     mesh that has them) take the clip's ARKit curves, which already have ARKit meaning
     (:func:`~capture2face.retarget.arkit.arkit_curves`); bones stay at rest (the head
@@ -389,15 +394,23 @@ def _retarget_arkit(track, rig) -> Animation:
     bones = np.repeat(rig.bone_rest[None].astype(np.float32), track.n_frames, 0)
     # Automatic feature points (rig.auto_wrinkles) measure the influences where the
     # morphs carry them; as bones they stay at rest (the morphs deform the face).
-    return _animation(track, rig, bones, weights, curves,
+    return _animation(track, rig, bones, weights, curves, options,
                       influence_bones=_per_frame(lambda w: feature_positions(rig, w), weights))
 
 
+def _gaze(track, options: RetargetOptions) -> np.ndarray | None:
+    """(F, 2, 2) eye yaw and pitch (degrees) from the tracked irises; None for a track
+    without iris landmarks."""
+    if track.landmarks_head.shape[1] < 478:
+        return None
+    return gaze.eye_rotation(track.landmarks_head, track.neutral_frame, options.eye_radius_iod)
+
+
 def _animation(track, rig, bones: np.ndarray, weights: np.ndarray, curves: np.ndarray,
-               influence_bones: np.ndarray | None = None) -> Animation:
+               options: RetargetOptions, influence_bones: np.ndarray | None = None) -> Animation:
     """The Animation of solved bones (F, B, 3) and morph weights (F, M): the head bone
     pinned to rest, weights clipped to [0, 1], influences (from ``influence_bones``,
-    default ``bones``), regions and zones evaluated."""
+    default ``bones``), regions and zones evaluated, the gaze estimated."""
     bones[:, 0] = rig.bone_rest[0]
     weights = np.clip(weights, 0.0, 1.0).astype(np.float32, copy=False)
     influences = _per_frame(lambda b: inf.rig_influences(b, rig), bones if influence_bones is None else influence_bones)
@@ -422,6 +435,7 @@ def _animation(track, rig, bones: np.ndarray, weights: np.ndarray, curves: np.nd
         character=rig.name,
         arkit_names=list(track.blendshape_names),
         arkit_weights=curves,
+        eye_rotation=_gaze(track, options),
     )
 
 

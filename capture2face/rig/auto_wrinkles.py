@@ -77,11 +77,14 @@ def find_landmark_vertices(rig: FaceRig) -> np.ndarray:
     if obs is None:
         raise CaptureError(f"character '{rig.name}': the tracker finds no face in its front view")
     px = project(rig.vertices, pose, opts.fov_y_degrees, RENDER_SIZE)  # (V, 2)
-    depth = -(rig.vertices.astype(np.float64) @ pose[:3, :3].T + pose[:3, 3])[:, 2]
+    cam = rig.vertices.astype(np.float64) @ pose[:3, :3].T + pose[:3, 3]
+    depth = -cam[:, 2]
+    # Only vertices facing the camera: the back of a whole head projects onto the face too.
+    facing = np.einsum("vc,vc->v", rig.normals.astype(np.float64) @ pose[:3, :3].T, -cam) > 0
     out = np.full(len(obs.landmarks_px), -1, np.int32)
     lm = obs.landmarks_px.astype(np.float64)
     for material, rows in ((0, slice(0, 468)), (1, slice(468, None))):  # skin; irises on the eyes
-        cand = np.flatnonzero((rig.material == material) & np.isfinite(px).all(1))
+        cand = np.flatnonzero((rig.material == material) & facing & np.isfinite(px).all(1))
         if not len(cand):
             continue
         k = min(32, len(cand))

@@ -6,7 +6,9 @@ every builder module, so a code change rebuilds it. Nothing is downloaded.
 
 Vertex layout: canonical vertices 0..467 (vertex i *is* landmark i), then the edge
 midpoints of one subdivision step (skin, material 0), then the right and left eyeballs
-(material 1), then the mouth interior (material 2).
+(material 1), then the mouth interior (material 2), then the upper teeth, lower teeth and
+tongue (material 3). The eyeballs turn about their centres with the gaze; the upper teeth
+ride the head, the lower teeth and the tongue the jaw bone and the jaw morphs.
 
 Sides are the subject's: ``_L`` bones and ``...Left`` morphs are on the subject's left,
 +x in head coordinates, u > 0.5 in texture space.
@@ -301,7 +303,8 @@ def _uv_sphere(n_theta: int, n_phi: int):
 def _eyeball(ring_pos: np.ndarray, side: str):
     """A sphere behind an eye opening whose front silhouette covers the opening and which
     stays behind every lid vertex. Returns (vertices, uvs, triangles, iris vertex ids
-    (5,): centre then 4 rim points at phi = 0, 90, 180, 270 degrees)."""
+    (5,): centre then 4 rim points at phi = 0, 90, 180, 270 degrees, the iris rim's polar
+    angle, the sphere's centre (3,): the eye's rotation centre)."""
     centre_xy = 0.5 * (ring_pos[:, :2].max(0) + ring_pos[:, :2].min(0))
     reach = np.linalg.norm(ring_pos[:, :2] - centre_xy, axis=1)
     radius = reach.max() + 0.2
@@ -327,7 +330,7 @@ def _eyeball(ring_pos: np.ndarray, side: str):
     r_uv = maps.eye_uv_radius(theta)
     uvs = np.stack([cu + r_uv * np.cos(phi), cv - r_uv * np.sin(phi)], 1)
     rim = 1 + (k - 1) * n_phi + np.array([0, 6, 12, 18])
-    return verts, uvs, tris, np.concatenate([[0], rim]), iris_theta
+    return verts, uvs, tris, np.concatenate([[0], rim]), iris_theta, centre
 
 
 def _mouth_interior(lip_loop: np.ndarray, pos: np.ndarray, upper: np.ndarray):
@@ -369,6 +372,233 @@ def _mouth_interior(lip_loop: np.ndarray, pos: np.ndarray, upper: np.ndarray):
     flip = (normal * look).sum(1) < 0
     tris[flip] = tris[flip][:, ::-1]
     return verts, source, depth, tris
+
+
+# Teeth: widths (cm, along the arch from the midline) of the incisors, canine and
+# premolars of one side; what shows between open lips. Upper teeth overlap the lower ones
+# in front (overbite) and stand a little further forward (overjet).
+TOOTH_WIDTHS = (0.85, 0.68, 0.78, 0.7, 0.7)
+TEETH = {  # row: (edge y offset from the lip line, height up (+) or down (-), z back from the upper row)
+    "upper": (-0.22, 1.1, 0.0),
+    "lower": (-0.1, -0.9, 0.14),
+}
+TEETH_BEHIND_LIPS_CM = 0.42  # the upper incisors' front behind the inner lip contour
+TOOTH_THICKNESS = 0.28
+
+
+def _teeth_row(front: np.ndarray, edge_y: float, height: float, back_dir: np.ndarray):
+    """One row of teeth as a strip folded over the biting edge: the front face (root,
+    middle, edge), then the back face (edge, middle, root). ``front`` (N, 3) points along
+    the arch on the front face, ``back_dir`` (N, 3) unit vectors into the mouth.
+    Returns (vertices (6N, 3), row fraction (6N,) from 0 at the front root to 1 at the back
+    root, triangles (local), core (6N, 3): the middle of the tooth behind each vertex, for
+    facing the triangles outwards)."""
+    n = len(front)
+    rows = []
+    for up, back in ((1.0, 0.0), (0.5, 0.0), (0.0, 0.0), (0.0, 1.0), (0.5, 1.0), (1.0, 1.0)):
+        p = front + back * TOOTH_THICKNESS * back_dir
+        p[:, 1] = edge_y + up * height
+        rows.append(p)
+    core = front + 0.5 * TOOTH_THICKNESS * back_dir
+    core[:, 1] = edge_y + 0.5 * height
+    tris = [(r * n + j, (r + 1) * n + j, (r + 1) * n + j + 1) for r in range(5) for j in range(n - 1)]
+    tris += [(r * n + j, (r + 1) * n + j + 1, r * n + j + 1) for r in range(5) for j in range(n - 1)]
+    return np.concatenate(rows), np.repeat(np.arange(6) / 5.0, n), np.array(tris, np.int32), np.tile(core, (6, 1))
+
+
+def _teeth_and_tongue(ring: np.ndarray):
+    """Upper and lower teeth along a dental arch behind the inner lip contour ``ring``
+    (N, 3), and a tongue on the floor of the mouth behind the lower teeth.
+
+    Returns (vertices (K, 3), uvs (K, 2), triangles (local), part (K,): 0 upper teeth,
+    1 lower teeth, 2 tongue)."""
+    from capture2face.rig import maps
+
+    lip_y = float(ring[np.argmax(ring[:, 2]), 1])  # the lips meet here on the midline
+    z_front = float(ring[:, 2].max()) - TEETH_BEHIND_LIPS_CM
+    half = float(np.abs(ring[:, 0]).max())
+    # The arch: a parabola from the front teeth to just inside the lip corners, 1.3 cm
+    # further back at the corners than at the front (what a dental arch does).
+    ends = sum(TOOTH_WIDTHS)
+    xs = np.linspace(-1.0, 1.0, 41)
+    curve = lambda x, dz: np.stack([x * (half - 0.15), np.zeros_like(x), z_front - dz - 1.3 * x**2], 1)
+    verts, uvs, tris, part = [], [], [], []
+    offset = 0
+    for k, (row, (edge_dy, height, back)) in enumerate(TEETH.items()):
+        front = curve(xs, back)
+        # Arc length from the midline, for the texture's tooth boundaries.
+        seg = np.linalg.norm(np.diff(front, axis=0), axis=1)
+        arc = np.concatenate([[0.0], np.cumsum(seg)])
+        arc -= arc[len(xs) // 2]
+        tangent = np.gradient(front, axis=0)
+        back_dir = np.cross(tangent, [0.0, 1.0, 0.0])
+        back_dir /= np.linalg.norm(back_dir, axis=1, keepdims=True)
+        back_dir *= -np.sign(back_dir[len(xs) // 2, 2])  # into the mouth (-z at the front)
+        v, frac, t, core = _teeth_row(front, lip_y + edge_dy, height, back_dir)
+        # Face every triangle away from the tooth's core.
+        c = v[t].mean(1)
+        nrm = np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]])
+        if ((nrm * (c - core[t[:, 0]])).sum(1) < 0).mean() > 0.5:  # one strip, one orientation
+            t = t[:, ::-1].copy()
+        u = maps.TEETH_U[0] + (maps.TEETH_U[1] - maps.TEETH_U[0]) * (0.5 + 0.5 * np.tile(arc, 6) / ends)
+        v0, v1 = maps.TEETH_V[row]
+        uvs.append(np.stack([u, v0 + (v1 - v0) * frac], 1))
+        verts.append(v)
+        tris.append(t + offset)
+        part.append(np.full(len(v), k))
+        offset += len(v)
+    # Tongue: the upper half of a flattened ellipsoid resting behind the lower teeth.
+    dirs, _, _, ttri = _uv_sphere(8, 20)
+    radii = np.array([half - 0.55, 0.5, 1.5])
+    centre = np.array([0.0, lip_y - 0.75, z_front - 0.14 - TOOTH_THICKNESS - 0.1 - radii[2]])
+    # The sphere is around +z; turn it so its poles point along y (up).
+    d = np.stack([dirs[:, 0], dirs[:, 2], -dirs[:, 1]], 1)
+    tv = centre + radii * d
+    tv[:, 1] = np.maximum(tv[:, 1], centre[1] - 0.1)  # flat underside
+    tu = maps.TONGUE_UV[0] + (maps.TONGUE_UV[1] - maps.TONGUE_UV[0]) * (0.5 + 0.5 * d[:, 0])
+    tvv = maps.TONGUE_UV[2] + (maps.TONGUE_UV[3] - maps.TONGUE_UV[2]) * (0.5 - 0.5 * d[:, 2])
+    c = tv[ttri].mean(1)
+    nrm = np.cross(tv[ttri[:, 1]] - tv[ttri[:, 0]], tv[ttri[:, 2]] - tv[ttri[:, 0]])
+    if ((nrm * (c - centre)).sum(1) < 0).mean() > 0.5:
+        ttri = ttri[:, ::-1].copy()
+    verts.append(tv)
+    uvs.append(np.stack([tu, tvv], 1))
+    tris.append(ttri + offset)
+    part.append(np.full(len(tv), 2))
+    return np.vstack(verts), np.vstack(uvs), np.vstack(tris).astype(np.int32), np.concatenate(part)
+
+
+# Head: the scalp, the back of the head and the neck grow from the face mask's outer
+# edge in HEAD_RINGS rings towards a pole behind and below the head; ears sit on the sides.
+HEAD_RINGS = 28
+HEAD_POLE = np.array([0.0, -0.35, -1.0]) / np.hypot(0.35, 1.0)
+FACE_BLEND_RINGS = 6  # rings over which the face edge's own shape, skinning and morphs fade out
+# The neck ends here (cm): out of a synthetic clip's frame below the chin even with the
+# head tipped back, and within 32 cm of the origin (a glTF's float32 metres give the
+# centimetres back within 2e-6 there).
+NECK_BOTTOM_Y = -27.0
+
+
+def _ellipsoid_exit(origin: np.ndarray, d: np.ndarray, centre: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """(N,) distance along unit rays ``d`` (N, 3) from ``origin`` (inside) to an ellipsoid."""
+    o, dd = (origin - centre) / radii, d / radii
+    a, b, c = (dd * dd).sum(1), 2 * (o * dd).sum(1), (o * o).sum() - 1.0
+    return (-b + np.sqrt(np.maximum(b * b - 4 * a * c, 0.0))) / (2 * a)
+
+
+def _neck_exit(origin: np.ndarray, d: np.ndarray, axis_xz: np.ndarray, radii_xz: np.ndarray, bottom: float,
+               top: float) -> np.ndarray:
+    """(N,) distance along rays ``d`` from ``origin`` (inside) to a vertical elliptic
+    cylinder (axis through ``axis_xz``, radii ``radii_xz``) cut at y = ``bottom`` and ``top``."""
+    o = (origin[[0, 2]] - axis_xz) / radii_xz
+    dd = d[:, [0, 2]] / radii_xz
+    a, b, c = (dd * dd).sum(1), 2 * (dd @ o), (o * o).sum() - 1.0
+    side = (-b + np.sqrt(np.maximum(b * b - 4 * a * c, 0.0))) / np.maximum(2 * a, 1e-12)
+    side = np.where(a > 1e-12, side, np.inf)
+    cap = np.where(d[:, 1] < -1e-9, (bottom - origin[1]) / np.minimum(d[:, 1], -1e-9),
+                   np.where(d[:, 1] > 1e-9, (top - origin[1]) / np.maximum(d[:, 1], 1e-9), np.inf))
+    return np.minimum(side, cap)
+
+
+def _head_shell(edge: np.ndarray, chin: np.ndarray):
+    """The head beyond the face: rings grown from the face's outer edge loop ``edge``
+    (N, 3) towards :data:`HEAD_POLE`, on the smooth union of a skull ellipsoid and a neck
+    cylinder sized from the face, bent at the edge to meet the face exactly.
+
+    Returns (vertices (HEAD_RINGS * (N + 1) + 1, 3) ring by ring, the first ring the edge
+    itself, each ring closed by a copy of its first vertex, then the pole; ring index (per
+    vertex, HEAD_RINGS for the pole); column index (0..N, N = the copy of 0); triangles
+    (local))."""
+    n = len(edge)
+    half_width = float(np.abs(edge[:, 0]).max())
+    centre = np.array([0.0, 0.25 * half_width, edge[:, 2].min() - 0.1 * half_width])
+    radii = np.array([1.03, 1.38, 1.35]) * half_width
+    neck_axis = np.array([0.0, centre[2] - 0.18 * half_width])
+    neck_radii = np.array([0.64, 0.58]) * half_width  # the throat ~5 cm behind the chin
+    origin = centre + np.array([0.0, -0.2 * half_width, 0.0])
+    bottom = min(NECK_BOTTOM_Y, float(chin[1]) - 4.0)
+
+    def radius(d):
+        a = _ellipsoid_exit(origin, d, centre, radii)
+        b = _neck_exit(origin, d, neck_axis, neck_radii, bottom, float(centre[1]))
+        k = 0.12 * half_width  # a soft fillet where the neck meets the skull
+        return 0.5 * (a + b + np.sqrt((a - b) ** 2 + k * k))
+
+    rel = edge - origin
+    rho = np.linalg.norm(rel, axis=1)
+    d0 = rel / rho[:, None]
+    gap = rho - radius(d0)  # the face's edge against the smooth head: bent away over the first rings
+    rings, ring_ids, cols = [], [], []
+    for k in range(HEAD_RINGS):
+        t = k / HEAD_RINGS
+        # Slerp from the edge direction to the pole (never through the face).
+        omega = np.arccos(np.clip(d0 @ HEAD_POLE, -1.0, 1.0))[:, None]
+        so = np.maximum(np.sin(omega), 1e-9)
+        d = (np.sin((1 - t) * omega) * d0 + np.sin(t * omega) * HEAD_POLE) / so
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        fade = 1.0 - features.smoothstep(np.full(1, k / FACE_BLEND_RINGS))[0]
+        p = origin + d * (radius(d) + gap * fade)[:, None]
+        if k == 0:
+            p = edge.copy()
+        rings.append(np.vstack([p, p[:1]]))
+        ring_ids.append(np.full(n + 1, k))
+        cols.append(np.arange(n + 1))
+    pole = origin + HEAD_POLE * radius(HEAD_POLE[None])[0]  # the rings close on one vertex
+    verts = np.vstack(rings + [pole[None]])
+    m = n + 1
+    tris = [(k * m + j, (k + 1) * m + j, (k + 1) * m + j + 1) for k in range(HEAD_RINGS - 1) for j in range(n)]
+    tris += [(k * m + j, (k + 1) * m + j + 1, k * m + j + 1) for k in range(HEAD_RINGS - 1) for j in range(n)]
+    last, pole_id = (HEAD_RINGS - 1) * m, len(verts) - 1
+    tris += [(last + j, pole_id, last + j + 1) for j in range(n)]
+    tris = np.array(tris, np.int32)
+    # Face outwards, away from the head's inside.
+    c = verts[tris].mean(1)
+    nrm = np.cross(verts[tris[:, 1]] - verts[tris[:, 0]], verts[tris[:, 2]] - verts[tris[:, 0]])
+    if ((nrm * (c - origin)).sum(1) < 0).mean() > 0.5:  # the grid has one orientation: the majority's
+        tris = tris[:, ::-1].copy()
+    return verts, np.concatenate(ring_ids + [[HEAD_RINGS]]), np.concatenate(cols + [[n // 2]]), tris
+
+
+def _ear(centre: np.ndarray, side: float, height: float, width: float):
+    """An ear: a thin shell (outer face with a raised rim and a hollow concha, folded at
+    the rim onto its back) centred at ``centre``, facing outwards (``side`` = +1: +x) and
+    a little forwards. Returns (vertices, (radius, angle) per vertex in [0, 1] x [0, 1)
+    for the texture, front (bool per vertex), triangles (local))."""
+    n_r, n_a = 7, 24
+    rs = np.linspace(0.0, 1.0, n_r)[1:]  # the centre is one vertex per face
+    angles = np.arange(n_a) * 2 * np.pi / n_a
+    out = np.array([side * np.cos(0.35), 0.0, np.sin(0.35)])  # outward, turned 20 degrees forwards
+    up = np.array([0.0, 1.0, 0.0])
+    along = np.cross(up, out) * side  # towards the back of the head
+    depth = lambda r: 0.45 * np.exp(-((r - 0.88) / 0.1) ** 2) - 0.35 * np.exp(-((r - 0.35) / 0.2) ** 2)
+    thick = 0.45
+    verts, coords, front = [centre + out * depth(0.0)], [(0.0, 0.0)], [True]
+    for face in (0, 1):
+        for r in (rs if face == 0 else rs[::-1]):
+            for a in angles:
+                w = width * (1.0 + 0.15 * np.sin(a))  # a slightly pear-shaped outline: wider at the top
+                p = centre + r * (0.5 * w * np.cos(a) * along + 0.5 * height * np.sin(a) * up)
+                verts.append(p + out * (depth(r) if face == 0 else -thick * (1.0 - r**4)))
+                coords.append((r, a / (2 * np.pi)))
+                front.append(face == 0)
+    verts.append(centre - out * thick)
+    coords.append((0.0, 0.0))
+    front.append(False)
+    verts, coords, front = np.array(verts), np.array(coords), np.array(front)
+    rows = 2 * len(rs)
+    ring = lambda i, j: 1 + i * n_a + j % n_a
+    tris = [(0, ring(0, j), ring(0, j + 1)) for j in range(n_a)]
+    for i in range(rows - 1):
+        for j in range(n_a):
+            tris += [(ring(i, j), ring(i + 1, j), ring(i + 1, j + 1)), (ring(i, j), ring(i + 1, j + 1), ring(i, j + 1))]
+    back = len(verts) - 1
+    tris += [(ring(rows - 1, j), back, ring(rows - 1, j + 1)) for j in range(n_a)]
+    tris = np.array(tris, np.int32)
+    nrm = np.cross(verts[tris[:, 1]] - verts[tris[:, 0]], verts[tris[:, 2]] - verts[tris[:, 0]])
+    is_front = front[tris].all(1)
+    if ((nrm[is_front] @ out) < 0).mean() > 0.5:  # one folded sheet: the front faces out
+        tris = tris[:, ::-1].copy()
+    return verts, coords, front, tris
 
 
 # ---------------------------------------------------------------------------------------
@@ -483,6 +713,22 @@ def _mirror_map(v: np.ndarray) -> np.ndarray:
     return idx
 
 
+JAW_PIVOT = np.array([0.0, 0.3, -3.0])  # the jaw joints' axis (x) passes through here
+JAW_OPEN_RAD = 0.2
+
+
+def _jaw_morphs(points: np.ndarray, amount: np.ndarray) -> dict[str, np.ndarray]:
+    """jawOpen (a turn of ``amount`` (N,) x JAW_OPEN_RAD about the jaw axis), jawLeft and
+    jawRight deltas (N, 3) of ``points`` (N, 3) that follow the jaw by ``amount``."""
+    r = points - JAW_PIVOT
+    ang = JAW_OPEN_RAD * amount
+    cos, sin = np.cos(ang), np.sin(ang)
+    rotated = np.stack([r[:, 0], r[:, 1] * cos - r[:, 2] * sin, r[:, 1] * sin + r[:, 2] * cos], 1)
+    return {"jawOpen": rotated - r,
+            "jawLeft": amount[:, None] * np.array([0.5, 0.0, 0.0]),
+            "jawRight": amount[:, None] * np.array([-0.5, 0.0, 0.0])}
+
+
 def _build_morphs(mb: _MorphBuilder, sets: dict, mirror: np.ndarray) -> dict[str, np.ndarray]:
     """All morph targets as (n_skin, 3) displacement fields (cm)."""
     pos = mb.pos
@@ -563,14 +809,7 @@ def _build_morphs(mb: _MorphBuilder, sets: dict, mirror: np.ndarray) -> dict[str
 
     # Jaw: the lower face rotates about an axis through the jaw joints.
     s = sets["lowerness"]
-    pivot = np.array([0.0, 0.3, -3.0])
-    ang = 0.2 * s
-    r = pos - pivot
-    cos, sin = np.cos(ang), np.sin(ang)
-    rotated = np.stack([r[:, 0], r[:, 1] * cos - r[:, 2] * sin, r[:, 1] * sin + r[:, 2] * cos], 1)
-    out["jawOpen"] = rotated - r
-    out["jawLeft"] = s[:, None] * np.array([0.5, 0.0, 0.0])
-    out["jawRight"] = s[:, None] * np.array([-0.5, 0.0, 0.0])
+    out.update(_jaw_morphs(pos, s))
 
     # Cheeks puff out along the normal.
     bump = np.zeros(len(pos))
@@ -658,9 +897,12 @@ def build_avatar(variant: str = "default") -> FaceRig:
     landmark_vertices[:468] = np.arange(468)
     offset = n_skin
     iris_theta = {}
-    for side, first_landmark in (("R", 468), ("L", 473)):
+    eye_centres, eye_side = [], []
+    for k, (side, first_landmark) in enumerate((("R", 468), ("L", 473))):
         ring = sets["eye"][side]["ring"]
-        ev, euv, etri, iris, iris_theta[side] = _eyeball(pos[ring], side)
+        ev, euv, etri, iris, iris_theta[side], centre = _eyeball(pos[ring], side)
+        eye_centres.append(centre)
+        eye_side.append(np.full(len(ev), k, np.int8))
         parts_pos.append(ev)
         parts_uv.append(euv)
         parts_tri.append(etri + offset)
@@ -678,12 +920,52 @@ def build_avatar(variant: str = "default") -> FaceRig:
     parts_uv.append(mouth_uv)
     parts_tri.append(mtri + offset)
     parts_mat.append(np.full(len(mv), 2, np.uint8))
+    mouth_end = mouth_start + len(mv)
+    # Teeth and tongue: the upper teeth ride the head, the lower ones and the tongue the jaw.
+    tv, tuv, ttri, tpart = _teeth_and_tongue(pos[lip_loop])
+    parts_pos.append(tv)
+    parts_uv.append(tuv)
+    parts_tri.append(ttri + mouth_end)
+    parts_mat.append(np.full(len(tv), 3, np.uint8))
+    # The head beyond the face (material 4): scalp, back of the head and neck grown from
+    # the face's outer edge (its first ring shares the edge's positions), then the ears.
+    head_start = mouth_end + len(tv)
+    edge = max(loops, key=len)
+    hv, hring, hcol, htri = _head_shell(pos[edge], pos[152])
+    n_edge = len(edge)
+    parts_pos.append(hv)
+    parts_uv.append(np.stack([maps.HEAD_U[0] + (maps.HEAD_U[1] - maps.HEAD_U[0]) * hcol / n_edge,
+                              maps.HEAD_V[0] + (maps.HEAD_V[1] - maps.HEAD_V[0]) * hring / HEAD_RINGS], 1))
+    parts_tri.append(htri + head_start)
+    parts_mat.append(np.full(len(hv), 4, np.uint8))
+    ears_start = head_start + len(hv)
+    ear_parts = []
+    ear_y = 0.5 * (pos[[33, 263], 1].mean() + pos[2, 1])  # between eye and nose base levels
+    ear_z = float(pos[edge, 2].min()) - 2.2
+    for side, (u0, u1) in ((-1.0, maps.EAR_U["R"]), (1.0, maps.EAR_U["L"])):
+        near = (np.abs(hv[:, 1] - ear_y) < 1.0) & (np.abs(hv[:, 2] - ear_z) < 1.0) & (hv[:, 0] * side > 0)
+        x = float(np.abs(hv[near, 0]).max()) if near.any() else float(np.abs(pos[edge, 0]).max())
+        ev, ecoord, efront, etri = _ear(np.array([side * (x + 0.35), ear_y, ear_z]), side, 6.0, 3.3)
+        r_uv = np.where(efront, 0.5 * ecoord[:, 0], 1.0 - 0.5 * ecoord[:, 0]) * 0.5 * (maps.EAR_V[1] - maps.EAR_V[0])
+        a = 2 * np.pi * ecoord[:, 1]
+        c = np.array([0.5 * (u0 + u1), 0.5 * (maps.EAR_V[0] + maps.EAR_V[1])])
+        ear_parts.append((ev, c + r_uv[:, None] * np.stack([np.cos(a), np.sin(a)], 1), etri))
+    offset_e = ears_start
+    for ev, euv, etri in ear_parts:
+        parts_pos.append(ev)
+        parts_uv.append(euv)
+        parts_tri.append(etri + offset_e)
+        parts_mat.append(np.full(len(ev), 4, np.uint8))
+        offset_e += len(ev)
+    n_ears = offset_e - ears_start
 
     all_pos = np.vstack(parts_pos)
     all_uv = np.vstack(parts_uv)
     all_tri = np.vstack(parts_tri).astype(np.int32)
     material = np.concatenate(parts_mat)
     V = len(all_pos)
+    eye_vertex_side = np.full(V, -1, np.int8)
+    eye_vertex_side[n_skin:n_skin + sum(map(len, eye_side))] = np.concatenate(eye_side)
     n_eye = mouth_start - n_skin
 
     # Skinning of the extra parts: eyes ride the head; the mouth interior copies the
@@ -695,24 +977,48 @@ def build_avatar(variant: str = "default") -> FaceRig:
     np.add.at(cap_dense[0], joints[last_ring].ravel(), weights[last_ring].ravel() / len(last_ring))
     cj, cw = _top4(cap_dense)
     m_joints[msource < 0], m_weights[msource < 0] = cj, cw
-    all_joints = np.vstack([joints, np.zeros((n_eye, 4), np.int32), m_joints]).astype(np.int32)
-    eye_w = np.zeros((n_eye, 4), np.float32)
+    jaw = [b.name for b in BONES].index("jaw")
+    t_joints = np.zeros((len(tv), 4), np.int32)
+    t_joints[tpart > 0, 0] = jaw
+    # The head's first rings take the face edge's skinning, fading to the head bone.
+    head_src = edge[hcol % n_edge]
+    follow = (1.0 - features.smoothstep(hring / FACE_BLEND_RINGS))[:, None]
+    h_dense = np.zeros((len(hv), len(BONES)))
+    np.add.at(h_dense, (np.repeat(np.arange(len(hv)), 4), joints[head_src].ravel()),
+              (follow * weights[head_src]).ravel())
+    h_dense[:, 0] += 1.0 - follow[:, 0]
+    h_joints, h_weights = _top4(h_dense)
+    all_joints = np.vstack([joints, np.zeros((n_eye, 4), np.int32), m_joints, t_joints, h_joints,
+                            np.zeros((n_ears, 4), np.int32)]).astype(np.int32)
+    eye_w = np.zeros((n_eye + len(tv) + n_ears, 4), np.float32)
     eye_w[:, 0] = 1.0
-    all_weights = np.vstack([weights, eye_w, m_weights]).astype(np.float32)
+    all_weights = np.vstack([weights, eye_w[:n_eye], m_weights, eye_w[n_eye:n_eye + len(tv)], h_weights,
+                             eye_w[n_eye + len(tv):]]).astype(np.float32)
+    # Vertices that share a position: the head's first ring and the face's edge, and each
+    # ring's closing copy of its first vertex (UV seams without a shading seam).
+    position_ids = np.arange(V, dtype=np.int32)
+    head_ids = head_start + np.arange(len(hv))
+    position_ids[head_ids[hcol == n_edge]] = head_ids[hcol == 0]
+    position_ids[head_ids[hring == 0]] = edge[hcol[hring == 0] % n_edge]
 
     # Morphs over all vertices: eyes still; mouth interior follows its contour vertex,
     # less so deeper in.
     morph_names = list(skin_morphs)
     attenuation = (1.0 - 0.5 * mdepth)[:, None]
-    rest_normals = mesh_ops.vertex_normals(all_pos, all_tri)
+    rest_normals = _welded_normals(all_pos, all_tri, position_ids)
     mp = np.zeros((len(morph_names), V, 3))
     for i, name in enumerate(morph_names):
         d = skin_morphs[name]
         inner = d[src] * attenuation
         inner[msource < 0] = d[last_ring].mean(0) * attenuation[-1]
         mp[i, :n_skin] = d
-        mp[i, mouth_start:] = inner
-    morphed_normals = mesh_ops.vertex_normals(all_pos[None] + mp, all_tri)
+        mp[i, mouth_start:mouth_end] = inner
+    jaw_follow = _jaw_morphs(tv, (tpart > 0).astype(np.float64))
+    for name, d in jaw_follow.items():
+        if name in morph_names:
+            mp[morph_names.index(name), mouth_end:head_start] = d
+    mp[:, head_start:ears_start] = mp[:, head_src] * follow[None]
+    morphed_normals = _welded_normals(all_pos[None] + mp, all_tri, position_ids)
     mn = morphed_normals - rest_normals[None]
 
     # Bones.
@@ -736,8 +1042,10 @@ def build_avatar(variant: str = "default") -> FaceRig:
     zone_table = _zone_table(morph_names)
 
     tangents = mesh_ops.uv_tangents(all_pos, rest_normals, all_uv, all_tri)
-    position_ids = np.arange(V, dtype=np.int32)
-    textures = maps.build_maps(mesh.uvs, all_uv, all_tri, material, iris_theta)
+    textures = maps.build_maps(mesh.uvs, all_uv, all_tri, material, iris_theta,
+                               head_hair=_hair_grid(hv, n_edge),
+                               head_shadow=_jaw_shadow_grid(hv, n_edge, float(pos[[61, 291], 1].mean())),
+                               head_edge_uvs=all_uv[edge[np.arange(n_edge + 1) % n_edge]])
 
     f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)
     return FaceRig(
@@ -756,7 +1064,45 @@ def build_avatar(variant: str = "default") -> FaceRig:
         wrinkle_maps=np.stack([textures["stretch"], textures["compress"]]),
         zone_names=list(ZONE_NAMES), zone_masks=textures["zones"], zone_table=f32(zone_table),
         region_names=list(REGION_NAMES), region_weights=f32(region_weights),
+        eye_centres=f32(eye_centres), eye_vertex_side=eye_vertex_side,
     )
+
+
+def _welded_normals(positions: np.ndarray, triangles: np.ndarray, position_ids: np.ndarray) -> np.ndarray:
+    """Vertex normals (..., V, 3) computed over positions, not vertices: copies of one
+    position (a UV seam) share one normal, so no shading seam shows."""
+    return mesh_ops.vertex_normals(positions, position_ids[triangles])[..., position_ids, :]
+
+
+def _head_grid(hv: np.ndarray, n_edge: int) -> np.ndarray:
+    """(HEAD_RINGS + 1, n_edge + 1, 3) the head shell's vertices as a grid (the pole's row
+    repeated)."""
+    return np.concatenate([hv[:-1].reshape(HEAD_RINGS, n_edge + 1, 3), np.repeat(hv[-1:], n_edge + 1, 0)[None]])
+
+
+def _jaw_shadow_grid(hv: np.ndarray, n_edge: int, mouth_y: float) -> np.ndarray:
+    """(HEAD_RINGS + 1, n_edge + 1) how much darker the neck's skin is painted just under
+    the jaw (the jaw's shadow: on people it draws the jaw line a tracker follows; on a
+    uniformly lit neck the chin melts into it). 0 on the face's edge itself."""
+    p = _head_grid(hv, n_edge)
+    below = p[0, :, 1][None] - p[..., 1]  # cm under the jaw's edge, per column
+    lower = features.smoothstep((mouth_y - p[0, :, 1]) / 2.0)[None]  # columns along the jaw
+    along = np.vstack([np.zeros((1, n_edge + 1)), np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=-1), axis=0)])
+    near = 1.0 - features.smoothstep((along - 3.0) / 2.0)  # the jaw's underside, not the nape
+    return (0.45 * lower * near * features.smoothstep(below / 1.2)
+            * (1.0 - features.smoothstep((below - 2.0) / 3.0))).astype(np.float32)
+
+
+def _hair_grid(hv: np.ndarray, n_edge: int) -> np.ndarray:
+    """(HEAD_RINGS + 1, n_edge + 1) hair coverage in [0, 1] at the head shell's vertices:
+    above a hairline that runs from the forehead's edge over the ears to the nape, and
+    at least a centimetre from the face's edge (skin meets skin there)."""
+    p = _head_grid(hv, n_edge)
+    step = np.linalg.norm(np.diff(p, axis=0), axis=-1)
+    from_edge = np.vstack([np.zeros((1, n_edge + 1)), np.cumsum(step, axis=0)])
+    z_front = float(p[0, :, 2].max())
+    hairline = np.interp(p[..., 2] - z_front, [-19.0, -13.0, -8.5, -4.5], [-3.5, 0.5, 4.2, 7.5])
+    return (features.smoothstep((from_edge - 0.1) / 0.7) * features.smoothstep((p[..., 1] - hairline) / 1.2)).astype(np.float32)
 
 
 def _pose_displacements(pose: str) -> np.ndarray:

@@ -3,22 +3,26 @@
 Bones translate only (Dutreve), so skinning is ``v' = v_m + sum_i w_vi (J_i - J_i_rest)``
 and does not rotate normals: the deformed normals are the morphed normals
 ``normalize(n + sum_k w_k dn_k)``, exactly what the GPU path computes. This module is
-the ground truth the renderer is tested against.
+the ground truth the renderer is tested against. Eyeballs then turn rigidly about their
+centres (``eye_rotation``, :func:`capture2face.rig.face_rig.turn_eyes`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from capture2face.rig.face_rig import FaceRig
+from capture2face.rig.face_rig import FaceRig, turn_eyes
 
 
-def deform(rig: FaceRig, bone_positions: np.ndarray, blend_weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def deform(rig: FaceRig, bone_positions: np.ndarray, blend_weights: np.ndarray,
+           eye_rotation: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Deform the rig's mesh.
 
     Args:
         bone_positions: (B, 3) or (F, B, 3) bone positions in head coordinates (cm).
         blend_weights: (M,) or (F, M) morph-target weights.
+        eye_rotation: (2, 2) or (F, 2, 2) yaw, pitch (degrees) of the right and left
+            eye, or None (eyes straight ahead).
     Returns:
         (positions, normals): (V, 3) each, or (F, V, 3) for batched input; float32.
     """
@@ -42,5 +46,7 @@ def deform(rig: FaceRig, bone_positions: np.ndarray, blend_weights: np.ndarray) 
     per_joint = translation[:, rig.skin_joints]  # (F, V, 4, 3)
     positions += np.einsum("vj,fvjc->fvc", rig.skin_weights.astype(np.float64), per_joint)
     normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-12)
+    if eye_rotation is not None:
+        turn_eyes(rig, positions, normals, np.asarray(eye_rotation, np.float64).reshape(-1, 2, 2))
     positions, normals = positions.astype(np.float32), normals.astype(np.float32)
     return (positions[0], normals[0]) if single else (positions, normals)

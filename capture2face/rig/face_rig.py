@@ -56,7 +56,9 @@ class FaceRig:
         triangles: (T, 3) int32 vertex indices, counter-clockwise seen from outside.
         position_ids: (V,) int32; vertices that share a position (split at UV seams or
             material borders) share an id, so area-based wrinkles show no seam.
-        material: (V,) uint8; 0 skin, 1 eye, 2 mouth interior.
+        material: (V,) uint8; 0 skin of the face, 1 eye, 2 mouth interior (dark cavity),
+            3 teeth and tongue, 4 the rest of the head (scalp, ears, neck: shaded as skin,
+            no wrinkles; framing and face size go by the face's skin alone).
         landmark_vertices: (L,) int32; the vertex that tracker landmark l sits on, or -1.
         bone_names: B names; bone_names[0] == "head".
         bone_rest: (B, 3) float32 rest positions, head coordinates.
@@ -90,6 +92,13 @@ class FaceRig:
         head_weights: (V,) float32 share of the head rotation each vertex takes (an
             imported character's skin weights on its head joint and the joints below
             it), or None: the head rotation turns the whole character (the camera).
+        eye_centres: (2, 3) float32 rotation centres of the right (row 0: the subject's
+            right, tracker landmarks 468-472) and left (row 1: 473-477) eyeballs, head
+            coordinates; None for a rig without eyes that turn.
+        eye_vertex_side: (V,) int8 0 on the right eyeball, 1 on the left, -1 elsewhere;
+            those vertices turn rigidly about their eye's centre after skinning
+            (``Animation.eye_rotation``, :func:`eye_rotation_matrices`). None with
+            ``eye_centres``.
     """
 
     name: str
@@ -125,6 +134,13 @@ class FaceRig:
     region_names: list[str]
     region_weights: np.ndarray
     head_weights: np.ndarray | None = None
+    eye_centres: np.ndarray | None = None
+    eye_vertex_side: np.ndarray | None = None
+
+    @property
+    def has_eyes(self) -> bool:
+        """The rig has eyeballs that turn with the gaze."""
+        return self.eye_centres is not None and self.eye_vertex_side is not None
 
     # ---- derived quantities (never stored) ------------------------------------------
     @property
@@ -177,3 +193,45 @@ class FaceRig:
     def load(cls, path: str | os.PathLike) -> "FaceRig":
         """Read a rig written by :meth:`save`; a bad file raises ``CaptureError``."""
         return load_dataclass(cls, path, FORMAT)
+
+
+def eye_rotation_matrices(eye_rotation: np.ndarray) -> np.ndarray:
+    """(..., 2) yaw, pitch in degrees -> (..., 3, 3) rotations R = Ry(yaw) Rx(pitch), in
+    head coordinates: yaw > 0 turns the gaze (+z) towards +x (the subject's left), pitch > 0
+    tips it down (the Live Link Face convention, :mod:`capture2face.export.livelink`)."""
+    a = np.radians(np.asarray(eye_rotation, np.float64))
+    cy, sy, cp, sp = np.cos(a[..., 0]), np.sin(a[..., 0]), np.cos(a[..., 1]), np.sin(a[..., 1])
+    z = np.zeros_like(cy)
+    # Ry(yaw) @ Rx(pitch), written out.
+    rows = [[cy, sy * sp, sy * cp], [z, cp, -sp], [-sy, cy * sp, cy * cp]]
+    return np.stack([np.stack(r, -1) for r in rows], -2)
+
+
+def gaze_directions(eye_rotation: np.ndarray) -> np.ndarray:
+    """(..., 2) yaw, pitch in degrees -> (..., 3) unit gaze directions (head coordinates)."""
+    return eye_rotation_matrices(eye_rotation)[..., :, 2]
+
+
+def gaze_angles(direction: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`gaze_directions`: (..., 3) directions -> (..., 2) yaw, pitch (deg)."""
+    d = np.asarray(direction, np.float64)
+    d = d / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-12)
+    return np.degrees(np.stack([np.arctan2(d[..., 0], d[..., 2]), np.arcsin(np.clip(-d[..., 1], -1, 1))], -1))
+
+
+def turn_eyes(rig: FaceRig, positions: np.ndarray | None, normals: np.ndarray | None, eye_rotation) -> None:
+    """Turn the eyeball vertices of deformed ``positions`` (V, 3) or (F, V, 3) and/or
+    ``normals`` (same shape; either may be None) in place by ``eye_rotation`` (2, 2) or
+    (F, 2, 2) degrees (yaw, pitch per eye, right then left). A rig without eyes, or
+    ``eye_rotation=None``, leaves them as they are."""
+    if eye_rotation is None or not rig.has_eyes:
+        return
+    rot = eye_rotation_matrices(eye_rotation)  # (..., 2, 3, 3)
+    for side in (0, 1):
+        ids = np.flatnonzero(rig.eye_vertex_side == side)
+        rt = np.swapaxes(rot[..., side, :, :], -1, -2)  # row vectors: v @ R^T
+        if positions is not None:
+            c = np.asarray(rig.eye_centres[side], np.float64)
+            positions[..., ids, :] = (positions[..., ids, :] - c) @ rt.astype(positions.dtype) + c
+        if normals is not None:
+            normals[..., ids, :] = normals[..., ids, :] @ rt.astype(normals.dtype)

@@ -33,6 +33,21 @@ EYE_TEXTURE_RADIUS = 0.08
 EYE_VISIBLE_THETA = 0.95  # polar angle (rad) of the eyeball front that gets most of the disc
 MOUTH_TEXTURE_CENTRE = (0.085, 0.915)
 MOUTH_TEXTURE_RADIUS = 0.07
+# Bottom-right corner: the teeth (u along the arch, v from the front root over the edge
+# to the back root, per row) and the tongue.
+TEETH_U = (0.845, 0.985)
+TEETH_V = {"upper": (0.865, 0.905), "lower": (0.91, 0.95)}
+TONGUE_UV = (0.85, 0.98, 0.955, 0.99)  # u0, u1, v0, v1
+# Top band between the eye discs: the head shell (u around the face's edge, v from the
+# edge towards the back of the neck); bottom band: the ears (a disc each: front inside,
+# back in the outer ring).
+HEAD_U, HEAD_V = (0.18, 0.82), (0.004, 0.096)
+EAR_U = {"R": (0.2, 0.25), "L": (0.26, 0.31)}
+EAR_V = (0.955, 0.995)
+HAIR_SRGB = np.array([58.0, 44.0, 36.0])
+TEETH_SRGB = np.array([232.0, 222.0, 200.0])
+GUM_SRGB = np.array([190.0, 104.0, 108.0])
+TONGUE_SRGB = np.array([196.0, 104.0, 108.0])
 
 SKIN_SRGB = np.array([222.0, 172.0, 148.0])
 LIP_SRGB = np.array([178.0, 88.0, 88.0])
@@ -279,6 +294,72 @@ def _albedo(u, v, landmark_uvs, layout, rng, eye_iris_theta: dict) -> np.ndarray
     r = np.hypot(u - MOUTH_TEXTURE_CENTRE[0], v - MOUTH_TEXTURE_CENTRE[1]) / MOUTH_TEXTURE_RADIUS
     mouth = (np.array([110.0, 42.0, 46.0])[None, None] * (1.0 - 0.75 * np.clip(r, 0, 1))[..., None])
     colour = np.where((r < 1.1)[..., None], mouth, colour)
+    colour = _teeth_and_tongue_albedo(u, v, colour)
+    return np.clip(np.round(colour), 0, 255).astype(np.uint8)
+
+
+def _teeth_and_tongue_albedo(u, v, colour: np.ndarray) -> np.ndarray:
+    """Paint the teeth (ivory crowns, dark gaps between teeth, gums at the roots; the
+    avatar's TOOTH_WIDTHS along the arch) and the tongue into ``colour`` (H, W, 3)."""
+    from capture2face.rig.avatar import TOOTH_WIDTHS
+
+    u0, u1 = TEETH_U
+    ends = sum(TOOTH_WIDTHS)
+    arc = ((u - u0) / (u1 - u0) * 2.0 - 1.0) * ends  # arc length from the midline (cm)
+    bounds = np.concatenate([[0.0], np.cumsum(TOOTH_WIDTHS)])
+    gap_dist = np.min(np.abs(np.abs(arc)[..., None] - bounds[None, None]), axis=-1)
+    gap = np.exp(-((gap_dist / 0.035) ** 2))
+    inside_u = (u >= u0 - 0.002) & (u <= u1 + 0.002)
+    for v0, v1 in TEETH_V.values():
+        frac = (v - v0) / (v1 - v0)  # 0 front root, 0.4 edge, 1 back root
+        band = inside_u & (frac >= -0.05) & (frac <= 1.05)
+        root = np.minimum(frac, 1.0 - frac)  # 0 at the roots, 0.5 at the edge
+        gum = 1.0 - features.smoothstep((root - 0.06) / 0.08)
+        tooth = TEETH_SRGB * (1.0 - 0.1 * (1.0 - 2.0 * np.clip(root, 0, 0.5)))[..., None]
+        tooth = tooth * (1.0 - 0.6 * gap[..., None])
+        col = tooth * (1.0 - gum[..., None]) + GUM_SRGB * gum[..., None]
+        colour = np.where(band[..., None], col, colour)
+    tu0, tu1, tv0, tv1 = TONGUE_UV
+    x = (u - 0.5 * (tu0 + tu1)) / (0.5 * (tu1 - tu0))
+    y = (v - 0.5 * (tv0 + tv1)) / (0.5 * (tv1 - tv0))
+    tongue = (x * x + y * y) <= 1.3
+    shade = TONGUE_SRGB * (1.0 - 0.25 * np.exp(-(x / 0.12) ** 2))[..., None]  # the median groove
+    return np.where(tongue[..., None], shade, colour)
+
+
+def _head_albedo(u, v, albedo: np.ndarray, hair_grid: np.ndarray, edge_uvs: np.ndarray,
+                 rng: np.random.Generator, shadow_grid: np.ndarray | None = None) -> np.ndarray:
+    """Paint the head shell's band (skin, short hair combed back where ``hair_grid``
+    says) and the ears' discs (skin, darker in the hollow) into ``albedo``. The skin
+    starts at the colour of the face's texture along its edge (``edge_uvs``: the face
+    vertex under each column of the shell) and fades to the edge's mean tone."""
+    colour = albedo.astype(np.float64)
+    rows, cols = hair_grid.shape
+    size = albedo.shape[0]
+    texel = np.clip((edge_uvs * size).astype(int), 0, size - 1)
+    edge = ndimage.uniform_filter(colour, (9, 9, 1))[texel[:, 1], texel[:, 0]]  # (cols, 3), pores averaged out
+    fade = features.smoothstep(np.arange(rows) / 5.0)[:, None, None]
+    tone = edge[None] * (1 - fade) + edge.mean(0) * fade  # (rows, cols, 3)
+    if shadow_grid is not None:
+        tone = tone * (1.0 - shadow_grid[..., None])
+    band = (u >= HEAD_U[0] - 0.003) & (u <= HEAD_U[1] + 0.003) & (v >= HEAD_V[0] - 0.003) & (v <= HEAD_V[1] + 0.003)
+    ring = np.clip((v - HEAD_V[0]) / (HEAD_V[1] - HEAD_V[0]), 0, 1) * (rows - 1)
+    col = np.clip((u - HEAD_U[0]) / (HEAD_U[1] - HEAD_U[0]), 0, 1) * (cols - 1)
+    hair = ndimage.map_coordinates(hair_grid.astype(np.float64), [ring, col], order=1, mode="nearest")
+    # Strands along v (the rings run from the face backwards): noise stretched that way.
+    strands = ndimage.gaussian_filter(rng.standard_normal(u.shape), (3.0, 0.7), mode="wrap")
+    strands /= max(strands.std(), 1e-12)
+    hair_tone = HAIR_SRGB * (1.0 + 0.22 * strands)[..., None]
+    skin = np.stack([ndimage.map_coordinates(tone[..., c], [ring, col], order=1, mode="nearest") for c in range(3)], -1)
+    head = skin * (1 - hair[..., None]) + hair_tone * hair[..., None]
+    colour = np.where(band[..., None], head, colour)
+    for u0, u1 in EAR_U.values():
+        c = np.array([0.5 * (u0 + u1), 0.5 * (EAR_V[0] + EAR_V[1])])
+        r = np.hypot(u - c[0], v - c[1]) / (0.5 * (EAR_V[1] - EAR_V[0]))  # 0.5: the rim
+        inside = r <= 1.05
+        hollow = np.exp(-((r - 0.18) / 0.12) ** 2)  # the concha, in shadow
+        ear = edge.mean(0) * (1.0 - 0.3 * hollow)[..., None] + np.array([8.0, -10.0, -8.0]) * (r < 0.5)[..., None]
+        colour = np.where(inside[..., None], ear, colour)
     return np.clip(np.round(colour), 0, 255).astype(np.uint8)
 
 
@@ -286,13 +367,19 @@ def _albedo(u, v, landmark_uvs, layout, rng, eye_iris_theta: dict) -> np.ndarray
 
 
 def build_maps(landmark_uvs: np.ndarray, uvs: np.ndarray, triangles: np.ndarray, material: np.ndarray,
-               eye_iris_theta: dict, size: int = SIZE, seed: int = 7) -> dict[str, np.ndarray]:
+               eye_iris_theta: dict, size: int = SIZE, seed: int = 7, head_hair: np.ndarray | None = None,
+               head_edge_uvs: np.ndarray | None = None, head_shadow: np.ndarray | None = None
+               ) -> dict[str, np.ndarray]:
     """All textures of the avatar.
 
     Args:
         landmark_uvs: (468, 2) canonical landmark UVs (feature placement).
         uvs, triangles, material: the rig's (V, 2), (T, 3), (V,) (skin coverage).
         eye_iris_theta: {"R": rad, "L": rad} polar angle of each iris rim on its eyeball.
+        head_hair: (rings, columns) hair coverage of the head shell's vertex grid (its UVs
+            span ``HEAD_U`` x ``HEAD_V``), or None for no head; ``head_edge_uvs`` (columns,
+            2): the UVs of the face's edge vertex under each column; ``head_shadow`` (rings,
+            columns): how much darker the shell's skin is painted (the jaw's shadow).
     Returns:
         dict with "albedo" (H, W, 3), "normal", "stretch", "compress" (H, W, 3) uint8
         normal maps, "zones" (H, W, 8) uint8.
@@ -307,9 +394,17 @@ def build_maps(landmark_uvs: np.ndarray, uvs: np.ndarray, triangles: np.ndarray,
     stretch = stretch_height(u, v, layout, rng) * skin
     compress = compress_height(u, v, layout, rng) * skin
     pores = pore_height(u, v, rng) * skin
+    if head_hair is not None:
+        # The head shell has no pores: they fade out over the last ~0.6 cm of the face's
+        # outer edge, so no line shows where the face meets the head.
+        face = ndimage.binary_fill_holes(_coverage(uvs, skin_tris, size))
+        pores = pores * features.smoothstep(ndimage.distance_transform_edt(face) / (0.03 * size))
     zones = features.zone_fields(u, v, layout) * skin
+    albedo = _albedo(u, v, landmark_uvs, layout, rng, eye_iris_theta)
+    if head_hair is not None:
+        albedo = _head_albedo(u, v, albedo, head_hair, head_edge_uvs, rng, head_shadow)
     return {
-        "albedo": _albedo(u, v, landmark_uvs, layout, rng, eye_iris_theta),
+        "albedo": albedo,
         "normal": encode_normals(height_to_normal(pores, 0.6)),
         "stretch": encode_normals(height_to_normal(ndimage.gaussian_filter(stretch, 0.7), WRINKLE_STRENGTH)),
         "compress": encode_normals(height_to_normal(ndimage.gaussian_filter(compress, 0.7), WRINKLE_STRENGTH)),

@@ -75,6 +75,7 @@ def render_performance(truth: SyntheticTruth, renderer, frames=None):
             influences=truth.influences[f],
             zone_weights=truth.zone_weights[f],
             light_direction=truth.light_direction[f],
+            eye_rotation=None if truth.eye_rotation is None else truth.eye_rotation[f],
         ))
 
 

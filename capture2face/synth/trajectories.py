@@ -26,6 +26,10 @@ from capture2face.rig.face_rig import FaceRig
 DEFAULT_FOV_Y = 63.0
 
 YAW_LIMIT, PITCH_LIMIT, ROLL_LIMIT = 20.0, 20.0, 10.0  # degrees
+# Gaze at the keys: within the range people look without turning the head (degrees).
+GAZE_YAW_LIMIT, GAZE_PITCH_LIMIT = 25.0, 15.0
+GAZE_STRAIGHT = 0.3  # fraction of keys looking straight ahead
+VERGENCE_DEG = 2.0  # the eyes' yaws differ by up to this much
 TRANSLATION_LIMIT = 0.06  # of the face height, per axis
 HOLD_SECONDS = 0.15  # how long neutral and each reference pose are held
 
@@ -50,6 +54,8 @@ class Performance:
         key_pose: (F,) int8 ``KEY_NEUTRAL`` on frames held exactly at neutral,
             ``KEY_POSE0 + p`` on frames held exactly at reference pose p, else ``KEY_FREE``.
         exiting: (F,) bool, frames where the head is moved out of frame (``face_exit``).
+        eye_rotation: (F, 2, 2) float32 yaw, pitch (degrees) of the right and left eye,
+            ``Animation.eye_rotation``'s convention; 0 (straight ahead) on neutral holds.
     """
 
     times: np.ndarray
@@ -63,6 +69,7 @@ class Performance:
     light_direction: np.ndarray
     key_pose: np.ndarray
     exiting: np.ndarray
+    eye_rotation: np.ndarray | None = None
 
     @property
     def n_frames(self) -> int:
@@ -156,6 +163,7 @@ def random_performance(
     _, height = face_centre_and_height(rig)
     offset = rng.uniform(-1.0, 1.0, (K, 3)) * TRANSLATION_LIMIT * height
     light = _random_lights(rng, K)
+    gaze = _random_gaze(np.random.default_rng([seed, 14]), K)  # own stream: the rest stays as it was
 
     bones = rest + ab[:, :1, None] * travel[si] + ab[:, 1:, None] * travel[ci] + offsets
     weights = np.clip(morphs + ab[:, :1] * rig.pose_morph_weights[si] + ab[:, 1:] * rig.pose_morph_weights[ci], 0, 1)
@@ -180,6 +188,7 @@ def random_performance(
         for p, k in enumerate(slots):
             if p == 0:
                 bones[k], weights[k], label[k] = rest, 0.0, KEY_NEUTRAL
+                gaze[k] = 0.0
             else:
                 bones[k] = rig.pose_bones[p - 1]
                 weights[k] = rig.pose_morph_weights[p - 1]
@@ -191,7 +200,7 @@ def random_performance(
         end_keys = keys + dup
         keys = np.stack([keys, end_keys], 1)[np.arange(2)[None] < rep[:, None]]
         bones, weights = (np.repeat(x, rep, 0) for x in (bones, weights))
-        angles, offset, light, label = (np.repeat(x, rep, 0) for x in (angles, offset, light, label))
+        angles, offset, light, label, gaze = (np.repeat(x, rep, 0) for x in (angles, offset, light, label, gaze))
         keys[-1] = frames - 1  # absorb rounding
 
     f = np.arange(frames, dtype=np.float64)
@@ -205,6 +214,7 @@ def random_performance(
     angle_f = interp(angles)
     offset_f = interp(offset)
     light_f = interp(light)
+    gaze_f = interp(gaze)
     light_f /= np.linalg.norm(light_f, axis=1, keepdims=True)
 
     # Exact values on held frames (interpolation is exact there up to rounding).
@@ -214,6 +224,7 @@ def random_performance(
             span = slice(keys[i], keys[i + 1] + 1)
             key_pose[span] = label[i]
             bone_f[span], weight_f[span] = bones[i], weights[i]
+            gaze_f[span] = gaze[i]
 
     exiting = np.zeros(frames, bool)
     if face_exit:
@@ -230,7 +241,22 @@ def random_performance(
         light_direction=light_f.astype(np.float32),
         key_pose=key_pose,
         exiting=exiting,
+        eye_rotation=gaze_f.astype(np.float32),
     )
+
+
+def _random_gaze(rng: np.random.Generator, n: int) -> np.ndarray:
+    """(n, 2, 2) yaw, pitch per eye (degrees) at the keys: some straight ahead, the rest
+    uniform within the gaze limits, both eyes together up to a small vergence."""
+    yaw = rng.uniform(-GAZE_YAW_LIMIT, GAZE_YAW_LIMIT, n)
+    pitch = rng.uniform(-GAZE_PITCH_LIMIT, GAZE_PITCH_LIMIT, n)
+    straight = rng.random(n) < GAZE_STRAIGHT
+    yaw[straight], pitch[straight] = 0.0, 0.0
+    verge = rng.uniform(0.0, VERGENCE_DEG, n) * ~straight  # > 0: both eyes turn inwards
+    out = np.empty((n, 2, 2))
+    out[:, 0, 0], out[:, 1, 0] = yaw + 0.5 * verge, yaw - 0.5 * verge  # right eye in = +x
+    out[:, :, 1] = pitch[:, None]
+    return out
 
 
 def _random_lights(rng: np.random.Generator, n: int) -> np.ndarray:

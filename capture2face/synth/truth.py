@@ -57,6 +57,8 @@ class SyntheticTruth:
         key_pose: (F,) int8 -1 on free frames, 0 on frames held exactly at neutral, 1 + p
             on frames held exactly at reference pose p.
         head_angles: (F, 3) float32 yaw, pitch, roll (degrees) of the head.
+        eye_rotation: (F, 2, 2) float32 yaw, pitch (degrees) of the right and left eye
+            (``Animation.eye_rotation``'s convention); None in files written before gaze.
         wrinkles: the wrinkle driver the video was rendered with.
     """
 
@@ -84,6 +86,7 @@ class SyntheticTruth:
     key_pose: np.ndarray
     head_angles: np.ndarray
     wrinkles: str = "auto"
+    eye_rotation: np.ndarray | None = None
 
     @property
     def n_frames(self) -> int:
@@ -109,8 +112,9 @@ def truth_path(video_path: str | os.PathLike) -> str:
 
 
 def deformed_landmarks(rig: FaceRig, bone_positions: np.ndarray, blend_weights: np.ndarray,
-                       chunk: int = 64) -> np.ndarray:
-    """(F, B, 3), (F, M) -> (F, L, 3) float32 deformed landmark vertices (NaN where absent).
+                       chunk: int = 64, eye_rotation: np.ndarray | None = None) -> np.ndarray:
+    """(F, B, 3), (F, M) [, (F, 2, 2) gaze] -> (F, L, 3) float32 deformed landmark
+    vertices (NaN where absent).
 
     Uses the CPU reference ``rig.deform.deform`` (the renderer is tested against it),
     ``chunk`` frames at a time to bound memory.
@@ -121,7 +125,8 @@ def deformed_landmarks(rig: FaceRig, bone_positions: np.ndarray, blend_weights: 
     out = np.full((len(bone_positions), len(lv), 3), np.nan, np.float32)
     have = lv >= 0
     for s in range(0, len(bone_positions), chunk):
-        pos, _ = deform(rig, bone_positions[s:s + chunk], blend_weights[s:s + chunk])
+        eyes = None if eye_rotation is None else eye_rotation[s:s + chunk]
+        pos, _ = deform(rig, bone_positions[s:s + chunk], blend_weights[s:s + chunk], eyes)
         out[s:s + chunk, have] = pos[:, lv[have]]
     return out
 
@@ -131,7 +136,8 @@ def compute_truth(rig: FaceRig, perf, width: int, height: int, variant: str | No
     """Everything a test or benchmark compares against, from a ``Performance``."""
     from capture2face.render.camera import project
 
-    landmarks_head = deformed_landmarks(rig, perf.bone_positions, perf.blend_weights)
+    eyes = getattr(perf, "eye_rotation", None)
+    landmarks_head = deformed_landmarks(rig, perf.bone_positions, perf.blend_weights, eye_rotation=eyes)
     landmarks_px = project(landmarks_head, perf.head_pose, perf.fov_y, (width, height)).astype(np.float32)
     canon = landmarks_px[:, :N_CANONICAL]
     # project() gives NaN behind the camera; NaN compares False, so those count as outside.
@@ -162,5 +168,6 @@ def compute_truth(rig: FaceRig, perf, width: int, height: int, variant: str | No
         key_pose=perf.key_pose.astype(np.int8),
         head_angles=perf.head_angles.astype(np.float32),
         wrinkles=wrinkles,
+        eye_rotation=None if eyes is None else np.asarray(eyes, np.float32),
     )
 

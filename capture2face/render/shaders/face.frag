@@ -144,7 +144,7 @@ void main() {
     f_influence = influence_color(ng, l, w);
 #endif
     vec3 n = ng;
-    if (v_material == 0) {
+    if (v_material == 0) {  // the head beyond the face (4) has a flat normal map: no fetch
         vec3 t = normalize(v_tangent.xyz - ng * dot(ng, v_tangent.xyz));
         vec3 b = v_tangent.w * cross(ng, t);
         vec3 tn = tangent_normal(w);
@@ -153,11 +153,13 @@ void main() {
     vec3 albedo = texture(u_albedo, v_uv).rgb;
     float ndotl = dot(n, l);
     // One lighting path for every material (a software GL runs every side of a branch):
-    // skin wraps its diffuse; eyes are glossy; the mouth interior dark and matte.
-    bool skin = v_material == 0, eye = v_material == 1;
+    // skin wraps its diffuse; eyes are glossy; the mouth interior dark and matte;
+    // Teeth and tongue (3) sit inside the mouth: half lit (no shadows here), a little gloss.
+    bool skin = v_material == 0 || v_material == 4, eye = v_material == 1, teeth = v_material == 3;
     vec3 diffuse = skin ? skin_diffuse(ndotl) : vec3(max(ndotl, 0.0));
-    float specular = ksk_specular(n, l, v, eye ? 0.08 : 0.3, eye ? 1.2 : (skin ? 0.18 : 0.018));
+    float specular = ksk_specular(n, l, v, eye ? 0.08 : 0.3, eye ? 1.2 : (skin ? 0.18 : (teeth ? 0.06 : 0.018)));
     if (v_material == 2) albedo *= 0.25;
+    if (teeth) albedo *= 0.55;
     float hemi = 0.6 + 0.4 * n.y;
     vec3 radiance = albedo * (u_light_color * diffuse + u_fill_color * max(dot(n, lf), 0.0) + u_ambient * hemi)
                   + u_light_color * specular;
