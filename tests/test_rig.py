@@ -160,9 +160,14 @@ def test_mouth_interior_behind_the_lips(rig):
     assert mouth.sum() > 40
     lips = rig.vertices[[13, 14, 78, 308]]
     assert rig.vertices[mouth, 2].max() <= lips[:, 2].max() + 1e-6
-    # Mouth interior triangles face forward-ish (towards the camera through the opening).
+    # The bag is drawn from both sides (back faces are culled and an opening jaw turns some
+    # walls away): every triangle twice, once in each winding.
     tris = rig.triangles[mouth[rig.triangles].all(1)]
-    p = rig.vertices[tris]
+    half = len(tris) // 2
+    assert len(tris) == 2 * half
+    np.testing.assert_array_equal(tris[half:], tris[:half, ::-1])
+    # The first copy faces forward-ish (towards the camera through the opening).
+    p = rig.vertices[tris[:half]]
     n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
     assert (n[:, 2] > -1e-9).mean() > 0.5
 

@@ -158,6 +158,7 @@ def build_rig_gltf(rig: FaceRig) -> tuple[GlbBuilder, dict]:
             "roughnessFactor": 0.6,
         },
         "normalTexture": {"index": normal_tex},
+        "doubleSided": bool(rig.double_sided),
     })
     wrinkle_images = [b.image_png(rig.wrinkle_maps[k], f"wrinkle_{name}")
                       for k, name in enumerate(rig.wrinkle_map_names)]

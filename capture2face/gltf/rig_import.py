@@ -409,10 +409,18 @@ def _build(r: GlbReader, glb: Path, mapping: dict, mapping_dir: Path, ours: dict
         zone_table=np.zeros((M, len(ZONE_NAMES)), np.float32),
         region_names=list(REGION_NAMES), region_weights=np.zeros((len(REGION_NAMES), V), np.float32),
         head_weights=_head_weights(skin_joints, skin_weights, skel),
+        double_sided=_double_sided(r.gltf, surf),
     )
     if ours:
         return _apply_ours(rig.replace(head_weights=None), ours, surf)
     return _apply_mapping(rig, mapping)
+
+
+def _double_sided(g: dict, surf: dict) -> bool:
+    """Whether any drawn material is double-sided (the whole character is then drawn
+    without culling: one draw call); a primitive without a material is single-sided."""
+    materials = g.get("materials", [])
+    return any(bool(materials[int(i)].get("doubleSided", False)) for i in np.unique(surf["gltf_material"]) if i >= 0)
 
 
 # ---- skeleton -------------------------------------------------------------------------

@@ -393,7 +393,14 @@ class Renderer:
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.depth_func = "<"
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+        if not self.rig.double_sided:
+            # The projection's y is flipped (see _frame_uniforms), which turns the
+            # outward, counter-clockwise triangles clockwise on screen.
+            ctx.front_face = "cw"
+            ctx.cull_face = "back"
+            ctx.enable(moderngl.CULL_FACE)
         self._vao.render(moderngl.TRIANGLES)
+        ctx.disable(moderngl.CULL_FACE)
         if self._target is not self._single:
             ctx.copy_framebuffer(self._single, self._target)  # MSAA resolve, every attachment
         if self._fxaa is not None:

@@ -918,7 +918,9 @@ def build_avatar(variant: str = "default") -> FaceRig:
     radius = maps.MOUTH_TEXTURE_RADIUS * (0.25 + 0.75 * mdepth)
     mouth_uv = np.array(maps.MOUTH_TEXTURE_CENTRE) + radius[:, None] * np.stack([np.cos(angle), np.sin(angle)], 1)
     parts_uv.append(mouth_uv)
-    parts_tri.append(mtri + offset)
+    # Both windings: an opening jaw turns some walls away from the camera, and back faces
+    # are culled (FaceRig.double_sided False); the bag is dark either way.
+    parts_tri.append(np.vstack([mtri, mtri[:, ::-1]]) + offset)
     parts_mat.append(np.full(len(mv), 2, np.uint8))
     mouth_end = mouth_start + len(mv)
     # Teeth and tongue: the upper teeth ride the head, the lower ones and the tongue the jaw.
@@ -1064,7 +1066,7 @@ def build_avatar(variant: str = "default") -> FaceRig:
         wrinkle_maps=np.stack([textures["stretch"], textures["compress"]]),
         zone_names=list(ZONE_NAMES), zone_masks=textures["zones"], zone_table=f32(zone_table),
         region_names=list(REGION_NAMES), region_weights=f32(region_weights),
-        eye_centres=f32(eye_centres), eye_vertex_side=eye_vertex_side,
+        eye_centres=f32(eye_centres), eye_vertex_side=eye_vertex_side, double_sided=False,
     )
 
 

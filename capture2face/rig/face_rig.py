@@ -99,6 +99,10 @@ class FaceRig:
             those vertices turn rigidly about their eye's centre after skinning
             (``Animation.eye_rotation``, :func:`eye_rotation_matrices`). None with
             ``eye_centres``.
+        double_sided: draw both sides of every triangle. False: back faces are culled,
+            as glTF renders single-sided materials; the built-in avatar is closed and wound
+            consistently (the back of its head never shows), and culling halves what a
+            software renderer rasterizes.
     """
 
     name: str
@@ -136,6 +140,7 @@ class FaceRig:
     head_weights: np.ndarray | None = None
     eye_centres: np.ndarray | None = None
     eye_vertex_side: np.ndarray | None = None
+    double_sided: bool = True
 
     @property
     def has_eyes(self) -> bool:
