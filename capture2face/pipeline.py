@@ -25,6 +25,7 @@ file nor the source clip.
 
 from __future__ import annotations
 
+import concurrent.futures
 import contextlib
 import json
 import logging
@@ -76,6 +77,9 @@ class RunOptions:
             "center" (nearest the image centre); the one continuing it is followed.
         face: instead, the face with this index (0-based, left to right) in the first
             frame where more than ``face`` faces are seen, then followed.
+        track_workers: MediaPipe landmarkers tracking segments of the clip at once, each
+            in its own process (:mod:`capture2face.tracking.segments`); None: one per free
+            core; 1: one. ``batch`` runs each clip with one when it runs clips in parallel.
     """
 
     character: Any = None
@@ -92,6 +96,7 @@ class RunOptions:
     audio: bool = True
     faces: str = "largest"
     face: int | None = None
+    track_workers: int | None = None
 
     def validate(self) -> None:
         if self.wrinkles not in WRINKLE_DRIVERS:
@@ -105,6 +110,15 @@ class RunOptions:
             raise CaptureError(f"--faces must be largest or center (got {self.faces!r})")
         if self.face is not None and not 0 <= self.face < 16:
             raise CaptureError(f"--face must be 0..15 (got {self.face})")
+        if self.track_workers is not None and int(self.track_workers) < 1:
+            raise CaptureError(f"--track-workers must be >= 1 (got {self.track_workers})")
+
+    def track_options(self):
+        """The :class:`~capture2face.tracking.TrackOptions` of ``run``'s tracking."""
+        from capture2face.tracking import TrackOptions
+
+        return TrackOptions(face_model=self.face_model, neutral_frame=self.neutral_frame, faces=self.faces,
+                            face=self.face, workers=self.track_workers)
 
 
 # ---- character ------------------------------------------------------------------------
@@ -148,14 +162,33 @@ def load_character(character: Any = None) -> FaceRig:
 
 # ---- stages (each callable on its own) ------------------------------------------------
 def track_stage(clip: str | os.PathLike, options: RunOptions, progress: bool = True,
-                workdir: str | os.PathLike | None = None):
+                workdir: str | os.PathLike | None = None, workers=None):
     """Pass 1: the clip's :class:`~capture2face.tracking.track.Track` (with ``workdir``,
-    its landmarks stay in files there: memory does not grow with the clip's length)."""
-    from capture2face.tracking import TrackOptions, track_clip
+    its landmarks stay in files there: memory does not grow with the clip's length;
+    ``workers``: :func:`start_track_workers`' processes)."""
+    from capture2face.tracking import track_clip
 
-    return track_clip(clip, TrackOptions(face_model=options.face_model, neutral_frame=options.neutral_frame,
-                                         faces=options.faces, face=options.face), progress=progress,
-                      workdir=workdir)
+    return track_clip(clip, options.track_options(), progress=progress, workdir=workdir, workers=workers)
+
+
+def start_track_workers(clip: str | os.PathLike, options: RunOptions):
+    """The segment-tracking processes ``run`` will use for ``clip``, started now so that
+    their start-up (Python, MediaPipe, the model) overlaps the checks before tracking;
+    None when the clip will be tracked by one landmarker (too short, ``--face``, one
+    core, or a clip that does not open: the checks report that)."""
+    from capture2face.tracking.segments import MIN_SEGMENT_FRAMES, SegmentWorkers
+    from capture2face.tracking.video import open_video
+
+    track = options.track_options()
+    n = track.n_workers()
+    if n < 2 or track.face is not None:
+        return None
+    try:
+        frames = open_video(clip).n_frames
+    except CaptureError:
+        return None
+    k = min(n, frames // MIN_SEGMENT_FRAMES)
+    return SegmentWorkers(k - 1, track.landmarker_options()) if k >= 2 else None
 
 
 def retarget_stage(track, rig: FaceRig):
@@ -212,6 +245,20 @@ def run_render_options(options: RunOptions):
                          influence_output=bool(options.compare))
 
 
+def encoder_threads(software_gl: bool, cores: int | None = None) -> int:
+    """x264 threads for each of ``run``'s two encoders. A software rasterizer (llvmpipe
+    runs one thread per core) and small machines: one each, in threads of their own (x264's
+    pool would take the cores the rasterizer needs). With a GPU drawing, the cores beyond
+    the GL thread, decoding and compositing encode (x264 alone does ~150 fps at 512x512
+    on one core, and run's compare.mp4 is three frames wide)."""
+    from capture2face.tracking.segments import free_cores
+
+    cores = free_cores() if cores is None else int(cores)
+    if software_gl or cores <= 4:
+        return 1
+    return max(1, min(8, (cores - 2) // 2))
+
+
 def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder: str | os.PathLike,
                  options: RunOptions, progress: bool = True, keep_frames=()) -> dict:
     """Pass 3: avatar.mp4 and compare.mp4 into ``folder``, stages overlapped.
@@ -230,6 +277,7 @@ def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder
 
     from capture2face.compose import SourceFitter, compare_frame
     from capture2face.render import FrameState, Renderer
+    from capture2face.render.context import software_gl
     from capture2face.render.video import VideoWriter
     from capture2face.runtime.overlap import StageGroup
     from capture2face.tracking.video import iter_frames
@@ -242,9 +290,7 @@ def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder
     poses = avatar_head_poses(rig, animation.head_pose, render_opts.fov_y_degrees).astype(np.float32)
     fitter = SourceFitter(track.width, track.height, size)
     q = max(2, int(options.queue_frames))
-    # x264's own thread pool would oversubscribe the cores the rasterizer needs (llvmpipe
-    # runs one thread per core); two single-threaded encoders in their own threads suffice.
-    threads = 1
+    threads = encoder_threads(software_gl())
     keep = {int(i) for i in keep_frames}
     kept: dict[int, np.ndarray] = {}
     # The source's frame times (a variable-rate clip keeps them) and its audio.
@@ -427,18 +473,34 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
         CaptureError: unreadable clip, no face, bad character, output not writable, ...
             Nothing is left in ``out_dir`` then (nor on KeyboardInterrupt).
     """
+    options = options or RunOptions()
+    bound_heap()  # memory flat whatever the clip's length (see capture2face.runtime.heap)
+    t_start = time.perf_counter()
+    workers = start_track_workers(clip, options)  # they start up while the checks run
+    try:
+        return _run(clip, out_dir, options, progress, name, workers, t_start)
+    finally:
+        if workers is not None:
+            workers.close()
+
+
+def _timed(fn, *args) -> float:
+    """Call ``fn(*args)``; its wall seconds."""
+    t = time.perf_counter()
+    fn(*args)
+    return time.perf_counter() - t
+
+
+def _run(clip, out_dir, options: RunOptions, progress: bool, name: str | None, workers, t_start: float) -> dict:
     from capture2face.io.staging import check_output_folder, staged_folder
     from capture2face.preflight import preflight
     from capture2face.tracking.video import watch_damage
 
-    options = options or RunOptions()
-    bound_heap()  # memory flat whatever the clip's length (see capture2face.runtime.heap)
-    t_start = time.perf_counter()
     # Bad input fails here, before anything is written or tracked: options and limits, the
     # clip, the neutral frame, the face model, a drivable character, the GL context.
     info, rig = preflight(clip, options)
     final = Path(out_dir) / (name or Path(clip).stem)
-    seconds: dict[str, float] = {}
+    seconds: dict[str, float] = {"checks": time.perf_counter() - t_start}  # the default avatar's first build too
     # Only the run's own files in ``final`` are replaced; the clip itself is never touched.
     outputs = [f for f in OUTPUT_FILES if f != "compare.mp4" or options.compare]
     check_output_folder(final, outputs, OUTPUT_FILES, protect=[clip])
@@ -447,8 +509,10 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
         t = time.perf_counter()
         with watch_damage(clip) as damage:
             try:
-                track = track_stage(clip, options, progress, workdir=work)
+                track = track_stage(clip, options, progress, workdir=work, workers=workers)
             finally:
+                if workers is not None:
+                    workers.close()
                 # The decoder keeps the frames before any damage; a run would silently lose
                 # the clip's tail, so that takes an explicit opt-in. (Checked even when
                 # tracking failed: a damaged file is the cause to report.)
@@ -465,17 +529,18 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
         seconds["retarget"] = time.perf_counter() - t
         raise_if_interrupted()
 
-        t = time.perf_counter()
-        export_stage(rig, animation, tmp, track)
+        # The exports need nothing the render pass makes: they are written beside it.
+        with concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="capture2face-export") as pool:
+            exported = pool.submit(_timed, export_stage, rig, animation, tmp, track)
+            try:
+                t = time.perf_counter()
+                posters = [i for i, _ in poster_frames(animation, track.neutral_frame)]  # report.html's
+                rendered = render_stage(clip, track, animation, rig, tmp, options, progress, keep_frames=posters)
+                seconds["render_encode"] = time.perf_counter() - t
+                seconds["render_gl"] = rendered["render_s"]
+            finally:
+                seconds["export"] = exported.result()  # its error, if any, after the render's
         release_free_memory()
-        seconds["export"] = time.perf_counter() - t
-        raise_if_interrupted()
-
-        t = time.perf_counter()
-        posters = [i for i, _ in poster_frames(animation, track.neutral_frame)]  # report.html's
-        rendered = render_stage(clip, track, animation, rig, tmp, options, progress, keep_frames=posters)
-        seconds["render_encode"] = time.perf_counter() - t
-        seconds["render_gl"] = rendered["render_s"]
         raise_if_interrupted()
 
         t = time.perf_counter()
