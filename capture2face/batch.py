@@ -272,8 +272,8 @@ def run_batch(inputs: Iterable[str | os.PathLike], out: str | os.PathLike, optio
 
     options.validate()
     find_face_model(options.face_model)
-    if options.character is not None:
-        check_character(options.character)
+    # The default avatar too: built here once (then cached) rather than by every worker.
+    check_character(options.character, progress)
     if not ray_address:
         check_gl()
     report = _Report(out, clips, options)

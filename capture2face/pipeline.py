@@ -30,6 +30,7 @@ import contextlib
 import json
 import logging
 import os
+import threading
 import time
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -122,21 +123,20 @@ class RunOptions:
 
 
 # ---- character ------------------------------------------------------------------------
-def load_character(character: Any = None) -> FaceRig:
-    """The rig to animate (see :attr:`RunOptions.character`).
+def load_character(character: Any = None, progress: bool = False) -> FaceRig:
+    """The rig to animate (see :attr:`RunOptions.character`); ``progress``: a progress bar
+    while a built-in avatar is built (the first use on a machine, then it is cached).
 
     Raises:
         CaptureError: missing, corrupt or unsupported character file.
     """
-    from capture2face.rig.avatar import default_avatar
-
     if character is None:
-        return default_avatar()
+        return builtin_avatar(None, progress)
     if isinstance(character, FaceRig):
         return character
     text = os.fspath(character)
     if text in BUILTIN_CHARACTERS and not Path(text).exists():
-        return default_avatar(variant=None if text == "default" else text)
+        return builtin_avatar(None if text == "default" else text, progress)
     path = Path(text)
     if not path.is_file():
         raise CaptureError(f"character {path}: no such file" if not path.exists()
@@ -158,6 +158,39 @@ def load_character(character: Any = None) -> FaceRig:
                            f"({exc.__class__.__name__}: {exc})".rstrip()) from None
     raise CaptureError(f"character {path}: unsupported format '{suffix}'; "
                        "use a FaceRig .npz or a .glb with its mapping .json")
+
+
+def builtin_avatar(variant: str | None = None, progress: bool = False) -> FaceRig:
+    """:func:`~capture2face.rig.avatar.default_avatar`, with a progress bar (and an entry
+    in the log) when it is not cached yet: its build takes ~5 s, once per machine and
+    version (``run`` counts it in report.json's ``seconds["checks"]``)."""
+    from capture2face.rig import avatar
+
+    cached = avatar.cache_dir() / f"avatar-{variant or 'default'}-{avatar._source_hash()}.rig.npz"
+    if cached.is_file():
+        return avatar.default_avatar(variant)
+    from tqdm import tqdm
+
+    log.info("building the %s avatar (first use; cached in %s)", variant or "default", avatar.cache_dir())
+    t = time.perf_counter()
+    with tqdm(total=1, disable=not progress, desc=f"building the {variant or 'default'} avatar (first use, "
+              "then cached)", bar_format="{desc}: {elapsed}", leave=False) as bar:
+        done = threading.Event()
+
+        def tick() -> None:  # the elapsed time counts while the build runs
+            while not done.wait(0.5):
+                bar.refresh()
+
+        ticker = threading.Thread(target=tick, daemon=True)
+        ticker.start()
+        try:
+            rig = avatar.default_avatar(variant)
+        finally:
+            done.set()
+            ticker.join()
+        bar.update(1)
+    log.info("built the %s avatar in %.1f s", variant or "default", time.perf_counter() - t)
+    return rig
 
 
 # ---- stages (each callable on its own) ------------------------------------------------
@@ -498,7 +531,7 @@ def _run(clip, out_dir, options: RunOptions, progress: bool, name: str | None, w
 
     # Bad input fails here, before anything is written or tracked: options and limits, the
     # clip, the neutral frame, the face model, a drivable character, the GL context.
-    info, rig = preflight(clip, options)
+    info, rig = preflight(clip, options, progress=progress)
     final = Path(out_dir) / (name or Path(clip).stem)
     seconds: dict[str, float] = {"checks": time.perf_counter() - t_start}  # the default avatar's first build too
     # Only the run's own files in ``final`` are replaced; the clip itself is never touched.
