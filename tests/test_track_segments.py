@@ -154,3 +154,13 @@ def test_batch_tracks_each_clip_with_one_landmarker(monkeypatch, tmp_path, sampl
     batch.run_batch([sample_clip, copy], tmp_path / "out", RunOptions(track_workers=2), jobs=2, progress=False)
     assert seen["options"].track_workers == 2  # an explicit choice is kept
     assert dataclasses.asdict(RunOptions())["track_workers"] is None
+
+
+def test_a_failed_stitch_check_falls_back_to_one_landmarker(exit_clip, monkeypatch):
+    clip = exit_clip.video_path
+    monkeypatch.setattr(segments, "MIN_SEGMENT_FRAMES", 40)
+    monkeypatch.setattr(segments, "_same_face", lambda *a: False)  # as if a worker took another face
+    assert segments.track_parallel(clip, open_video(clip), TrackOptions(workers=2), 2, progress=False) is None
+    track = track_clip(clip, TrackOptions(workers=2), progress=False)
+    seq = track_clip(clip, TrackOptions(workers=1), progress=False)
+    np.testing.assert_array_equal(track.landmarks_px, seq.landmarks_px)  # tracked by one, from the start

@@ -149,6 +149,7 @@ class SegmentWorkers:
         self._send: list[Connection] = []
         self._recv: list[Connection] = []
         self._ready = [False] * n
+        self._busy: set[int] = set()  # sent a job, no result yet
         try:
             for _ in range(n):
                 proc = subprocess.Popen([sys.executable, "-c", _WORKER_CODE], stdin=subprocess.PIPE,
@@ -186,6 +187,7 @@ class SegmentWorkers:
     def submit(self, i: int, job: dict) -> None:
         try:
             self._send[i].send(job)
+            self._busy.add(i)
         except OSError:
             pass  # the worker is gone: result() says so
 
@@ -205,6 +207,7 @@ class SegmentWorkers:
                 elif kind == "ready":
                     self._ready[i] = True
                 else:
+                    self._busy.discard(i)
                     return kind, value
         except (EOFError, OSError):
             return "error", f"the tracking worker process ended (exit code {self._procs[i].poll()})"
@@ -219,11 +222,17 @@ class SegmentWorkers:
                 return got
 
     def close(self) -> None:
-        for conn in self._send:
+        """Stop every worker: idle ones are told to exit, busy ones (an interrupt, a
+        fallback) terminated at once."""
+        for i, conn in enumerate(self._send):
+            if i in self._busy:
+                self._procs[i].terminate()
+                continue
             try:
                 conn.send(None)
             except (OSError, ValueError):
                 pass
+        self._busy.clear()
         deadline = time.monotonic() + 2.0
         for proc in self._procs:
             try:
@@ -358,8 +367,9 @@ def track_parallel(clip: str | os.PathLike, info: VideoInfo, options, n_workers:
 
     Args:
         n_workers: landmarkers at once, this process's included.
-        workers: processes started ahead (:class:`SegmentWorkers`); at least
-            ``n_workers - 1`` are used, else new ones are started here.
+        workers: processes started ahead (:class:`SegmentWorkers`; up to ``n_workers -
+            1`` of them are used, and all are closed once the clip is split); None: they
+            are started here.
     """
     from tqdm import tqdm
 
@@ -373,8 +383,7 @@ def track_parallel(clip: str | os.PathLike, info: VideoInfo, options, n_workers:
     if plan is None:
         return None
     k = plan.n_segments
-    own = workers is None
-    if own:
+    if workers is None:
         workers = SegmentWorkers(k - 1, options.landmarker_options())
     scratch = Path(tempfile.mkdtemp(prefix="segments-", dir=os.fspath(workdir) if workdir is not None else None))
     size = (info.width, info.height)
@@ -399,6 +408,7 @@ def track_parallel(clip: str | os.PathLike, info: VideoInfo, options, n_workers:
                     frames.close()
                 if tracker.n_frames != plan.starts[1]:
                     return _fallback(tracker, "the first segment decoded short")
+                faces_seen = 0
                 for i in range(1, k):
                     kind, value = workers.result(i - 1, bar.update)
                     if kind != "ok":
@@ -406,8 +416,8 @@ def track_parallel(clip: str | os.PathLike, info: VideoInfo, options, n_workers:
                     expected = int(plan.starts[i + 1] - plan.starts[i])
                     if len(value["times"]) != expected:
                         return _fallback(tracker, f"segment {i} decoded {len(value['times'])} of {expected} frames")
-                    several = max(tracker._landmarker.n_faces_max, tracker._builder._n_faces_max,
-                                  value["n_faces_max"]) > 1
+                    faces_seen = max(faces_seen, tracker.n_faces_max, value["n_faces_max"])
+                    several = faces_seen > 1
                     before = list(tail)[-len(value["warm"]):] if value["warm"] else []
                     if not _same_face(before, value["warm"], several):
                         return _fallback(tracker, f"segment {i} started on another face")
@@ -424,8 +434,7 @@ def track_parallel(clip: str | os.PathLike, info: VideoInfo, options, n_workers:
                 raise
             return tracker.finish(progress)
     finally:
-        if own:
-            workers.close()
+        workers.close()  # each tracks one segment: done, or stopped on a fallback or an error
         shutil.rmtree(scratch, ignore_errors=True)
 
 

@@ -352,6 +352,11 @@ class Tracker:
     def n_frames(self) -> int:
         return self._builder.n_frames
 
+    @property
+    def n_faces_max(self) -> int:
+        """The most faces seen at once so far."""
+        return max(self._builder._n_faces_max, self._landmarker.n_faces_max)
+
     def process(self, t: float, rgb: np.ndarray) -> FaceObservation | None:
         """Track one frame (H, W, 3) uint8 at time ``t`` seconds; returns its face or None."""
         size = (rgb.shape[1], rgb.shape[0])
