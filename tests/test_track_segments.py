@@ -106,7 +106,9 @@ def test_segments_stitch_into_the_sequential_track(exit_clip, monkeypatch):
 
 def test_short_clip_and_face_index_track_with_one_landmarker(exit_clip, monkeypatch):
     clip = exit_clip.video_path
-    assert segments.plan_segments(clip, 4) is None  # 150 frames < two segments of 120
+    monkeypatch.setattr(segments, "MIN_SEGMENT_FRAMES", 80)
+    assert segments.plan_segments(clip, 4) is None  # 150 frames < two segments of 80
+    assert segments.track_parallel(clip, open_video(clip), TrackOptions(workers=4), 4, progress=False) is None
     monkeypatch.setattr(segments, "MIN_SEGMENT_FRAMES", 40)
     assert segments.track_parallel(clip, open_video(clip), TrackOptions(workers=2, face=0), 2,
                                    progress=False) is None

@@ -58,8 +58,10 @@ log = logging.getLogger("capture2face")
 #: (:mod:`.landmarker`: 15 frames); landmarks then agree with an uncut track to within
 #: MediaPipe's own frame-to-frame noise.
 WARMUP_FRAMES = 20
-#: No segment shorter than this: a worker process costs ~1 s of start-up and its warm-up.
-MIN_SEGMENT_FRAMES = 120
+#: No segment shorter than this: a worker costs its warm-up and ~1 s of start-up (hidden
+#: behind ``run``'s checks where cores are free); 300 frames make 2 segments on 2 cores,
+#: 5 on 16.
+MIN_SEGMENT_FRAMES = 60
 #: Extra frames for this process's segment when the workers are not ready yet (they
 #: import MediaPipe and load the model: ~1 s).
 STARTUP_FRAMES = 60
