@@ -571,8 +571,10 @@ def _run(clip, out_dir, options: RunOptions, progress: bool, name: str | None, w
                 rendered = render_stage(clip, track, animation, rig, tmp, options, progress, keep_frames=posters)
                 seconds["render_encode"] = time.perf_counter() - t
                 seconds["render_gl"] = rendered["render_s"]
-            finally:
-                seconds["export"] = exported.result()  # its error, if any, after the render's
+            except BaseException:
+                concurrent.futures.wait([exported])  # it writes into the staging folder: done first
+                raise  # the render's error (an export error too would hide it)
+            seconds["export"] = exported.result()
         release_free_memory()
         raise_if_interrupted()
 

@@ -199,7 +199,7 @@ class TrackBuilder:
         for s in range(0, len(times), FLUSH_FRAMES):
             e = min(len(times), s + FLUSH_FRAMES)
             self._append(np.asarray(norm[s:e], np.float32), presence[s:e], scores[s:e], n_faces_max)
-        self._times.extend(float(t) for t in times)
+        self._times.extend(np.asarray(times, np.float64).tolist())
 
     def close(self) -> None:
         """Drop the raw files (and the private work folder)."""
