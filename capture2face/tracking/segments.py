@@ -152,6 +152,7 @@ class SegmentWorkers:
         self._recv: list[Connection] = []
         self._ready = [False] * n
         self._busy: set[int] = set()  # sent a job, no result yet
+        self._early: dict[int, tuple] = {}  # an error received while asking ready()
         try:
             for _ in range(n):
                 proc = subprocess.Popen([sys.executable, "-c", _WORKER_CODE], stdin=subprocess.PIPE,
@@ -181,7 +182,6 @@ class SegmentWorkers:
             if not self._ready[i]:
                 got = self.poll(i)
                 if got is not None:  # an error before the work: kept for result()
-                    self._early = getattr(self, "_early", {})
                     self._early[i] = got
                     return False
         return all(self._ready)
@@ -196,7 +196,7 @@ class SegmentWorkers:
     def poll(self, i: int, on_progress=None, timeout: float = 0.0):
         """Worker ``i``'s ``(kind, value)`` once it has sent its result, else None;
         progress messages on the way go to ``on_progress(frames)``."""
-        early = getattr(self, "_early", {}).pop(i, None)
+        early = self._early.pop(i, None)
         if early is not None:
             return early
         conn = self._recv[i]
