@@ -527,6 +527,7 @@ def _timed(fn, *args) -> float:
 def _run(clip, out_dir, options: RunOptions, progress: bool, name: str | None, workers, t_start: float) -> dict:
     from capture2face.io.staging import check_output_folder, staged_folder
     from capture2face.preflight import preflight
+    from capture2face.tracking.segments import free_cores
     from capture2face.tracking.video import watch_damage
 
     # Bad input fails here, before anything is written or tracked: options and limits, the
@@ -562,9 +563,13 @@ def _run(clip, out_dir, options: RunOptions, progress: bool, name: str | None, w
         seconds["retarget"] = time.perf_counter() - t
         raise_if_interrupted()
 
-        # The exports need nothing the render pass makes: they are written beside it.
+        # The render pass starts as soon as the animation is solved. The exports need
+        # nothing it makes: with cores to spare they are written beside it; on two cores,
+        # which the render pass fills, after it (beside it they would gain nothing and
+        # their transient memory, ~1.7 KB a frame, would add to the render pass's peak).
+        beside = free_cores() > 2
         with concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="capture2face-export") as pool:
-            exported = pool.submit(_timed, export_stage, rig, animation, tmp, track)
+            exported = pool.submit(_timed, export_stage, rig, animation, tmp, track) if beside else None
             try:
                 t = time.perf_counter()
                 posters = [i for i, _ in poster_frames(animation, track.neutral_frame)]  # report.html's
@@ -572,9 +577,11 @@ def _run(clip, out_dir, options: RunOptions, progress: bool, name: str | None, w
                 seconds["render_encode"] = time.perf_counter() - t
                 seconds["render_gl"] = rendered["render_s"]
             except BaseException:
-                concurrent.futures.wait([exported])  # it writes into the staging folder: done first
+                if exported is not None:
+                    concurrent.futures.wait([exported])  # it writes into the staging folder: done first
                 raise  # the render's error (an export error too would hide it)
-            seconds["export"] = exported.result()
+            seconds["export"] = exported.result() if exported is not None else \
+                _timed(export_stage, rig, animation, tmp, track)
         release_free_memory()
         raise_if_interrupted()
 
