@@ -64,7 +64,10 @@ def test_damaged_clip_is_not_split(tmp_path, synthetic_clip):
     assert frame_times(cut) is None  # decoded from the start only, damage reported as before
 
 
-def test_segments_stitch_into_the_sequential_track(exit_clip, monkeypatch):
+def test_segments_stitch_into_the_sequential_track(exit_clip, monkeypatch, caplog):
+    import logging
+
+    caplog.set_level(logging.DEBUG, logger="capture2face")  # a fallback says why
     clip = exit_clip.video_path
     monkeypatch.setattr(segments, "MIN_SEGMENT_FRAMES", 40)
     monkeypatch.setattr(segments, "WARMUP_FRAMES", 12)
@@ -73,7 +76,7 @@ def test_segments_stitch_into_the_sequential_track(exit_clip, monkeypatch):
     plan = segments.plan_segments(clip, 3)
     assert plan is not None and plan.n_segments == 3
     par = segments.track_parallel(clip, open_video(clip), options, 3, progress=False)
-    assert par is not None  # no check failed: the clip was tracked in three segments
+    assert par is not None, caplog.text  # no check failed: the clip was tracked in three segments
 
     # gaps and the neutral frame: the same frames, whichever landmarker saw them
     assert seq.n_gaps >= 1 and seq.n_long_gaps >= 1

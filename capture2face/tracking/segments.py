@@ -34,6 +34,7 @@ from __future__ import annotations
 import collections
 import logging
 import os
+import pickle
 import shutil
 import signal
 import subprocess
@@ -162,7 +163,10 @@ class SegmentWorkers:
                 self._recv.append(Connection(os.dup(proc.stdout.fileno()), writable=False))
                 proc.stdin.close()
                 proc.stdout.close()
-                self._send[-1].send(options)
+                try:
+                    self._send[-1].send(options)
+                except OSError:
+                    pass  # it died at start-up: its result() says so, and the clip is tracked by one
         except BaseException:
             self.close()
             raise
@@ -431,6 +435,8 @@ def track_parallel(clip: str | os.PathLike, info: VideoInfo, options, n_workers:
                         norm.close()
                     tail = collections.deque(value["tail"], maxlen=WARMUP_FRAMES)
                     bar.update(expected - value["progress_sent"])
+            except (OSError, EOFError, pickle.PickleError) as exc:  # the workers' pipes, files
+                return _fallback(tracker, f"{exc.__class__.__name__}: {exc}")
             except BaseException:
                 tracker.close()
                 raise
