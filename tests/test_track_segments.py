@@ -169,3 +169,28 @@ def test_a_failed_stitch_check_falls_back_to_one_landmarker(exit_clip, monkeypat
     track = track_clip(clip, TrackOptions(workers=2), progress=False)
     seq = track_clip(clip, TrackOptions(workers=1), progress=False)
     np.testing.assert_array_equal(track.landmarks_px, seq.landmarks_px)  # tracked by one, from the start
+
+
+def test_workers_finishing_before_this_process_are_stitched(exit_clip, monkeypatch, caplog):
+    import logging
+    import time
+
+    from capture2face.tracking import tracker as tracker_mod
+
+    caplog.set_level(logging.DEBUG, logger="capture2face")
+    clip = exit_clip.video_path
+    monkeypatch.setattr(segments, "MIN_SEGMENT_FRAMES", 40)
+    monkeypatch.setattr(segments, "WARMUP_FRAMES", 12)
+    process = tracker_mod.Tracker.process
+
+    def slow(self, t, rgb):  # this process's segment ends long after the workers' results came
+        time.sleep(0.03)
+        return process(self, t, rgb)
+
+    monkeypatch.setattr(tracker_mod.Tracker, "process", slow)
+    par = segments.track_parallel(clip, open_video(clip), TrackOptions(workers=3), 3, progress=False)
+    assert par is not None, caplog.text
+    monkeypatch.setattr(tracker_mod.Tracker, "process", process)
+    seq = track_clip(clip, TrackOptions(workers=1), progress=False)
+    np.testing.assert_array_equal(par.presence, seq.presence)
+    assert par.neutral_frame == seq.neutral_frame

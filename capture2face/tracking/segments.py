@@ -153,7 +153,7 @@ class SegmentWorkers:
         self._recv: list[Connection] = []
         self._ready = [False] * n
         self._busy: set[int] = set()  # sent a job, no result yet
-        self._early: dict[int, tuple] = {}  # an error received while asking ready()
+        self._done: dict[int, tuple] = {}  # results received (kept until asked for)
         try:
             for _ in range(n):
                 proc = subprocess.Popen([sys.executable, "-c", _WORKER_CODE], stdin=subprocess.PIPE,
@@ -185,8 +185,7 @@ class SegmentWorkers:
         for i in range(len(self._procs)):
             if not self._ready[i]:
                 got = self.poll(i)
-                if got is not None:  # an error before the work: kept for result()
-                    self._early[i] = got
+                if got is not None:  # an error before the work (kept for result())
                     return False
         return all(self._ready)
 
@@ -198,11 +197,11 @@ class SegmentWorkers:
             pass  # the worker is gone: result() says so
 
     def poll(self, i: int, on_progress=None, timeout: float = 0.0):
-        """Worker ``i``'s ``(kind, value)`` once it has sent its result, else None;
-        progress messages on the way go to ``on_progress(frames)``."""
-        early = self._early.pop(i, None)
-        if early is not None:
-            return early
+        """Worker ``i``'s ``(kind, value)`` once it has sent its result (kept: asking again
+        gives it again), else None; progress messages on the way go to
+        ``on_progress(frames)``."""
+        if i in self._done:
+            return self._done[i]
         conn = self._recv[i]
         try:
             while conn.poll(timeout):
@@ -214,9 +213,11 @@ class SegmentWorkers:
                     self._ready[i] = True
                 else:
                     self._busy.discard(i)
+                    self._done[i] = kind, value
                     return kind, value
         except (EOFError, OSError):
-            return "error", f"the tracking worker process ended (exit code {self._procs[i].poll()})"
+            self._done[i] = "error", f"the tracking worker process ended (exit code {self._procs[i].poll()})"
+            return self._done[i]
         return None
 
     def result(self, i: int, on_progress=None):
