@@ -165,7 +165,7 @@ def _earlier_entries(path: Path) -> list[dict]:
 
 
 #: RunOptions that change no output (left out of the resume comparison).
-_RESUME_IGNORED = {"queue_frames"}
+_RESUME_IGNORED = {"queue_frames", "track_workers"}
 
 
 def _option_key(name: str, value: Any) -> Any:
@@ -272,8 +272,8 @@ def run_batch(inputs: Iterable[str | os.PathLike], out: str | os.PathLike, optio
 
     options.validate()
     find_face_model(options.face_model)
-    if options.character is not None:
-        check_character(options.character)
+    # The default avatar too: built here once (then cached) rather than by every worker.
+    check_character(options.character, progress)
     if not ray_address:
         check_gl()
     report = _Report(out, clips, options)
@@ -305,9 +305,15 @@ def run_batch(inputs: Iterable[str | os.PathLike], out: str | os.PathLike, optio
         if not todo:
             pass
         elif ray_address:
+            if getattr(options, "track_workers", 1) is None:  # a Ray task has one CPU
+                options = dataclasses.replace(options, track_workers=1)
             _run_ray(clips, todo, out, options, ray_address, done)
         else:
             n_jobs = max(1, min(jobs or os.cpu_count() or 1, len(todo)))
+            if n_jobs > 1 and getattr(options, "track_workers", 1) is None:
+                # Clips in parallel already fill the cores: each tracks with one landmarker
+                # (segment workers on top would oversubscribe them).
+                options = dataclasses.replace(options, track_workers=1)
             if n_jobs == 1:
                 for i in todo:
                     done(i, _run_clip(clips[i].path, str(out), clips[i].name, options))

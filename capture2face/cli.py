@@ -61,8 +61,10 @@ def _cmd_synth(args: argparse.Namespace) -> int:
 def _track_options(args: argparse.Namespace):
     from capture2face.tracking import TrackOptions
 
+    if args.track_workers is not None and args.track_workers < 1:
+        raise CaptureError(f"--track-workers must be >= 1 (got {args.track_workers})")
     return TrackOptions(face_model=args.face_model, neutral_frame=args.neutral_frame,
-                        faces=args.faces, face=args.face)
+                        faces=args.faces, face=args.face, workers=args.track_workers)
 
 
 def _cmd_track(args: argparse.Namespace) -> int:
@@ -93,7 +95,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     opts = RunOptions(
         character=args.character, wrinkles=args.wrinkles, size=args.size,
         neutral_frame=args.neutral_frame, face_model=args.face_model, audio=not args.no_audio,
-        faces=args.faces, face=args.face,
+        faces=args.faces, face=args.face, track_workers=args.track_workers,
     )
     opts.allow_truncated = args.allow_truncated
     report = run(args.clip, args.output, opts, progress=not args.quiet)
@@ -144,7 +146,8 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     from capture2face.pipeline import RunOptions
 
     opts = RunOptions(character=args.character, wrinkles=args.wrinkles, size=args.size,
-                      face_model=args.face_model, audio=not args.no_audio, faces=args.faces, face=args.face)
+                      face_model=args.face_model, audio=not args.no_audio, faces=args.faces, face=args.face,
+                      track_workers=args.track_workers)
     opts.allow_truncated = args.allow_truncated
     report = run_batch(args.inputs, args.output, opts, jobs=args.jobs, resume=args.resume,
                        ray_address=args.ray, progress=not args.quiet)
@@ -213,6 +216,9 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--face", type=int, default=None, metavar="N",
                        help="instead, track face N (0-based, left to right) of the first frame with "
                             "more than N faces, then the one continuing it")
+        p.add_argument("--track-workers", type=int, default=None, metavar="N",
+                       help="MediaPipe landmarkers tracking segments of a clip at once, one process "
+                            "each (default: one per free core; batch: one per clip when clips run in parallel)")
 
     p = sub.add_parser("avatar", parents=[common], help="build the default avatar; write its maps or a .glb")
     p.add_argument("--maps", metavar="DIR", help="write textures and zone masks as PNGs")
@@ -329,6 +335,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     install_process_defaults()
+    if argv is None:  # the process is the command (not a caller's main(args))
+        from capture2face.tracking.landmarker import defer_pyplot
+
+        defer_pyplot()  # it imports MediaPipe, never matplotlib
     try:
         return int(args.func(args) or 0)
     except CaptureError as exc:

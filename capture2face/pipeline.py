@@ -25,10 +25,12 @@ file nor the source clip.
 
 from __future__ import annotations
 
+import concurrent.futures
 import contextlib
 import json
 import logging
 import os
+import threading
 import time
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -77,6 +79,9 @@ class RunOptions:
             "center" (nearest the image centre); the one continuing it is followed.
         face: instead, the face with this index (0-based, left to right) in the first
             frame where more than ``face`` faces are seen, then followed.
+        track_workers: MediaPipe landmarkers tracking segments of the clip at once, each
+            in its own process (:mod:`capture2face.tracking.segments`); None: one per free
+            core; 1: one. ``batch`` runs each clip with one when it runs clips in parallel.
     """
 
     character: Any = None
@@ -93,6 +98,7 @@ class RunOptions:
     audio: bool = True
     faces: str = "largest"
     face: int | None = None
+    track_workers: int | None = None
 
     def validate(self) -> None:
         if self.wrinkles not in WRINKLE_DRIVERS:
@@ -106,24 +112,32 @@ class RunOptions:
             raise CaptureError(f"--faces must be largest or center (got {self.faces!r})")
         if self.face is not None and not 0 <= self.face < 16:
             raise CaptureError(f"--face must be 0..15 (got {self.face})")
+        if self.track_workers is not None and int(self.track_workers) < 1:
+            raise CaptureError(f"--track-workers must be >= 1 (got {self.track_workers})")
+
+    def track_options(self):
+        """The :class:`~capture2face.tracking.TrackOptions` of ``run``'s tracking."""
+        from capture2face.tracking import TrackOptions
+
+        return TrackOptions(face_model=self.face_model, neutral_frame=self.neutral_frame, faces=self.faces,
+                            face=self.face, workers=self.track_workers)
 
 
 # ---- character ------------------------------------------------------------------------
-def load_character(character: Any = None) -> FaceRig:
-    """The rig to animate (see :attr:`RunOptions.character`).
+def load_character(character: Any = None, progress: bool = False) -> FaceRig:
+    """The rig to animate (see :attr:`RunOptions.character`); ``progress``: a progress bar
+    while a built-in avatar is built (the first use on a machine, then it is cached).
 
     Raises:
         CaptureError: missing, corrupt or unsupported character file.
     """
-    from capture2face.rig.avatar import default_avatar
-
     if character is None:
-        return default_avatar()
+        return builtin_avatar(None, progress)
     if isinstance(character, FaceRig):
         return character
     text = os.fspath(character)
     if text in BUILTIN_CHARACTERS and not Path(text).exists():
-        return default_avatar(variant=None if text == "default" else text)
+        return builtin_avatar(None if text == "default" else text, progress)
     path = Path(text)
     if not path.is_file():
         raise CaptureError(f"character {path}: no such file" if not path.exists()
@@ -166,16 +180,68 @@ def with_automatic_wrinkles(rig: FaceRig) -> FaceRig:
         return rig
 
 
+def builtin_avatar(variant: str | None = None, progress: bool = False) -> FaceRig:
+    """:func:`~capture2face.rig.avatar.default_avatar`, with a progress bar (and an entry
+    in the log) when it is not cached yet: its build takes ~5 s, once per machine and
+    version (``run`` counts it in report.json's ``seconds["checks"]``)."""
+    from capture2face.rig import avatar
+
+    cached = avatar.cache_dir() / f"avatar-{variant or 'default'}-{avatar._source_hash()}.rig.npz"
+    if cached.is_file():
+        return avatar.default_avatar(variant)
+    from tqdm import tqdm
+
+    log.info("building the %s avatar (first use; cached in %s)", variant or "default", avatar.cache_dir())
+    t = time.perf_counter()
+    with tqdm(total=1, disable=not progress, desc=f"building the {variant or 'default'} avatar (first use, "
+              "then cached)", bar_format="{desc}: {elapsed}", leave=False) as bar:
+        done = threading.Event()
+
+        def tick() -> None:  # the elapsed time counts while the build runs
+            while not done.wait(0.5):
+                bar.refresh()
+
+        ticker = threading.Thread(target=tick, daemon=True)
+        ticker.start()
+        try:
+            rig = avatar.default_avatar(variant)
+        finally:
+            done.set()
+            ticker.join()
+        bar.update(1)
+    log.info("built the %s avatar in %.1f s", variant or "default", time.perf_counter() - t)
+    return rig
+
+
 # ---- stages (each callable on its own) ------------------------------------------------
 def track_stage(clip: str | os.PathLike, options: RunOptions, progress: bool = True,
-                workdir: str | os.PathLike | None = None):
+                workdir: str | os.PathLike | None = None, workers=None):
     """Pass 1: the clip's :class:`~capture2face.tracking.track.Track` (with ``workdir``,
-    its landmarks stay in files there: memory does not grow with the clip's length)."""
-    from capture2face.tracking import TrackOptions, track_clip
+    its landmarks stay in files there: memory does not grow with the clip's length;
+    ``workers``: :func:`start_track_workers`' processes)."""
+    from capture2face.tracking import track_clip
 
-    return track_clip(clip, TrackOptions(face_model=options.face_model, neutral_frame=options.neutral_frame,
-                                         faces=options.faces, face=options.face), progress=progress,
-                      workdir=workdir)
+    return track_clip(clip, options.track_options(), progress=progress, workdir=workdir, workers=workers)
+
+
+def start_track_workers(clip: str | os.PathLike, options: RunOptions):
+    """The segment-tracking processes ``run`` will use for ``clip``, started now so that
+    their start-up (Python, MediaPipe, the model) overlaps the checks before tracking;
+    None when the clip will be tracked by one landmarker (too short, ``--face``, one
+    core, or a clip that does not open: the checks report that)."""
+    from capture2face.tracking.segments import MIN_SEGMENT_FRAMES, SegmentWorkers
+    from capture2face.tracking.video import open_video
+
+    track = options.track_options()
+    n = track.n_workers()
+    if n < 2 or track.face is not None:
+        return None
+    try:
+        frames = open_video(clip).n_frames
+    except CaptureError:
+        return None
+    k = min(n, frames // MIN_SEGMENT_FRAMES)
+    return SegmentWorkers(k - 1, track.landmarker_options()) if k >= 2 else None
 
 
 def retarget_stage(track, rig: FaceRig):
@@ -262,6 +328,20 @@ def run_render_options(options: RunOptions):
                          influence_output=bool(options.compare))
 
 
+def encoder_threads(software_gl: bool, cores: int | None = None) -> int:
+    """x264 threads for each of ``run``'s two encoders. A software rasterizer (llvmpipe
+    runs one thread per core) and small machines: one each, in threads of their own (x264's
+    pool would take the cores the rasterizer needs). With a GPU drawing, the cores beyond
+    the GL thread, decoding and compositing encode (x264 alone does ~150 fps at 512x512
+    on one core, and run's compare.mp4 is three frames wide)."""
+    from capture2face.tracking.segments import free_cores
+
+    cores = free_cores() if cores is None else int(cores)
+    if software_gl or cores <= 4:
+        return 1
+    return max(1, min(8, (cores - 2) // 2))
+
+
 def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder: str | os.PathLike,
                  options: RunOptions, progress: bool = True, keep_frames=()) -> dict:
     """Pass 3: avatar.mp4 and compare.mp4 into ``folder``, stages overlapped.
@@ -280,6 +360,7 @@ def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder
 
     from capture2face.compose import SourceFitter, compare_frame
     from capture2face.render import FrameState, Renderer
+    from capture2face.render.context import software_gl
     from capture2face.render.video import VideoWriter
     from capture2face.runtime.overlap import StageGroup
     from capture2face.tracking.video import iter_frames
@@ -293,9 +374,7 @@ def render_stage(clip: str | os.PathLike, track, animation, rig: FaceRig, folder
     turns = avatar_head_rotations(rig, animation.head_pose)
     fitter = SourceFitter(track.width, track.height, size)
     q = max(2, int(options.queue_frames))
-    # x264's own thread pool would oversubscribe the cores the rasterizer needs (llvmpipe
-    # runs one thread per core); two single-threaded encoders in their own threads suffice.
-    threads = 1
+    threads = encoder_threads(software_gl())
     keep = {int(i) for i in keep_frames}
     kept: dict[int, np.ndarray] = {}
     # The source's frame times (a variable-rate clip keeps them) and its audio.
@@ -480,18 +559,35 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
         CaptureError: unreadable clip, no face, bad character, output not writable, ...
             Nothing is left in ``out_dir`` then (nor on KeyboardInterrupt).
     """
-    from capture2face.io.staging import check_output_folder, staged_folder
-    from capture2face.preflight import preflight
-    from capture2face.tracking.video import watch_damage
-
     options = options or RunOptions()
     bound_heap()  # memory flat whatever the clip's length (see capture2face.runtime.heap)
     t_start = time.perf_counter()
+    workers = start_track_workers(clip, options)  # they start up while the checks run
+    try:
+        return _run(clip, out_dir, options, progress, name, workers, t_start)
+    finally:
+        if workers is not None:
+            workers.close()
+
+
+def _timed(fn, *args, **kwargs) -> float:
+    """Call ``fn(*args, **kwargs)``; its wall seconds."""
+    t = time.perf_counter()
+    fn(*args, **kwargs)
+    return time.perf_counter() - t
+
+
+def _run(clip, out_dir, options: RunOptions, progress: bool, name: str | None, workers, t_start: float) -> dict:
+    from capture2face.io.staging import check_output_folder, staged_folder
+    from capture2face.preflight import preflight
+    from capture2face.tracking.segments import free_cores
+    from capture2face.tracking.video import watch_damage
+
     # Bad input fails here, before anything is written or tracked: options and limits, the
     # clip, the neutral frame, the face model, a drivable character, the GL context.
-    info, rig = preflight(clip, options)
+    info, rig = preflight(clip, options, progress=progress)
     final = Path(out_dir) / (name or Path(clip).stem)
-    seconds: dict[str, float] = {}
+    seconds: dict[str, float] = {"checks": time.perf_counter() - t_start}  # the default avatar's first build too
     # Only the run's own files in ``final`` are replaced; the clip itself is never touched.
     outputs = [f for f in OUTPUT_FILES if f != "compare.mp4" or options.compare]
     check_output_folder(final, outputs, OUTPUT_FILES, protect=[clip])
@@ -500,8 +596,10 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
         t = time.perf_counter()
         with watch_damage(clip) as damage:
             try:
-                track = track_stage(clip, options, progress, workdir=work)
+                track = track_stage(clip, options, progress, workdir=work, workers=workers)
             finally:
+                if workers is not None:
+                    workers.close()
                 # The decoder keeps the frames before any damage; a run would silently lose
                 # the clip's tail, so that takes an explicit opt-in. (Checked even when
                 # tracking failed: a damaged file is the cause to report.)
@@ -518,17 +616,28 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
         seconds["retarget"] = time.perf_counter() - t
         raise_if_interrupted()
 
-        t = time.perf_counter()
-        export_stage(rig, animation, tmp, track, character=options.character)
+        # The render pass starts as soon as the animation is solved. The exports need
+        # nothing it makes: with cores to spare they are written beside it; on two cores,
+        # which the render pass fills, after it (beside it they would gain nothing and
+        # their transient memory, ~1.7 KB a frame, would add to the render pass's peak).
+        beside = free_cores() > 2
+        with concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="capture2face-export") as pool:
+            exported = (pool.submit(_timed, export_stage, rig, animation, tmp, track,
+                                     character=options.character)
+                        if beside else None)
+            try:
+                t = time.perf_counter()
+                posters = [i for i, _ in poster_frames(animation, track.neutral_frame)]  # report.html's
+                rendered = render_stage(clip, track, animation, rig, tmp, options, progress, keep_frames=posters)
+                seconds["render_encode"] = time.perf_counter() - t
+                seconds["render_gl"] = rendered["render_s"]
+            except BaseException:
+                if exported is not None:
+                    concurrent.futures.wait([exported])  # it writes into the staging folder: done first
+                raise  # the render's error (an export error too would hide it)
+            seconds["export"] = exported.result() if exported is not None else \
+                _timed(export_stage, rig, animation, tmp, track, character=options.character)
         release_free_memory()
-        seconds["export"] = time.perf_counter() - t
-        raise_if_interrupted()
-
-        t = time.perf_counter()
-        posters = [i for i, _ in poster_frames(animation, track.neutral_frame)]  # report.html's
-        rendered = render_stage(clip, track, animation, rig, tmp, options, progress, keep_frames=posters)
-        seconds["render_encode"] = time.perf_counter() - t
-        seconds["render_gl"] = rendered["render_s"]
         raise_if_interrupted()
 
         t = time.perf_counter()

@@ -44,8 +44,9 @@ def check_neutral_frame(neutral_frame: int | None, info) -> None:
                            f"({info.path} has {about}{n} frames: 0..{n - 1})")
 
 
-def check_character(character: Any = None):
-    """Load the character and check that the retargeting can drive it.
+def check_character(character: Any = None, progress: bool = False):
+    """Load the character and check that the retargeting can drive it (``progress``: a
+    progress bar while a built-in avatar is first built).
 
     Returns:
         The :class:`~capture2face.rig.face_rig.FaceRig`.
@@ -56,7 +57,7 @@ def check_character(character: Any = None):
     from capture2face.pipeline import load_character
     from capture2face.rig.arkit_names import drive_mode
 
-    rig = load_character(character)
+    rig = load_character(character, progress)
     drive_mode(rig)  # raises CaptureError for an undrivable character, saying what is missing
     return rig
 
@@ -69,7 +70,7 @@ def check_gl() -> None:
     gl_context()
 
 
-def check_shared(options) -> Any:
+def check_shared(options, progress: bool = False) -> Any:
     """What every clip of a run or a batch shares: the options, the face model and the
     character (the GL context is checked apart: batch workers, e.g. Ray's, may be elsewhere).
 
@@ -80,11 +81,12 @@ def check_shared(options) -> Any:
 
     options.validate()
     find_face_model(options.face_model)
-    return check_character(options.character)
+    return check_character(options.character, progress)
 
 
-def preflight(clip: str | os.PathLike, options) -> tuple[Any, Any]:
-    """Every check :func:`capture2face.pipeline.run` can make before tracking ``clip``.
+def preflight(clip: str | os.PathLike, options, progress: bool = False) -> tuple[Any, Any]:
+    """Every check :func:`capture2face.pipeline.run` can make before tracking ``clip``
+    (``progress``: a progress bar while a built-in avatar is first built).
 
     Returns:
         ``(VideoInfo, FaceRig)``.
@@ -96,6 +98,6 @@ def preflight(clip: str | os.PathLike, options) -> tuple[Any, Any]:
     options.validate()
     info = open_video(clip)
     check_neutral_frame(options.neutral_frame, info)
-    rig = check_shared(options)
+    rig = check_shared(options, progress)
     check_gl()
     return info, rig

@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-KEYS = ["decode_fps", "track_fps", "retarget_ms_per_frame", "wrinkle_ms_per_frame", "render_fps_wrinkles_off",
+KEYS = ["decode_fps", "mediapipe_fps", "track_fps", "track_fps_parallel", "retarget_ms_per_frame", "wrinkle_ms_per_frame", "render_fps_wrinkles_off",
         "render_fps_wrinkles_auto", "render_fps_wrinkles_dynamic", "encode_fps", "end_to_end_fps", "peak_rss_mb",
         "gl_renderer"]
 
@@ -32,12 +32,17 @@ def test_bench_cli_reports_every_figure(tmp_path):
     # Processor time: every stage costs some, the whole pipeline more than tracking alone,
     # and no run beats the bound its own work sets on this many cores.
     cpu = figures["cpu_ms_per_frame"]
-    assert set(cpu) == {"decode", "track", "render_wrinkles_auto", "encode", "end_to_end"}
+    assert set(cpu) == {"decode", "track", "track_parallel", "render_wrinkles_auto", "encode", "end_to_end"}
     assert all(v > 0 for v in cpu.values())
     assert cpu["end_to_end"] > cpu["track"]
     assert figures["cpu_cores"] >= 1
     assert figures["end_to_end_fps_cpu_bound"] == pytest.approx(figures["cpu_cores"] * 1000 / cpu["end_to_end"], rel=0.01)
     assert figures["end_to_end_fps"] <= figures["end_to_end_fps_cpu_bound"] * 1.01
+    assert figures["end_to_end_over_cpu_bound"] == pytest.approx(
+        figures["end_to_end_fps"] / figures["end_to_end_fps_cpu_bound"], rel=0.01)
+    assert figures["track_overhead_ms_per_frame"] == pytest.approx(
+        1000 / figures["track_fps"] - 1000 / figures["mediapipe_fps"], rel=0.02, abs=0.05)
+    assert 1 <= figures["track_workers"] <= figures["cpu_cores"]
     assert figures["peak_rss_mb"] > 50  # MediaPipe + GL + NumPy are loaded: not a bogus figure
     assert (figures["size"], figures["frames"]) == (128, 24)
     assert set(figures["goals"]) and all(isinstance(v, bool) for v in figures["goals"].values())

@@ -304,3 +304,25 @@ def test_avatar_follows_the_tracked_head_rotation_centred():
     poses = avatar_head_poses(rig, tracked, 30.0)
     for pose, angles in zip(poses, [(0, 0, 0), (20, 5, -3), (-15, -8, 6)]):
         np.testing.assert_allclose(pose, framing_pose(rig, *angles, fov_y_degrees=30.0), atol=1e-9)
+
+
+def test_encoders_get_threads_only_where_cores_are_free():
+    from capture2face.pipeline import encoder_threads
+
+    assert encoder_threads(software_gl=True, cores=16) == 1  # llvmpipe takes every core
+    assert encoder_threads(software_gl=False, cores=2) == 1
+    assert encoder_threads(software_gl=False, cores=16) == 7  # two encoders, GL + decode beside
+    assert encoder_threads(software_gl=False, cores=64) == 8
+
+
+@pytest.mark.slow
+def test_exports_written_beside_the_render_where_cores_are_free(sample_run, sample_clip, tmp_path, monkeypatch):
+    from capture2face.pipeline import RunOptions, run
+    from capture2face.tracking import segments
+
+    monkeypatch.setattr(segments, "free_cores", lambda: 8)  # the exports go in a thread beside the render
+    report = run(sample_clip, tmp_path, RunOptions(size=SIZE), progress=False)
+    folder, _ = sample_run
+    for name in ("animation.npz", "livelink.csv"):  # the same files as written after the render
+        assert (tmp_path / sample_clip.stem / name).read_bytes() == (folder / name).read_bytes(), name
+    assert report["seconds"]["export"] > 0 and report["seconds"]["checks"] > 0

@@ -14,19 +14,50 @@ re-exports it. Patch names there (e.g. ``FLUSH_FRAMES``), where they are used.
 
 from __future__ import annotations
 
-from capture2face.errors import CaptureError
-from capture2face.io.framestore import FrameArray
-from capture2face.tracking.filtering import CausalOneEuro, OneEuro, filter_pose
-from capture2face.tracking.gaps import fill_pose, plan_gaps
-from capture2face.tracking.head_pose import FOV_Y_DEGREES, canonical_mesh, head_landmarks
-from capture2face.tracking.landmarker import (
-    BLENDSHAPE_NAMES, N_LANDMARKS, FaceLandmarker, FaceObservation, LandmarkerOptions,
-)
-from capture2face.tracking.neutral import pick_neutral
-from capture2face.tracking.track import Track
-from capture2face.tracking.tracker import (
-    FLUSH_FRAMES, WINDOW_FRAMES, TrackBuilder, Tracker, TrackOptions, build_track, track_clip,
-)
-from capture2face.tracking.video import VideoInfo, iter_frames, open_video, prefetch
+import importlib
 
-__all__ = ["Track", "TrackOptions", "Tracker", "TrackBuilder", "build_track", "track_clip", "open_video", "iter_frames", "VideoInfo"]
+# Names are imported on first use (as in capture2face/__init__): a segment worker
+# (:mod:`.segments`) imports only the landmarker and the decoder, not SciPy.
+_API = {
+    "CaptureError": "capture2face.errors",
+    "FrameArray": "capture2face.io.framestore",
+    "CausalOneEuro": "capture2face.tracking.filtering",
+    "OneEuro": "capture2face.tracking.filtering",
+    "filter_pose": "capture2face.tracking.filtering",
+    "fill_pose": "capture2face.tracking.gaps",
+    "plan_gaps": "capture2face.tracking.gaps",
+    "FOV_Y_DEGREES": "capture2face.tracking.head_pose",
+    "canonical_mesh": "capture2face.tracking.head_pose",
+    "head_landmarks": "capture2face.tracking.head_pose",
+    "BLENDSHAPE_NAMES": "capture2face.tracking.landmarker",
+    "N_LANDMARKS": "capture2face.tracking.landmarker",
+    "FaceLandmarker": "capture2face.tracking.landmarker",
+    "FaceObservation": "capture2face.tracking.landmarker",
+    "LandmarkerOptions": "capture2face.tracking.landmarker",
+    "pick_neutral": "capture2face.tracking.neutral",
+    "Track": "capture2face.tracking.track",
+    "FLUSH_FRAMES": "capture2face.tracking.tracker",
+    "WINDOW_FRAMES": "capture2face.tracking.tracker",
+    "TrackBuilder": "capture2face.tracking.tracker",
+    "Tracker": "capture2face.tracking.tracker",
+    "TrackOptions": "capture2face.tracking.tracker",
+    "build_track": "capture2face.tracking.tracker",
+    "track_clip": "capture2face.tracking.tracker",
+    "VideoInfo": "capture2face.tracking.video",
+    "iter_frames": "capture2face.tracking.video",
+    "open_video": "capture2face.tracking.video",
+    "prefetch": "capture2face.tracking.video",
+}
+
+__all__ = ["Track", "TrackOptions", "Tracker", "TrackBuilder", "build_track", "track_clip", "open_video",
+           "iter_frames", "VideoInfo"]
+
+
+def __getattr__(name: str):
+    if name in _API:
+        return getattr(importlib.import_module(_API[name]), name)
+    raise AttributeError(f"module 'capture2face.tracking' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_API))

@@ -23,7 +23,9 @@ os.environ.setdefault("GLOG_minloglevel", "2")
 os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
 
 import contextlib  # noqa: E402
+import importlib  # noqa: E402
 import sys  # noqa: E402
+import types  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -98,6 +100,41 @@ class FaceObservation:
     blendshapes: np.ndarray
     matrix: np.ndarray
     n_faces: int
+
+
+def stack_observations(obs: list[FaceObservation | None]) -> dict:
+    """Per-frame faces (None: no face) as arrays: ``norm`` (k, 478, 3) float32,
+    ``scores`` (k, 52) float64, ``presence`` (k,) bool (rows without a face are zeros),
+    ``n_faces_max`` (the most faces seen at once)."""
+    presence = np.array([o is not None for o in obs], bool)
+    idx = np.flatnonzero(presence)
+    norm = np.zeros((len(obs), N_LANDMARKS, 3), np.float32)
+    scores = np.zeros((len(obs), len(BLENDSHAPE_NAMES)), np.float64)
+    if idx.size:
+        norm[idx] = np.stack([obs[i].landmarks_norm for i in idx])
+        scores[idx] = np.stack([obs[i].blendshapes for i in idx])
+    return {"norm": norm, "scores": scores, "presence": presence,
+            "n_faces_max": max((obs[i].n_faces for i in idx), default=0)}
+
+
+class _Deferred(types.ModuleType):
+    """A module imported on its first attribute access (:func:`defer_pyplot`)."""
+
+    def __getattr__(self, attr: str):
+        for name in [n for n, m in sys.modules.items() if isinstance(m, _Deferred)]:
+            del sys.modules[name]
+        return getattr(importlib.import_module(self.__name__), attr)
+
+
+def defer_pyplot() -> None:
+    """Defer matplotlib until something uses it. MediaPipe's ``vision`` package imports
+    matplotlib.pyplot for drawing helpers this project never calls: ~0.5 s of every
+    process's start-up (1-2 s on a loaded 2-core machine). For processes this project
+    owns (the CLI, tracking workers); any later use of matplotlib imports it as usual."""
+    if "matplotlib" not in sys.modules:
+        top, pyplot = _Deferred("matplotlib"), _Deferred("matplotlib.pyplot")
+        top.pyplot = pyplot
+        sys.modules["matplotlib"], sys.modules["matplotlib.pyplot"] = top, pyplot
 
 
 @contextlib.contextmanager
@@ -188,10 +225,16 @@ class FaceLandmarker:
         model = find_face_model(options.face_model)
         return cls(_mediapipe_landmarker(model, options, cls.faces_wanted(options)), options, model)
 
+    def prepare(self) -> None:
+        """Load the single-face landmarker now rather than at its first use mid-clip
+        (a process that waits for work does it while it waits)."""
+        if self._single is None and self._lm is not None:
+            self._single = (self._lm if self.max_faces == 1
+                            else _mediapipe_landmarker(self._model, self.options, 1))
+
     def close(self) -> None:
-        for lm in (self._lm, self._single):
-            if lm is not None:
-                lm.close()
+        for lm in {id(x): x for x in (self._lm, self._single) if x is not None}.values():
+            lm.close()  # once each (the single-face one is the main one when max_faces == 1)
         self._lm = self._single = None
 
     def __enter__(self) -> "FaceLandmarker":

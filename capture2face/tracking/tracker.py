@@ -18,7 +18,7 @@ from capture2face.tracking.filtering import CausalOneEuro, OneEuro, filter_pose
 from capture2face.tracking.gaps import fill_pose, plan_gaps
 from capture2face.tracking.head_pose import FOV_Y_DEGREES, canonical_mesh, head_landmarks
 from capture2face.tracking.landmarker import (
-    BLENDSHAPE_NAMES, N_LANDMARKS, FaceLandmarker, FaceObservation, LandmarkerOptions,
+    BLENDSHAPE_NAMES, N_LANDMARKS, FaceLandmarker, FaceObservation, LandmarkerOptions, stack_observations,
 )
 from capture2face.tracking.neutral import mouth_gap, pick_neutral
 from capture2face.tracking.track import Track
@@ -57,6 +57,10 @@ class TrackOptions:
     0.0011 against 0.0055 unfiltered. Settings with more jitter (min_cutoff 2-3 Hz or
     beta 2-3) gain no more than one measure.
         max_frames: track only the first N frames (None: all).
+        workers: landmarkers tracking segments of the clip at once, each in a process of
+            its own (:mod:`.segments`); None: one per free core; 1: one landmarker, this
+            process. A clip shorter than two segments, or tracked with ``face``, is
+            tracked by one. The Track is the same within MediaPipe's noise.
     """
 
     face_model: str | os.PathLike | None = None
@@ -75,6 +79,7 @@ class TrackOptions:
     pose_beta: float = 0.0
     zero_phase: bool = True
     max_frames: int | None = None
+    workers: int | None = None
 
     def landmarker_options(self) -> LandmarkerOptions:
         return LandmarkerOptions(
@@ -90,10 +95,31 @@ class TrackOptions:
     def pose_filter(self) -> OneEuro:
         return OneEuro(self.pose_min_cutoff, self.pose_beta, self.d_cutoff, self.zero_phase)
 
+    def n_workers(self) -> int:
+        """Landmarkers at once (:attr:`workers`, None resolved to the free cores)."""
+        from capture2face.tracking.segments import free_cores
+
+        return max(1, int(self.workers)) if self.workers is not None else free_cores()
+
 
 FLUSH_FRAMES = 256  # frames converted to head coordinates (and written to disk) at a time
 WINDOW_FRAMES = 256  # frames per window of the gap-fill and filter passes (the filter
 # loops over frames anyway: a small window costs nothing and keeps temporaries small)
+
+
+def head_block(norm: np.ndarray, presence: np.ndarray, size: tuple[int, int], face_model=None
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """MediaPipe's landmarks ``norm`` (k, 478, 3) of ``size`` (W, H) images -> head
+    coordinates (k, 478, 3) float64 and head -> camera poses (k, 4, 4); rows without a
+    face (``presence`` False) are zeros and identity poses."""
+    width, height = size
+    idx = np.flatnonzero(presence)
+    head = np.zeros((len(norm), N_LANDMARKS, 3))
+    pose = np.tile(np.eye(4), (len(norm), 1, 1))
+    if idx.size:
+        head[idx], pose[idx] = head_landmarks(np.asarray(norm[idx], np.float64), width, height,
+                                              canonical_mesh(face_model))
+    return head, pose
 
 
 class TrackBuilder:
@@ -148,26 +174,32 @@ class TrackBuilder:
     def _flush(self) -> None:
         """Pending frames -> head coordinates on disk; scores and poses kept in RAM."""
         obs, self._pending = self._pending, []
-        if not obs:
-            return
-        width, height = self.size
-        present = np.array([o is not None for o in obs], bool)
-        idx = np.flatnonzero(present)
-        norm = np.zeros((len(obs), N_LANDMARKS, 3), np.float32)
-        scores = np.zeros((len(obs), len(BLENDSHAPE_NAMES)), np.float64)
-        head = np.zeros((len(obs), N_LANDMARKS, 3))
-        pose = np.tile(np.eye(4), (len(obs), 1, 1))
-        if idx.size:
-            norm[idx] = np.stack([obs[i].landmarks_norm for i in idx])
-            scores[idx] = np.stack([obs[i].blendshapes for i in idx])
-            head[idx], pose[idx] = head_landmarks(norm[idx].astype(np.float64), width, height,
-                                                  canonical_mesh(self.options.face_model))
-            self._n_faces_max = max(self._n_faces_max, max(obs[i].n_faces for i in idx))
+        if obs:
+            block = stack_observations(obs)
+            self._append(block["norm"], block["presence"], block["scores"], block["n_faces_max"])
+
+    def _append(self, norm: np.ndarray, presence: np.ndarray, scores: np.ndarray, n_faces_max: int) -> None:
+        head, pose = head_block(norm, presence, self.size, self.options.face_model)
         self._norm.append(norm)
         self._head.append(head)
-        self._presence.append(present)
-        self._scores.append(scores)
+        self._presence.append(np.asarray(presence, bool))
+        self._scores.append(np.asarray(scores, np.float64))
         self._pose.append(pose)
+        self._n_faces_max = max(self._n_faces_max, int(n_faces_max))
+
+    def extend(self, times: np.ndarray, norm, presence: np.ndarray, scores: np.ndarray, n_faces_max: int,
+               size: tuple[int, int]) -> None:
+        """Frames tracked elsewhere (a segment's worker, :mod:`.segments`), after those
+        added so far: times (k,), MediaPipe's landmarks ``norm`` (k, 478, 3) (an array or
+        a :class:`FrameArray`, read a bounded block at a time), presence (k,), scores
+        (k, 52) and the most faces seen at once."""
+        self.check_size(size)
+        self.size = size
+        self._flush()
+        for s in range(0, len(times), FLUSH_FRAMES):
+            e = min(len(times), s + FLUSH_FRAMES)
+            self._append(np.asarray(norm[s:e], np.float32), presence[s:e], scores[s:e], n_faces_max)
+        self._times.extend(np.asarray(times, np.float64).tolist())
 
     def close(self) -> None:
         """Drop the raw files (and the private work folder)."""
@@ -320,6 +352,11 @@ class Tracker:
     def n_frames(self) -> int:
         return self._builder.n_frames
 
+    @property
+    def n_faces_max(self) -> int:
+        """The most faces seen at once so far."""
+        return max(self._builder._n_faces_max, self._landmarker.n_faces_max)
+
     def process(self, t: float, rgb: np.ndarray) -> FaceObservation | None:
         """Track one frame (H, W, 3) uint8 at time ``t`` seconds; returns its face or None."""
         size = (rgb.shape[1], rgb.shape[0])
@@ -327,6 +364,10 @@ class Tracker:
         obs = self._landmarker.detect(rgb, t)
         self._builder.add(t, obs, size)
         return obs
+
+    def extend(self, *args) -> None:
+        """Append frames tracked by another landmarker (:meth:`TrackBuilder.extend`)."""
+        self._builder.extend(*args)
 
     def finish(self, progress: bool = False) -> Track:
         """Build the :class:`Track` from the frames processed so far.
@@ -356,19 +397,33 @@ def build_track(times: list[float], obs: list[FaceObservation | None], size: tup
 
 
 def track_clip(clip: str | os.PathLike, options: TrackOptions | None = None, progress: bool = True,
-               workdir: str | os.PathLike | None = None) -> Track:
+               workdir: str | os.PathLike | None = None, workers=None) -> Track:
     """Track every frame of ``clip`` into a :class:`Track` (tqdm bar when ``progress``).
 
     ``workdir``: a folder for the landmark files of a long clip; the Track's landmark
     arrays are then read from there (see :class:`TrackBuilder`). None: an in-memory Track.
+    ``workers``: :class:`~.segments.SegmentWorkers` started ahead for a segment-parallel
+    track (:attr:`TrackOptions.workers`; None: started here when the clip is split).
 
     Raises:
         CaptureError: unreadable clip, no model, or no face anywhere.
     """
-    from tqdm import tqdm
+    from capture2face.tracking.segments import track_parallel
 
     options = options or TrackOptions()
     info = open_video(clip)
+    n_workers = options.n_workers()
+    if n_workers > 1:
+        track = track_parallel(clip, info, options, n_workers, progress, workdir, workers)
+        if track is not None:
+            return track
+    return _track_sequential(clip, info, options, progress, workdir)
+
+
+def _track_sequential(clip, info: VideoInfo, options: TrackOptions, progress: bool, workdir) -> Track:
+    """One landmarker, frame after frame."""
+    from tqdm import tqdm
+
     total = info.n_frames if options.max_frames is None else min(info.n_frames, options.max_frames)
     frames = prefetch(iter_frames(clip, max_frames=options.max_frames))
     with Tracker(info, options, workdir) as tracker, tqdm(total=total, disable=not progress, unit="frame",

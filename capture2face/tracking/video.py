@@ -324,3 +324,91 @@ def prefetch(iterable, depth: int = 8):
             except queue.Empty:
                 pass
         thread.join()
+
+
+# ---- segments: a clip decoded from several places at once (capture2face.tracking.segments)
+@dataclass(frozen=True)
+class FrameTimes:
+    """Every frame's presentation timestamp, from the packets (no decoding).
+
+    Attributes:
+        pts: (F,) int64 strictly increasing pts in ``time_base`` units, display order.
+        start: the stream's start time (pts units) that :func:`iter_frames` subtracts.
+        time_base: the video stream's time base.
+    """
+
+    pts: np.ndarray
+    start: int
+    time_base: Fraction
+
+
+def frame_times(path: str | os.PathLike) -> FrameTimes | None:
+    """The clip's frame timestamps read from its packets, or None when they cannot be
+    trusted to name the decoded frames one to one: a packet without a pts, a repeated pts,
+    a packet count other than the container's frame count, or unreadable (damaged) data.
+    Such clips are decoded from the start only (:func:`iter_frames`)."""
+    import av
+
+    p = _check_path(path)
+    container, stream = _open(p)
+    try:
+        pts = []
+        for packet in container.demux(stream):
+            if not packet.size:
+                continue  # the demuxer's end-of-stream packet
+            if packet.pts is None:
+                return None
+            pts.append(int(packet.pts))
+        expected = int(stream.frames or 0)
+        tb = stream.time_base or Fraction(1, 90000)
+        start = int(stream.start_time or 0)
+    except (av.FFmpegError, OSError):
+        return None
+    finally:
+        container.close()
+    out = np.sort(np.asarray(pts, np.int64))
+    if not out.size or np.any(np.diff(out) <= 0) or (expected and out.size != expected):
+        return None
+    return FrameTimes(out, start, Fraction(tb))
+
+
+def iter_segment(path: str | os.PathLike, first_pts: int, stop_pts: int | None,
+                 rotation: int) -> Iterator[tuple[float, np.ndarray, int]]:
+    """``(t_seconds, rgb, pts)`` of the frames with ``first_pts <= pts < stop_pts`` (None:
+    to the end), decoded from the keyframe at or before ``first_pts``; times as
+    :func:`iter_frames` gives them (for clips :func:`frame_times` accepts). Frames before
+    ``first_pts`` are decoded (they are needed) but not converted to RGB.
+
+    Raises:
+        CaptureError: a frame without a pts, or data that does not decode (the caller
+            falls back to decoding from the start).
+    """
+    p = _check_path(path)
+    for seek in (first_pts > 0, False):
+        container, stream = _open(p)
+        try:
+            tb = stream.time_base or Fraction(1, 90000)
+            start = stream.start_time or 0
+            if seek:
+                container.seek(int(first_pts), backward=True, any_frame=False, stream=stream)
+            first = True
+            try:
+                for frame in container.decode(stream):
+                    if frame.pts is None:
+                        raise CaptureError(f"{p}: a frame without a timestamp")
+                    if first and seek and frame.pts > first_pts:
+                        break  # the seek landed past the segment's start: decode from the start
+                    first = False
+                    if frame.pts < first_pts:
+                        continue
+                    if stop_pts is not None and frame.pts >= stop_pts:
+                        return
+                    yield float((frame.pts - start) * tb), _to_rgb(frame, rotation), int(frame.pts)
+                else:
+                    return
+            except CaptureError:
+                raise
+            except Exception as exc:  # av.FFmpegError and friends: damaged data
+                raise CaptureError(f"{p}: decoding failed ({_reason(exc)})") from None
+        finally:
+            container.close()
