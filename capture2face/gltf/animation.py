@@ -186,7 +186,7 @@ class GlbAnimation:
 
 
 def read_glb_animation(path: str | os.PathLike, index: int = 0, cm_per_unit: float = 100.0) -> GlbAnimation:
-    """Read animation ``index`` of a .glb with one skin (as ``rig.gltf.export_glb(rig, path, animation=...)`` writes)."""
+    """Read animation ``index`` of a .glb with one skin (as ``capture2face.gltf.export_glb(rig, path, animation=...)`` writes)."""
     r = GlbReader(path)
     g = r.gltf
     anims = g.get("animations", [])
