@@ -71,7 +71,7 @@ from pathlib import Path
 
 import numpy as np
 
-from capture2face.fidelity import pearson
+from capture2face.fidelity import MEASURES, character_measures, compare, pearson, source_measures
 from capture2face.retarget import RetargetOptions, retarget, shared_blendshapes
 from capture2face.retarget.influences import region_influence, rig_influences, vertex_influences
 
@@ -146,21 +146,10 @@ def _face_bones(rig) -> np.ndarray:
     return np.flatnonzero((np.arange(rig.n_bones) > 0) & (np.asarray(rig.bone_landmarks) >= 0))
 
 
-def _mouth_open(rig, bone_positions: np.ndarray, blend_weights: np.ndarray) -> np.ndarray:
-    """(F,) mouth opening (landmarks 13-14) of ``rig`` deformed, in its rest IOD units."""
-    from capture2face.fidelity import MEASURES, character_measures
-
-    return character_measures(rig, bone_positions, blend_weights)[:, list(MEASURES).index("mouth_open")]
-
-
-def measure_chain(track, animation, truth, source, target, use: np.ndarray) -> dict:
-    """Per fidelity measure, (r, gain) of the tracker and of the solved character against
-    the truth, and of the character against the tracker, over the frames ``use`` (F,)."""
-    from capture2face.fidelity import MEASURES, character_measures, compare, source_measures
-
-    true = character_measures(source, truth.bone_positions, truth.blend_weights)[use]
-    seen = source_measures(track)[use]
-    solved = character_measures(target, animation.bone_positions, animation.blend_weights)[use]
+def measure_chain(true: np.ndarray, seen: np.ndarray, solved: np.ndarray) -> dict:
+    """Per fidelity measure, (r, gain) of the tracker (``seen``) and of the solved
+    character against the truth, and of the character against the tracker; each (F, 6)
+    :data:`~capture2face.fidelity.MEASURES` over the same frames."""
     out = {}
     for k, name in enumerate(MEASURES):
         pairs = {"tracker": (true, seen), "character": (true, solved), "character_vs_tracker": (seen, solved)}
@@ -265,9 +254,12 @@ def score(track, animation, truth, source, target) -> dict:
         "baseline_zero_blendweight_active_mae": float(np.abs(w_true[:, active]).mean()) if len(active) else float("nan"),
     }
 
-    # Mouth opening: the target deformed by the solve against the source by the truth.
-    mouth_true = _mouth_open(source, truth.bone_positions[use], truth.blend_weights[use])
-    mouth_pred = _mouth_open(target, animation.bone_positions[use], animation.blend_weights[use])
+    # Fidelity measures of the source deformed by the truth and of the target by the solve;
+    # the mouth opening among them.
+    measures_true = character_measures(source, truth.bone_positions[use], truth.blend_weights[use])
+    measures_solved = character_measures(target, animation.bone_positions[use], animation.blend_weights[use])
+    mouth = list(MEASURES).index("mouth_open")
+    mouth_true, mouth_pred = measures_true[:, mouth], measures_solved[:, mouth]
     s_true = float(np.std(mouth_true))
     result_mouth = {
         "mouth_open_gain": float(np.std(mouth_pred) / s_true) if s_true > 1e-12 else float("nan"),
@@ -317,7 +309,7 @@ def score(track, animation, truth, source, target) -> dict:
         "baseline_zero_influence_mae": float(np.abs(vertex_influences(inf_true[use], skin)).mean()),
         "baseline_zero_influence_mae_bone": float(np.abs(inf_true[use][:, :, moving]).mean()),
         "baseline_zero_region_influence_mae": float(np.abs(region_true[use]).mean()),
-        "measures": measure_chain(track, animation, truth, source, target, use),
+        "measures": measure_chain(measures_true, source_measures(track)[use], measures_solved),
         "neutral_frame": int(neutral),
         "neutral_bone_offset_cm": float(np.abs(animation.bone_positions[neutral] - target.bone_rest).max()),
         "target": target.name,
