@@ -267,13 +267,10 @@ def run_batch(inputs: Iterable[str | os.PathLike], out: str | os.PathLike, optio
     # Checked once for the whole batch, before any clip is tracked: the options and their
     # limits, the face model, a drivable character (the default avatar is), and the GL
     # context where the workers are local processes (a Ray worker may be another machine).
-    from capture2face.preflight import check_character, check_gl
-    from capture2face.tracking.model import find_face_model
-
-    options.validate()
-    find_face_model(options.face_model)
     # The default avatar too: built here once (then cached) rather than by every worker.
-    check_character(options.character, progress)
+    from capture2face.preflight import check_gl, check_shared
+
+    check_shared(options, progress)
     if not ray_address:
         check_gl()
     report = _Report(out, clips, options)
@@ -304,17 +301,16 @@ def run_batch(inputs: Iterable[str | os.PathLike], out: str | os.PathLike, optio
     try:
         if not todo:
             pass
-        elif ray_address:
-            if getattr(options, "track_workers", 1) is None:  # a Ray task has one CPU
-                options = dataclasses.replace(options, track_workers=1)
-            _run_ray(clips, todo, out, options, ray_address, done)
         else:
             n_jobs = max(1, min(jobs or os.cpu_count() or 1, len(todo)))
-            if n_jobs > 1 and getattr(options, "track_workers", 1) is None:
-                # Clips in parallel already fill the cores: each tracks with one landmarker
-                # (segment workers on top would oversubscribe them).
+            if (ray_address or n_jobs > 1) and options.track_workers is None:
+                # Clips in parallel already fill the cores (and a Ray task has one CPU):
+                # each tracks with one landmarker (segment workers on top would
+                # oversubscribe them).
                 options = dataclasses.replace(options, track_workers=1)
-            if n_jobs == 1:
+            if ray_address:
+                _run_ray(clips, todo, out, options, ray_address, done)
+            elif n_jobs == 1:
                 for i in todo:
                     done(i, _run_clip(clips[i].path, str(out), clips[i].name, options))
             else:

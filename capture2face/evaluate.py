@@ -89,7 +89,6 @@ RATIOS: dict[str, str] = {
     "blendweight_mae_shared": "baseline_zero_blendweight_mae_shared",
     "mediapipe_blendshape_mae": "baseline_zero_blendweight_mae_shared",
     "wrinkle_influence_mae": "baseline_zero_influence_mae",
-    "gaze_error_deg_median": "baseline_straight_gaze_error_deg_median",
     "wrinkle_influence_mae_vertex": "baseline_zero_influence_mae",
     "wrinkle_influence_mae_bone": "baseline_zero_influence_mae_bone",
     "region_influence_mae": "baseline_zero_region_influence_mae",

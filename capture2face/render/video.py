@@ -72,7 +72,6 @@ class _AudioCopy:
             start = 0.0
             if video is not None and video.start_time is not None and video.time_base is not None:
                 start = float(video.start_time * video.time_base)
-            self.start = start
             self.in_tb = self.stream.time_base or Fraction(1, self.stream.codec_context.sample_rate or 48000)
             self.offset = int(round(start / self.in_tb))
             name = self.stream.codec_context.codec.canonical_name  # "mp3", not the decoder "mp3float"
@@ -92,7 +91,6 @@ class _AudioCopy:
                 self.out_stream.bit_rate = 64000 * (1 if layout == "mono" else 2)
             self.packets = self.source.demux(self.stream)
             self.pending = None  # a packet read past the last pump's limit
-            self.done = False
         except BaseException:
             self.source.close()
             raise

@@ -27,12 +27,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from capture2face.retarget.arkit import IOD_PAIR  # the outer eye corners: the face's size
+
 # Right eye (the subject's right, -x) first, as everywhere: (iris landmarks, corners, lids).
 EYES = (
     (np.arange(468, 473), (33, 133), (159, 145)),
     (np.arange(473, 478), (263, 362), (386, 374)),
 )
-IOD_PAIR = (33, 263)
 # Distance from the eye's centre of rotation to the tracked iris centre, in inter-ocular
 # distances (outer corners): a human eye of radius 12 mm whose iris plane lies ~11 mm in
 # front of its centre, on a face with ~9 cm between the outer eye corners.

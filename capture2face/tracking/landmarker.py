@@ -256,9 +256,7 @@ class FaceLandmarker:
         image = mp.Image(image_format=mp.ImageFormat.SRGB, data=np.ascontiguousarray(rgb))
         h, w = rgb.shape[:2]
         if self._use_single:
-            if self._single is None:
-                self._single = (self._lm if self.max_faces == 1
-                                else _mediapipe_landmarker(self._model, self.options, 1))
+            self.prepare()
             result = self._single.detect_for_video(image, ms)
             self._since_probe += 1
             norms = self._norms(result)
