@@ -28,12 +28,11 @@ import pygltflib
 
 from capture2face.errors import CaptureError
 from capture2face.gltf.animation import _frame_times, head_rotations, rotation_part
+from capture2face.gltf.container import ROOT_NODE_NAME
 from capture2face.gltf.rig_import import _find_head, _load_mapping, _morph_key, _quat_matrix, _world_matrices
 from capture2face.io.atomic import write_bytes_atomic
 from capture2face.rig.arkit_names import canonical_arkit
 from capture2face.rig.face_rig import FaceRig
-
-ROOT_NAME = "capture2face_root"
 
 
 class _Blob:
@@ -159,7 +158,7 @@ def export_character_animation(source: str | os.PathLike, rig: FaceRig, animatio
         from capture2face.render.camera import face_centre_and_height
 
         scene = gltf.scenes[gltf.scene or 0]
-        gltf.nodes.append(pygltflib.Node(name=ROOT_NAME, children=list(scene.nodes)))
+        gltf.nodes.append(pygltflib.Node(name=ROOT_NODE_NAME, children=list(scene.nodes)))
         root = len(gltf.nodes) - 1
         scene.nodes = [root]
         centre = face_centre_and_height(rig)[0] / float(mapping.get("scale", 100.0))  # rig cm -> file units

@@ -36,8 +36,6 @@ EYE_JOINT_NAMES = ("eye_R", "eye_L")  # the subject's right eye first, as FaceRi
 SAMPLER_LINEAR_CLAMP = {"magFilter": 9729, "minFilter": 9987, "wrapS": 33071, "wrapT": 33071}
 
 GLB_MAGIC = 0x46546C67  # "glTF"
-CHUNK_JSON = 0x4E4F534A  # "JSON"
-CHUNK_BIN = 0x004E4942  # "BIN\0"
 
 ARRAY_BUFFER = 34962
 ELEMENT_ARRAY_BUFFER = 34963

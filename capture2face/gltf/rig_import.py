@@ -424,7 +424,6 @@ def _double_sided(g: dict, surf: dict) -> bool:
 
 
 # ---- skeleton -------------------------------------------------------------------------
-_HEAD_NAMES = ("head",)
 _NOT_HEAD = ("top", "end", "nub", "tip", "eye", "jaw", "hair")
 
 

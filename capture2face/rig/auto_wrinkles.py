@@ -41,6 +41,7 @@ import numpy as np
 from capture2face.errors import CaptureError
 from capture2face.rig.arkit_names import AUTO_PREFIX, arkit_morphs
 from capture2face.rig.face_rig import FaceRig
+from capture2face.rig.maps import decode_normals, encode_normals
 
 log = logging.getLogger("capture2face")
 
@@ -267,11 +268,10 @@ def _bake_maps(rig: FaceRig, avatar: FaceRig, nearest: np.ndarray, face: np.ndar
         m = np.einsum("nk,nk->n", bary, mirror[tri])
         for k in todo:
             src = avatar.wrinkle_maps[avatar.wrinkle_map_names.index(rig.wrinkle_map_names[k])]
-            n = sample(src).astype(np.float64) / 127.5 - 1.0
+            n = decode_normals(sample(src))
             x, y = n[:, 0], n[:, 1] * np.where(m < 0, -1.0, 1.0)
-            n = np.stack([cs[:, 0] * x - cs[:, 1] * y, cs[:, 1] * x + cs[:, 0] * y, n[:, 2]], 1)
-            n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-            maps[k, ys, xs] = np.clip(np.rint(n * 127.5 + 127.5), 0, 255).astype(np.uint8)
+            # A turn in the tangent plane: unit normals stay unit.
+            maps[k, ys, xs] = encode_normals(np.stack([cs[:, 0] * x - cs[:, 1] * y, cs[:, 1] * x + cs[:, 0] * y, n[:, 2]], 1))
     if bake_zones:
         zones[ys, xs, :4] = sample(avatar.zone_masks[..., :4])
         zones[ys, xs, 4:8] = sample(avatar.zone_masks[..., 4:8])
