@@ -186,8 +186,7 @@ def builtin_avatar(variant: str | None = None, progress: bool = False) -> FaceRi
     version (``run`` counts it in report.json's ``seconds["checks"]``)."""
     from capture2face.rig import avatar
 
-    cached = avatar.cache_dir() / f"avatar-{variant or 'default'}-{avatar._source_hash()}.rig.npz"
-    if cached.is_file():
+    if avatar.is_cached(variant):
         return avatar.default_avatar(variant)
     from tqdm import tqdm
 

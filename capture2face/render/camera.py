@@ -118,7 +118,10 @@ def face_centre_and_height(rig: FaceRig) -> tuple[np.ndarray, float]:
 def framing_distance(rig: FaceRig, fov_y_degrees: float) -> float:
     """Camera distance (cm, to the face's centre) at which the skin fills ``FRAMING_FILL``
     of the frame height."""
-    _, height = face_centre_and_height(rig)
+    return _fill_distance(face_centre_and_height(rig)[1], fov_y_degrees)
+
+
+def _fill_distance(height: float, fov_y_degrees: float) -> float:
     return float(height / (2.0 * FRAMING_FILL * np.tan(np.radians(fov_y_degrees) / 2.0)))
 
 
@@ -126,8 +129,8 @@ def framing_pose(rig: FaceRig, yaw: float = 0.0, pitch: float = 0.0, roll: float
                  fov_y_degrees: float = 30.0) -> np.ndarray:
     """(4, 4) head -> camera pose that centres the face and makes its skin fill about 60%
     of the frame height (angles in degrees, see :func:`rotation_matrix`)."""
-    centre, _ = face_centre_and_height(rig)
-    distance = framing_distance(rig, fov_y_degrees)
+    centre, height = face_centre_and_height(rig)  # one pass over the face's points
+    distance = _fill_distance(height, fov_y_degrees)
     rot = rotation_matrix(yaw, pitch, roll)
     pose = np.eye(4)
     pose[:3, :3] = rot

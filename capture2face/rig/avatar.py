@@ -177,6 +177,21 @@ def _source_hash() -> str:
 _MEMO: dict[str, FaceRig] = {}
 
 
+def _cache_key(variant: str | None) -> str:
+    return f"{variant or 'default'}-{_source_hash()}"
+
+
+def _cache_path(key: str) -> Path:
+    return cache_dir() / f"avatar-{key}.rig.npz"
+
+
+def is_cached(variant: str | None = None) -> bool:
+    """Whether :func:`default_avatar` has this variant at hand (in memory or on disk)
+    rather than building it (~5 s)."""
+    key = _cache_key(variant)
+    return key in _MEMO or _cache_path(key).is_file()
+
+
 def default_avatar(variant: str | None = None) -> FaceRig:
     """The default avatar (``variant=None`` or ``"default"``) or a built-in variant
     (``"wide"``: face 15% wider, brows 0.5 cm higher, longer chin, longer nose: another
@@ -189,10 +204,10 @@ def default_avatar(variant: str | None = None) -> FaceRig:
     variant = variant or "default"
     if variant not in VARIANTS:
         raise CaptureError(f"unknown avatar variant '{variant}' (choose from {', '.join(VARIANTS)})")
-    key = f"{variant}-{_source_hash()}"
+    key = _cache_key(variant)
     if key in _MEMO:
         return _MEMO[key]
-    path = cache_dir() / f"avatar-{key}.rig.npz"
+    path = _cache_path(key)
     rig = None
     if path.is_file():
         try:
