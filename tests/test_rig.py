@@ -145,6 +145,27 @@ def test_eyes_turn_about_their_centres_behind_the_lids(rig):
     np.testing.assert_allclose(gaze_directions(np.zeros(2)), [0.0, 0.0, 1.0], atol=1e-12)
 
 
+def test_rotation_conventions_shared_by_camera_and_eyes():
+    """One rotation_ypr (no GL import) for the camera and the eyes: its axes, and the eyes'
+    Ry(yaw) Rx(pitch) with the pitch tipping the gaze down."""
+    from capture2face.render import camera
+    from capture2face.rig.face_rig import eye_rotation_matrices
+    from capture2face.rotations import rotation_ypr
+
+    assert camera.rotation_ypr is rotation_ypr  # the old import path still works
+    z, x = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
+    np.testing.assert_allclose(rotation_ypr(np.array([90.0, 0, 0])) @ z, [1, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(rotation_ypr(np.array([0, 90.0, 0])) @ z, [0, 1, 0], atol=1e-12)
+    np.testing.assert_allclose(rotation_ypr(np.array([0, 0, 90.0])) @ x, [0, 1, 0], atol=1e-12)
+    yaw, pitch = np.radians(25.0), np.radians(-40.0)
+    ry = np.array([[np.cos(yaw), 0, np.sin(yaw)], [0, 1, 0], [-np.sin(yaw), 0, np.cos(yaw)]])
+    rx = np.array([[1, 0, 0], [0, np.cos(pitch), -np.sin(pitch)], [0, np.sin(pitch), np.cos(pitch)]])
+    np.testing.assert_allclose(eye_rotation_matrices(np.array([25.0, -40.0])), ry @ rx, atol=1e-12)
+    assert (eye_rotation_matrices(np.array([0.0, 30.0])) @ z)[1] == pytest.approx(-0.5)  # pitch > 0: down
+    turns = np.random.default_rng(1).uniform(-60, 60, (7, 2, 2))
+    assert eye_rotation_matrices(turns).shape == (7, 2, 3, 3)
+
+
 def _component(rig, vertex):
     import scipy.sparse as sp
     from scipy.sparse.csgraph import connected_components
