@@ -36,6 +36,7 @@ import numpy as np
 
 from capture2face.errors import CaptureError
 from capture2face.io.atomic import atomic_path
+from capture2face.rotations import rotation_part
 
 HEADER = (
     "Timecode,BlendShapeCount,EyeBlinkLeft,EyeLookDownLeft,EyeLookInLeft,EyeLookOutLeft,"
@@ -71,8 +72,6 @@ def _scores(track_or_blendshapes, animation) -> tuple[np.ndarray, list[str]]:
 def head_angles(head_pose: np.ndarray) -> np.ndarray:
     """(F, 4, 4) head -> camera transforms -> (F, 3) yaw, pitch, roll in radians for
     R = Ry(yaw) Rx(pitch) Rz(roll) (rotation part orthonormalized first)."""
-    from capture2face.gltf.animation import rotation_part
-
     r = rotation_part(head_pose)
     yaw = np.arctan2(r[:, 0, 2], r[:, 2, 2])
     pitch = np.arcsin(np.clip(-r[:, 1, 2], -1.0, 1.0))
