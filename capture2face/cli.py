@@ -307,7 +307,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, metavar="DIR",
                    help="output folder: each clip goes to DIR/<clip stem>/, the report to "
                         "DIR/batch_report.json")
-    p.add_argument("--jobs", type=int, default=None, help="parallel clips (default: CPU count)")
+    p.add_argument("--jobs", type=int, default=None, help="parallel clips (default: the cores this process may use)")
     p.add_argument("--resume", action="store_true", help="skip clips whose outputs are complete")
     p.add_argument("--ray", metavar="ADDRESS", default=None, help="distribute over a Ray cluster")
     run_args(p)
