@@ -106,14 +106,7 @@ class RunOptions:
         from capture2face.preflight import check_size
 
         check_size(self.size)  # even, 64..4096
-        if self.neutral_frame is not None and self.neutral_frame < 0:
-            raise CaptureError(f"--neutral-frame must be >= 0 (got {self.neutral_frame})")
-        if self.faces not in ("largest", "center"):
-            raise CaptureError(f"--faces must be largest or center (got {self.faces!r})")
-        if self.face is not None and not 0 <= self.face < 16:
-            raise CaptureError(f"--face must be 0..15 (got {self.face})")
-        if self.track_workers is not None and int(self.track_workers) < 1:
-            raise CaptureError(f"--track-workers must be >= 1 (got {self.track_workers})")
+        self.track_options().validate()  # faces, face, track_workers, neutral_frame
 
     def track_options(self):
         """The :class:`~capture2face.tracking.TrackOptions` of ``run``'s tracking."""
