@@ -243,7 +243,8 @@ def run_batch(inputs: Iterable[str | os.PathLike], out: str | os.PathLike, optio
         inputs: clips, folders, glob patterns or list files (see :func:`expand_inputs`).
         out: output folder; clip ``x.mp4`` goes to ``out/x/``.
         options: a :class:`~capture2face.pipeline.RunOptions` shared by every clip.
-        jobs: clips processed at once (default: the CPU count, at most the clip count).
+        jobs: clips processed at once (default: the cores this process may use, at most the
+            clip count).
             ``jobs=1`` runs the clips one after another in this process.
         resume: skip clips whose ``out/<name>/`` holds a complete run made with the same
             options (:func:`resume_check`); the others run (again).
@@ -302,7 +303,9 @@ def run_batch(inputs: Iterable[str | os.PathLike], out: str | os.PathLike, optio
         if not todo:
             pass
         else:
-            n_jobs = max(1, min(jobs or os.cpu_count() or 1, len(todo)))
+            from capture2face.tracking.segments import free_cores  # as tracking counts them
+
+            n_jobs = max(1, min(jobs or free_cores(), len(todo)))
             if (ray_address or n_jobs > 1) and options.track_workers is None:
                 # Clips in parallel already fill the cores (and a Ray task has one CPU):
                 # each tracks with one landmarker (segment workers on top would

@@ -59,12 +59,13 @@ def _cmd_synth(args: argparse.Namespace) -> int:
 
 
 def _track_options(args: argparse.Namespace):
+    """The ``track`` command's TrackOptions, checked (TrackOptions.validate's bounds)."""
     from capture2face.tracking import TrackOptions
 
-    if args.track_workers is not None and args.track_workers < 1:
-        raise CaptureError(f"--track-workers must be >= 1 (got {args.track_workers})")
-    return TrackOptions(face_model=args.face_model, neutral_frame=args.neutral_frame,
-                        faces=args.faces, face=args.face, workers=args.track_workers)
+    options = TrackOptions(face_model=args.face_model, neutral_frame=args.neutral_frame,
+                           faces=args.faces, face=args.face, workers=args.track_workers)
+    options.validate()
+    return options
 
 
 def _cmd_track(args: argparse.Namespace) -> int:
@@ -73,10 +74,12 @@ def _cmd_track(args: argparse.Namespace) -> int:
     from capture2face.tracking.model import find_face_model
     from capture2face.tracking.video import open_video
 
-    # Before tracking: the clip decodes, the neutral frame lies inside it, the model exists.
+    # Before tracking: the options, the clip decodes, the neutral frame lies inside it,
+    # the model exists.
+    options = _track_options(args)
     check_neutral_frame(args.neutral_frame, open_video(args.clip))
     find_face_model(args.face_model)
-    track = track_clip(args.clip, _track_options(args), progress=not args.quiet)
+    track = track_clip(args.clip, options, progress=not args.quiet)
     track.save(args.output)
     if args.overlay:
         from capture2face.tracking.overlay import write_overlay
@@ -307,7 +310,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, metavar="DIR",
                    help="output folder: each clip goes to DIR/<clip stem>/, the report to "
                         "DIR/batch_report.json")
-    p.add_argument("--jobs", type=int, default=None, help="parallel clips (default: CPU count)")
+    p.add_argument("--jobs", type=int, default=None, help="parallel clips (default: the cores this process may use)")
     p.add_argument("--resume", action="store_true", help="skip clips whose outputs are complete")
     p.add_argument("--ray", metavar="ADDRESS", default=None, help="distribute over a Ray cluster")
     run_args(p)

@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from capture2face.errors import CaptureError
+from capture2face.rig.arkit_names import GAZE_SCORES
 
 # name -> (landmark a, landmark b): the measure is |p_a - p_b|.
 MEASURES: dict[str, tuple[int, int]] = {
@@ -64,12 +65,11 @@ ARKIT_CHECKS: dict[str, tuple[str, float, float]] = {
     "browInnerUp": ("brow", 1.0, 0.8),
 }
 
-# Gaze: (eye angle, score pairs (plus, minus) whose difference it should follow).
+# Gaze: name -> (eye, angle, score pair (plus, minus) whose difference it should follow):
+# yaw_right, yaw_left, pitch_right, pitch_left.
 GAZE_CHECKS: dict[str, tuple[int, int, tuple[str, str]]] = {
-    "yaw_right": (0, 0, ("eyeLookInRight", "eyeLookOutRight")),
-    "yaw_left": (1, 0, ("eyeLookOutLeft", "eyeLookInLeft")),
-    "pitch_right": (0, 1, ("eyeLookDownRight", "eyeLookUpRight")),
-    "pitch_left": (1, 1, ("eyeLookDownLeft", "eyeLookUpLeft")),
+    f"{('yaw', 'pitch')[angle]}_{('right', 'left')[eye]}": (eye, angle, pair)
+    for (eye, angle), pair in GAZE_SCORES.items()
 }
 MIN_GAZE_STD = 0.1  # std of the score difference below which the gaze barely moves
 GAZE_R_GOAL = 0.8

@@ -106,14 +106,7 @@ class RunOptions:
         from capture2face.preflight import check_size
 
         check_size(self.size)  # even, 64..4096
-        if self.neutral_frame is not None and self.neutral_frame < 0:
-            raise CaptureError(f"--neutral-frame must be >= 0 (got {self.neutral_frame})")
-        if self.faces not in ("largest", "center"):
-            raise CaptureError(f"--faces must be largest or center (got {self.faces!r})")
-        if self.face is not None and not 0 <= self.face < 16:
-            raise CaptureError(f"--face must be 0..15 (got {self.face})")
-        if self.track_workers is not None and int(self.track_workers) < 1:
-            raise CaptureError(f"--track-workers must be >= 1 (got {self.track_workers})")
+        self.track_options().validate()  # faces, face, track_workers, neutral_frame
 
     def track_options(self):
         """The :class:`~capture2face.tracking.TrackOptions` of ``run``'s tracking."""
@@ -147,10 +140,7 @@ def load_character(character: Any = None, progress: bool = False) -> FaceRig:
         if suffix == ".npz":
             return FaceRig.load(path)
         if suffix in (".glb", ".gltf"):
-            from capture2face.gltf import import_glb
-
-            mapping = path.with_suffix(".json")
-            return with_automatic_wrinkles(import_glb(path, mapping if mapping.is_file() else None))
+            return _imported_character(path)
     except CaptureError as exc:
         # The readers turn a malformed file into CaptureError; anything else is a bug of
         # ours and keeps its traceback (--debug) instead of blaming the user's file.
@@ -158,6 +148,40 @@ def load_character(character: Any = None, progress: bool = False) -> FaceRig:
         raise CaptureError(msg if msg.startswith(("character", str(path))) else f"character {path}: {msg}") from None
     raise CaptureError(f"character {path}: unsupported format '{suffix}'; "
                        "use a FaceRig .npz or a .glb with its mapping .json")
+
+
+# The last .glb / .gltf character imported in this process, by _file_key: a batch (its
+# check, then every clip run in this process) imports it and redoes its automatic
+# wrinkles (2-6 s) once. Callers treat a FaceRig as read-only (as default_avatar's memo).
+_IMPORTED: dict[tuple, tuple[FaceRig, list[str]]] = {}
+
+
+def _file_key(path: Path) -> tuple:
+    """(resolved path, mtime, size) of a file, or (path, None) where there is none."""
+    try:
+        st = path.stat()
+    except OSError:
+        return str(path.resolve()), None
+    return str(path.resolve()), st.st_mtime_ns, st.st_size
+
+
+def _imported_character(path: Path) -> FaceRig:
+    """``path`` (.glb / .gltf) imported, with the mapping JSON beside it if any, and its
+    automatic wrinkles; the same rig again while neither file changes."""
+    mapping = path.with_suffix(".json")
+    key = (_file_key(path), _file_key(mapping))
+    if key in _IMPORTED:
+        rig, said = _IMPORTED[key]
+        for message in said:  # what the import warned, said again for this use
+            log.warning("%s", message)
+        return rig
+    from capture2face.gltf import import_glb
+
+    with _collect_warnings() as said:
+        rig = with_automatic_wrinkles(import_glb(path, mapping if mapping.is_file() else None))
+    _IMPORTED.clear()  # one character kept: a body .glb may be hundreds of MB
+    _IMPORTED[key] = rig, list(said)
+    return rig
 
 
 def with_automatic_wrinkles(rig: FaceRig) -> FaceRig:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -107,3 +108,37 @@ def test_batch_on_a_local_ray_instance(clip_folder, tmp_path):
     assert status == {"good.mp4": "ok", "bad.mp4": "failed"}
     assert {p.name for p in (out / "good").iterdir()} == OUTPUTS - {"compare.mp4"}
     assert json.loads((out / "batch_report.json").read_text())["summary"]["ok"] == 1
+
+
+def test_batch_imports_a_glb_character_once(tmp_path, monkeypatch):
+    """Two clips with an ARKit .glb character, one process: the batch's check and both
+    clips share one import, so the automatic wrinkles (2-6 s) are built once; a changed
+    file is imported again."""
+    from capture2face import pipeline
+    from capture2face.batch import run_batch
+    from capture2face.gltf.arkit_export import export_arkit_character
+    from capture2face.pipeline import RunOptions, load_character
+    from capture2face.rig import auto_wrinkles
+    from capture2face.rig.arkit_names import is_automatic
+    from capture2face.rig.avatar import default_avatar
+    from capture2face.synth import SynthOptions, synthesize
+
+    clip = tmp_path / "a.mp4"
+    synthesize(clip, SynthOptions(frames=8, size=128, seed=3, expression=False), progress=False)
+    shutil.copyfile(clip, tmp_path / "b.mp4")  # a copy: a link to the same file is one clip
+    char = tmp_path / "char.glb"
+    export_arkit_character(default_avatar(), char, naming=".L")
+    built = []
+    real = auto_wrinkles.automatic_wrinkles
+    monkeypatch.setattr(auto_wrinkles, "automatic_wrinkles", lambda rig, *a, **k: built.append(1) or real(rig, *a, **k))
+    monkeypatch.setattr(pipeline, "_IMPORTED", {})
+
+    report = run_batch([clip, tmp_path / "b.mp4"], tmp_path / "out", RunOptions(character=char, size=64, compare=False),
+                       jobs=1, progress=False)
+    assert [c["status"] for c in report["clips"]] == ["ok", "ok"]
+    assert len(built) == 1
+    rig = load_character(char)
+    assert len(built) == 1 and is_automatic(rig)  # the memo's rig, with its wrinkle influences
+    assert load_character(char) is rig
+    os.utime(char, ns=(char.stat().st_atime_ns, char.stat().st_mtime_ns + 10**9))
+    assert load_character(char) is not rig and len(built) == 2

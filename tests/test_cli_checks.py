@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import importlib.metadata
+import re
 from pathlib import Path
 
 import numpy as np
@@ -95,6 +96,35 @@ def test_neutral_frame_outside_the_clip_fails_before_tracking(tmp_path, no_track
     code, err = _main(capsys, "run", str(SAMPLE), "-o", str(tmp_path), "--neutral-frame", "120")
     assert code == 2 and "outside the clip" in err and err.count("\n") == 1
     assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("flag, value, message", [
+    ("--face", "16", "--face must be 0..15 (got 16)"),
+    ("--face", "-1", "--face must be 0..15 (got -1)"),
+    ("--track-workers", "0", "--track-workers must be >= 1 (got 0)"),
+    ("--neutral-frame", "-1", "--neutral-frame must be >= 0 (got -1)"),
+])
+def test_track_option_bounds_are_one_set_for_run_track_and_the_landmarker(flag, value, message, tmp_path,
+                                                                            no_tracking, capsys):
+    """TrackOptions.validate owns them: run (RunOptions), track (the CLI) and
+    FaceLandmarker.create_from_options give the same one line, before any tracking."""
+    from capture2face.tracking import TrackOptions
+    from capture2face.tracking.landmarker import FaceLandmarker, LandmarkerOptions
+
+    field = {"--face": "face", "--track-workers": "workers", "--neutral-frame": "neutral_frame"}[flag]
+    with pytest.raises(CaptureError, match=re.escape(message)):
+        TrackOptions(**{field: int(value)}).validate()
+    run_field = "track_workers" if field == "workers" else field
+    with pytest.raises(CaptureError, match=re.escape(message)):
+        RunOptions(**{run_field: int(value)}).validate()
+    if field == "face":
+        with pytest.raises(CaptureError, match=re.escape(message)):
+            FaceLandmarker.create_from_options(LandmarkerOptions(face=int(value)))
+    for cmd in (["run", str(SAMPLE), "-o", str(tmp_path / "o")], ["track", str(SAMPLE), "-o", str(tmp_path / "t.npz")]):
+        code, err = _main(capsys, *cmd, flag, value)
+        assert code == 2 and err.strip().endswith(message) and err.count("\n") == 1
+    assert not any(tmp_path.iterdir())
+    TrackOptions(face=15, workers=1, neutral_frame=0).validate()  # the bounds themselves pass
 
 
 def test_neutral_frame_check_allows_for_estimated_frame_counts():

@@ -149,6 +149,22 @@ def test_head_rotations_match_scipy_on_all_branches():
     assert (np.einsum("ij,ij->i", q[1:], q[:-1]) >= 0).all()  # sign-continuous for slerp
 
 
+def test_nearest_rotation_takes_out_scale_shear_and_reflection():
+    """The one SVD orthonormalization behind rotation_part, the character export's head
+    joint parent and Live Link's head angles."""
+    from scipy.spatial.transform import Rotation
+
+    from capture2face.rotations import nearest_rotation, rotation_part
+
+    r = Rotation.random(5, random_state=3).as_matrix()
+    np.testing.assert_allclose(nearest_rotation(r * 2.5), r, atol=1e-12)  # batched
+    np.testing.assert_allclose(nearest_rotation(r[0] * 0.01), r[0], atol=1e-12)  # one matrix
+    mirrored = nearest_rotation(r[1] @ np.diag([1.0, 1.0, -1.0]))
+    assert np.linalg.det(mirrored) == pytest.approx(1.0)  # a reflection becomes a rotation
+    bad = np.stack([r[2], np.full((3, 3), np.nan), np.zeros((3, 3))])
+    np.testing.assert_allclose(rotation_part(bad), [r[2], np.eye(3), np.eye(3)], atol=1e-12)
+
+
 # ---- livelink.csv ---------------------------------------------------------------------------
 def test_livelink_csv_header_rows_and_values(avatar, performance, tmp_path):
     assert HEADER == ISSUE_HEADER

@@ -145,6 +145,49 @@ def test_eyes_turn_about_their_centres_behind_the_lids(rig):
     np.testing.assert_allclose(gaze_directions(np.zeros(2)), [0.0, 0.0, 1.0], atol=1e-12)
 
 
+def test_rotation_conventions_shared_by_camera_and_eyes():
+    """One rotation_ypr (no GL import) for the camera and the eyes: its axes, and the eyes'
+    Ry(yaw) Rx(pitch) with the pitch tipping the gaze down."""
+    from capture2face.render import camera
+    from capture2face.rig.face_rig import eye_rotation_matrices
+    from capture2face.rotations import rotation_ypr
+
+    assert camera.rotation_ypr is rotation_ypr  # the old import path still works
+    z, x = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
+    np.testing.assert_allclose(rotation_ypr(np.array([90.0, 0, 0])) @ z, [1, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(rotation_ypr(np.array([0, 90.0, 0])) @ z, [0, 1, 0], atol=1e-12)
+    np.testing.assert_allclose(rotation_ypr(np.array([0, 0, 90.0])) @ x, [0, 1, 0], atol=1e-12)
+    yaw, pitch = np.radians(25.0), np.radians(-40.0)
+    ry = np.array([[np.cos(yaw), 0, np.sin(yaw)], [0, 1, 0], [-np.sin(yaw), 0, np.cos(yaw)]])
+    rx = np.array([[1, 0, 0], [0, np.cos(pitch), -np.sin(pitch)], [0, np.sin(pitch), np.cos(pitch)]])
+    np.testing.assert_allclose(eye_rotation_matrices(np.array([25.0, -40.0])), ry @ rx, atol=1e-12)
+    assert (eye_rotation_matrices(np.array([0.0, 30.0])) @ z)[1] == pytest.approx(-0.5)  # pitch > 0: down
+    turns = np.random.default_rng(1).uniform(-60, 60, (7, 2, 2))
+    assert eye_rotation_matrices(turns).shape == (7, 2, 3, 3)
+
+
+def test_avatar_mesh_helpers_make_closed_outward_spheres_and_grids():
+    """The sphere triangulation shared by the eyeballs, the tongue and the ears is closed
+    (every edge once each way), in either order; the grid has 2 triangles per quad; and
+    _face_outwards turns an inward sphere out."""
+    tris = avatar_mod._sphere_triangles(5, 8)
+    rings = avatar_mod._sphere_triangles(5, 8, ring_by_ring=True)
+    assert len(tris) == 2 * 8 + 2 * 8 * 4 and tris.dtype == np.int32
+    assert sorted(map(tuple, tris)) == sorted(map(tuple, rings))
+    edges = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
+    assert len({tuple(e) for e in edges}) == len(edges)  # each directed edge once
+    assert {tuple(e) for e in edges} == {tuple(e) for e in edges[:, ::-1]}  # and its reverse
+    dirs, _, _, sphere = avatar_mod._uv_sphere(6, 10)
+    out = avatar_mod._face_outwards(dirs, sphere, np.zeros(3))
+    inward = avatar_mod._face_outwards(dirs, out[:, ::-1], np.zeros(3))
+    assert np.array_equal(inward, out)
+    p = dirs[out]
+    assert (np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), p.mean(1)) > 0).all()
+    grid = avatar_mod._grid_triangles_by_half(4, 5)
+    assert grid.shape == (2 * 3 * 4, 3) and grid.max() == 19
+    assert avatar_mod._grid_triangles(4, 5, closed=True).shape == (3, 5, 2, 3)
+
+
 def _component(rig, vertex):
     import scipy.sparse as sp
     from scipy.sparse.csgraph import connected_components

@@ -36,6 +36,8 @@ import numpy as np
 
 from capture2face.errors import CaptureError
 from capture2face.io.atomic import atomic_path
+from capture2face.rig.arkit_names import GAZE_SCORES
+from capture2face.rotations import rotation_part
 
 HEADER = (
     "Timecode,BlendShapeCount,EyeBlinkLeft,EyeLookDownLeft,EyeLookInLeft,EyeLookOutLeft,"
@@ -54,6 +56,9 @@ COLUMNS = HEADER.split(",")[2:]  # the 61 value columns
 BLENDSHAPE_COLUMNS = COLUMNS[:52]
 ANGLE_UNIT_DEG = 90.0
 EYE_LOOK_MAX_DEG = 30.0
+# (eye (0 right, 1 left), angle (0 yaw, 1 pitch)) -> its value column.
+_EYE_COLUMNS = {(e, a): COLUMNS.index(f"{side}Eye{angle}")
+                for e, side in enumerate(("Right", "Left")) for a, angle in enumerate(("Yaw", "Pitch"))}
 
 
 def _scores(track_or_blendshapes, animation) -> tuple[np.ndarray, list[str]]:
@@ -71,8 +76,6 @@ def _scores(track_or_blendshapes, animation) -> tuple[np.ndarray, list[str]]:
 def head_angles(head_pose: np.ndarray) -> np.ndarray:
     """(F, 4, 4) head -> camera transforms -> (F, 3) yaw, pitch, roll in radians for
     R = Ry(yaw) Rx(pitch) Rz(roll) (rotation part orthonormalized first)."""
-    from capture2face.gltf.animation import rotation_part
-
     r = rotation_part(head_pose)
     yaw = np.arctan2(r[:, 0, 2], r[:, 2, 2])
     pitch = np.arcsin(np.clip(-r[:, 1, 2], -1.0, 1.0))
@@ -135,15 +138,13 @@ def livelink_values(animation, track_or_blendshapes=None) -> np.ndarray:
     gaze = getattr(animation, "eye_rotation", None)
     if gaze is not None:
         gaze = np.asarray(gaze, np.float64) / ANGLE_UNIT_DEG  # (F, 2 eyes (right, left), 2)
-        out[:, 55], out[:, 56] = gaze[:, 1, 0], gaze[:, 1, 1]
-        out[:, 58], out[:, 59] = gaze[:, 0, 0], gaze[:, 0, 1]
-        out[:, 52:] = np.clip(np.nan_to_num(out[:, 52:]), -1.0, 1.0)
-        return out
-    eye = EYE_LOOK_MAX_DEG / ANGLE_UNIT_DEG
-    out[:, 55] = (s("eyeLookOutLeft") - s("eyeLookInLeft")) * eye  # left eye: out = towards +x
-    out[:, 56] = (s("eyeLookDownLeft") - s("eyeLookUpLeft")) * eye
-    out[:, 58] = (s("eyeLookInRight") - s("eyeLookOutRight")) * eye  # right eye: in = towards +x
-    out[:, 59] = (s("eyeLookDownRight") - s("eyeLookUpRight")) * eye
+        for (e, a), col in _EYE_COLUMNS.items():
+            out[:, col] = gaze[:, e, a]
+    else:
+        eye = EYE_LOOK_MAX_DEG / ANGLE_UNIT_DEG
+        for (e, a), col in _EYE_COLUMNS.items():
+            plus, minus = GAZE_SCORES[e, a]
+            out[:, col] = (s(plus) - s(minus)) * eye
     out[:, 52:] = np.clip(np.nan_to_num(out[:, 52:]), -1.0, 1.0)
     return out
 

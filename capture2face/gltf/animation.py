@@ -27,7 +27,8 @@ import numpy as np
 
 from capture2face.errors import CaptureError
 from capture2face.gltf.container import METRES_PER_CM, GlbBuilder, GlbReader
-
+# rotation_part and head_rotations lived here; importable from here still.
+from capture2face.rotations import head_rotations, rotation_part  # noqa: F401
 
 
 def _frame_times(animation, fps: float | None) -> np.ndarray:
@@ -45,58 +46,6 @@ def _frame_times(animation, fps: float | None) -> np.ndarray:
     if not fps or fps <= 0 or not np.isfinite(fps):
         raise CaptureError("animation timestamps do not increase and its frame rate is unknown; pass fps=")
     return (np.arange(n, dtype=np.float64) / float(fps)).astype(np.float32)
-
-
-def rotation_part(head_pose: np.ndarray) -> np.ndarray:
-    """(F, 4, 4) head -> camera transforms -> (F, 3, 3) nearest rotations (SVD). Frames
-    whose pose is non-finite or singular (never tracked) get the identity."""
-    m = np.asarray(head_pose, np.float64)[:, :3, :3].copy()
-    finite = np.isfinite(m).all(axis=(1, 2))
-    m[~finite] = np.eye(3)
-    bad = ~finite | (np.abs(np.linalg.det(m)) < 1e-9)
-    m[bad] = np.eye(3)
-    u, _, vt = np.linalg.svd(m)
-    r = u @ vt
-    flip = np.linalg.det(r) < 0  # a reflection is no rotation: take the nearest one
-    u[flip, :, 2] *= -1.0
-    r[flip] = u[flip] @ vt[flip]
-    return r
-
-
-def head_rotations(head_pose: np.ndarray) -> np.ndarray:
-    """(F, 4, 4) head -> camera transforms -> (F, 4) unit quaternions (x, y, z, w) of their
-    rotation part, orthonormalized (SVD) and sign-continuous so LINEAR (slerp) playback
-    takes the short way. Non-finite poses become the identity."""
-    r = rotation_part(head_pose)
-    # Shepperd's method, vectorized: pick the largest of w, x, y, z for stability.
-    tr = np.trace(r, axis1=1, axis2=2)
-    diag = np.stack([r[:, 0, 0], r[:, 1, 1], r[:, 2, 2]], 1)
-    q = np.zeros((len(r), 4))
-    case = np.argmax(np.concatenate([tr[:, None], diag], 1), axis=1)
-    for c in range(4):  # 4 formula cases, each applied to all frames at once
-        s = case == c
-        if not s.any():
-            continue
-        rs = r[s]
-        if c == 0:
-            w = np.sqrt(np.maximum(1.0 + tr[s], 1e-12)) * 2
-            q[s] = np.stack([(rs[:, 2, 1] - rs[:, 1, 2]) / w, (rs[:, 0, 2] - rs[:, 2, 0]) / w,
-                             (rs[:, 1, 0] - rs[:, 0, 1]) / w, 0.25 * w], 1)
-        else:
-            i = c - 1
-            j, k = (i + 1) % 3, (i + 2) % 3
-            w = np.sqrt(np.maximum(1.0 + rs[:, i, i] - rs[:, j, j] - rs[:, k, k], 1e-12)) * 2
-            out = np.zeros((s.sum(), 4))
-            out[:, i] = 0.25 * w
-            out[:, j] = (rs[:, j, i] + rs[:, i, j]) / w
-            out[:, k] = (rs[:, k, i] + rs[:, i, k]) / w
-            out[:, 3] = (rs[:, k, j] - rs[:, j, k]) / w
-            q[s] = out
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    # Sign continuity: flip a quaternion whose dot with the previous one is negative.
-    flips = np.concatenate([[False], np.einsum("ij,ij->i", q[1:], q[:-1]) < 0])
-    q *= np.where(np.cumsum(flips) % 2 == 1, -1.0, 1.0)[:, None]
-    return q
 
 
 def add_animation(builder: GlbBuilder, rig, animation, nodes: dict, fps: float | None = None,
@@ -152,9 +101,7 @@ def add_animation(builder: GlbBuilder, rig, animation, nodes: dict, fps: float |
 
         rot = eye_rotation_matrices(np.nan_to_num(np.asarray(gaze, np.float64)))  # (F, 2, 3, 3)
         for side, node in enumerate(nodes["eyes"]):
-            pose = np.tile(np.eye(4), (F, 1, 1))
-            pose[:, :3, :3] = rot[:, side]
-            channel(builder.accessor(head_rotations(pose).astype(np.float32)), node, "rotation")
+            channel(builder.accessor(head_rotations(rot[:, side]).astype(np.float32)), node, "rotation")
 
     # glTF keeps seconds, not frames: the rate goes along for tools that need one (Blender).
     extras = {"fps": float(fps or animation.fps), "frames": int(F)}

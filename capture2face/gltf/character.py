@@ -27,12 +27,13 @@ import numpy as np
 import pygltflib
 
 from capture2face.errors import CaptureError
-from capture2face.gltf.animation import _frame_times, head_rotations, rotation_part
+from capture2face.gltf.animation import _frame_times
 from capture2face.gltf.container import ROOT_NODE_NAME
 from capture2face.gltf.rig_import import _find_head, _load_mapping, _morph_key, _quat_matrix, _world_matrices
 from capture2face.io.atomic import write_bytes_atomic
 from capture2face.rig.arkit_names import canonical_arkit
 from capture2face.rig.face_rig import FaceRig
+from capture2face.rotations import head_rotations, nearest_rotation, rotation_part
 
 
 class _Blob:
@@ -88,16 +89,6 @@ def _world(gltf: pygltflib.GLTF2) -> tuple[list[np.ndarray], dict[int, int]]:
     return _world_matrices(nodes), parent
 
 
-def _rotation(m: np.ndarray) -> np.ndarray:
-    """The rotation of a 3x3 (scale removed, nearest orthonormal)."""
-    u, _, vt = np.linalg.svd(m)
-    r = u @ vt
-    if np.linalg.det(r) < 0:
-        u[:, 2] *= -1
-        r = u @ vt
-    return r
-
-
 def export_character_animation(source: str | os.PathLike, rig: FaceRig, animation, path: str | os.PathLike,
                                mapping_json: str | os.PathLike | None = None, fps: float | None = None) -> None:
     """Write ``source`` (the user's .glb/.gltf that ``rig`` was imported from) with the
@@ -147,7 +138,7 @@ def export_character_animation(source: str | os.PathLike, rig: FaceRig, animatio
     if head_k is not None:
         head = joints[head_k]
         node = gltf.nodes[head]
-        p = _rotation(world[parent[head]][:3, :3]) if head in parent else np.eye(3)
+        p = nearest_rotation(world[parent[head]][:3, :3]) if head in parent else np.eye(3)
         local = _quat_matrix(node.rotation) if node.rotation else np.eye(3)
         if node.matrix:
             raise CaptureError(f"{source}: the head joint '{node.name}' has a matrix transform; "
@@ -181,7 +172,4 @@ def _rotations(head_pose, F: int) -> np.ndarray:
 
 def _quats(rot: np.ndarray) -> np.ndarray:
     """(F, 3, 3) rotations -> (F, 4) float32 sign-continuous quaternions (x, y, z, w)."""
-    m = np.tile(np.eye(4), (len(rot), 1, 1))
-    m[:, :3, :3] = rot
-    return head_rotations(m).astype(np.float32)
-
+    return head_rotations(rot).astype(np.float32)

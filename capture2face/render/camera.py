@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from capture2face.rig.face_rig import FaceRig
+from capture2face.rotations import rotation_ypr  # noqa: F401  (re-exported: its old home)
 
 # Fraction of the frame height the face's skin fills in ``framing_pose``.
 FRAMING_FILL = 0.6
@@ -63,29 +64,14 @@ def project(points_head: np.ndarray, head_pose: np.ndarray, fov_y_degrees: float
 
 
 def rotation_matrix(yaw: float, pitch: float, roll: float) -> np.ndarray:
-    """(3, 3) head rotation from angles in degrees: ``Rz(roll) @ Ry(yaw) @ Rx(pitch)``.
+    """(3, 3) head rotation from angles in degrees: ``Rz(roll) @ Ry(yaw) @ Rx(pitch)``
+    (:func:`capture2face.rotations.rotation_ypr` for arrays of angles).
 
     Positive yaw turns the face (+z) towards +x (the subject's left, the camera's right
     when facing it), positive pitch tilts it up towards +y, positive roll turns +x
     towards +y.
     """
     return rotation_ypr(np.array([yaw, pitch, roll], np.float64))
-
-
-def rotation_ypr(angles_deg: np.ndarray) -> np.ndarray:
-    """(..., 3) yaw, pitch, roll in degrees -> (..., 3, 3) rotations: the batched form of
-    :func:`rotation_matrix`, ``Rz(roll) @ Ry(yaw) @ Rx(pitch)``."""
-    y, p, r = np.moveaxis(np.radians(np.asarray(angles_deg, np.float64)), -1, 0)
-    cy, sy, cp, sp, cr, sr = np.cos(y), np.sin(y), np.cos(p), np.sin(p), np.cos(r), np.sin(r)
-    one, zero = np.ones_like(y), np.zeros_like(y)
-
-    def mat(*rows):
-        return np.stack([np.stack(row, -1) for row in rows], -2)
-
-    rx = mat((one, zero, zero), (zero, cp, sp), (zero, -sp, cp))
-    ry = mat((cy, zero, sy), (zero, one, zero), (-sy, zero, cy))
-    rz = mat((cr, -sr, zero), (sr, cr, zero), (zero, zero, one))
-    return rz @ ry @ rx
 
 
 # A vertex that some morph moves further than this (cm) belongs to the face.

@@ -33,6 +33,16 @@ ARKIT_NAMES = [
     "mouthUpperUpLeft", "mouthUpperUpRight", "noseSneerLeft", "noseSneerRight", "tongueOut",
 ]
 _BY_KEY = {n.lower(): n for n in ARKIT_NAMES}
+#: (eye, angle) -> the eyeLook scores (plus, minus) whose difference follows that gaze
+#: angle; eye 0 right, 1 left; angle 0 yaw (> 0 towards +x, the subject's left), 1 pitch
+#: (> 0 down): ``Animation.eye_rotation``'s convention. Used by the Live Link export's
+#: fallback and by the fidelity gaze checks.
+GAZE_SCORES: dict[tuple[int, int], tuple[str, str]] = {
+    (0, 0): ("eyeLookInRight", "eyeLookOutRight"),  # the right eye looks in towards +x
+    (1, 0): ("eyeLookOutLeft", "eyeLookInLeft"),
+    (0, 1): ("eyeLookDownRight", "eyeLookUpRight"),
+    (1, 1): ("eyeLookDownLeft", "eyeLookUpLeft"),
+}
 # Bone names of automatic feature points (capture2face.rig.auto_wrinkles): never a user's joint.
 AUTO_PREFIX = "auto_feature/"
 _SIDES = {"l": "left", "r": "right", "left": "left", "right": "right"}

@@ -294,6 +294,54 @@ def _split_loop(loop: np.ndarray, a: int, b: int, through: int) -> tuple[np.ndar
     return (first, second) if through in first else (second, first)
 
 
+def _grid_triangles(rows: int, cols: int, closed: bool = False) -> np.ndarray:
+    """Triangles of a grid of ``rows`` x ``cols`` vertices numbered row by row (vertex
+    ``r * cols + j``): (rows - 1, Q, 2, 3), per quad (r, j) the triangles
+    ((r, j), (r+1, j), (r+1, j+1)) and ((r, j), (r+1, j+1), (r, j+1)). ``closed``: each
+    row is a ring (Q = cols quads, the last joins column 0), else Q = cols - 1."""
+    r = np.arange(rows - 1)[:, None]
+    j = np.arange(cols if closed else cols - 1)[None, :]
+    j1 = (j + 1) % cols
+    a, b, c, d = r * cols + j, (r + 1) * cols + j, (r + 1) * cols + j1, r * cols + j1
+    return np.stack([np.stack([a, b, c], -1), np.stack([a, c, d], -1)], 2)
+
+
+def _grid_triangles_by_half(rows: int, cols: int) -> np.ndarray:
+    """(T, 3) int32 :func:`_grid_triangles` of an open grid, every quad's first triangle
+    (row by row) before every second one: the order the teeth and the head shell were
+    built in (the avatar's cached figures depend on the order)."""
+    return _grid_triangles(rows, cols).transpose(2, 0, 1, 3).reshape(-1, 3).astype(np.int32)
+
+
+def _sphere_triangles(n_rings: int, n_around: int, ring_by_ring: bool = False) -> np.ndarray:
+    """(T, 3) int32 triangles of a closed sheet with a sphere's topology: vertex 0 a pole,
+    then ``n_rings`` rings of ``n_around`` vertices (ring i, vertex j: ``1 + i * n_around
+    + j``), then the other pole. Column after column (its first pole's triangle, its quads,
+    its last pole's triangle; :func:`_uv_sphere`), or ``ring_by_ring`` (the first pole's
+    fan, the quads ring after ring, the last pole's fan; :func:`_ear`)."""
+    j = np.arange(n_around)
+    j1 = (j + 1) % n_around
+    last_ring = 1 + (n_rings - 1) * n_around
+    first = np.stack([np.zeros_like(j), 1 + j, 1 + j1], -1)  # (n_around, 3)
+    last = np.stack([last_ring + j, np.full_like(j, last_ring + n_around), last_ring + j1], -1)
+    quads = 1 + _grid_triangles(n_rings, n_around, closed=True)  # (n_rings - 1, n_around, 2, 3)
+    if ring_by_ring:
+        return np.concatenate([first, quads.reshape(-1, 3), last]).astype(np.int32)
+    columns = quads.transpose(1, 0, 2, 3).reshape(n_around, -1, 3)
+    return np.concatenate([first[:, None], columns, last[:, None]], 1).reshape(-1, 3).astype(np.int32)
+
+
+def _face_outwards(verts: np.ndarray, tris: np.ndarray, inside: np.ndarray) -> np.ndarray:
+    """``tris`` (T, 3), reversed if most of them face towards ``inside`` (a point (3,) or
+    one per triangle (T, 3)): a closed surface or one strip has one orientation, so the
+    majority decides it for all (a few sliver triangles may point either way)."""
+    c = verts[tris].mean(1)
+    nrm = np.cross(verts[tris[:, 1]] - verts[tris[:, 0]], verts[tris[:, 2]] - verts[tris[:, 0]])
+    if ((nrm * (c - inside)).sum(1) < 0).mean() > 0.5:
+        return tris[:, ::-1].copy()
+    return tris
+
+
 def _uv_sphere(n_theta: int, n_phi: int):
     """Unit sphere around +z: returns (dirs (N, 3), theta, phi, triangles) with vertex 0
     at the front pole. Ring i has polar angle theta_i; the back pole is the last vertex."""
@@ -303,16 +351,7 @@ def _uv_sphere(n_theta: int, n_phi: int):
     theta = np.concatenate([[0.0], th.ravel(), [np.pi]])
     phi = np.concatenate([[0.0], ph.ravel(), [0.0]])
     dirs = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], 1)
-    tris = []
-    ring = lambda i, j: 1 + i * n_phi + (j % n_phi)
-    for j in range(n_phi):
-        tris.append((0, ring(0, j), ring(0, j + 1)))
-        for i in range(len(thetas) - 1):
-            tris.append((ring(i, j), ring(i + 1, j), ring(i + 1, j + 1)))
-            tris.append((ring(i, j), ring(i + 1, j + 1), ring(i, j + 1)))
-        last = len(theta) - 1
-        tris.append((ring(len(thetas) - 1, j), last, ring(len(thetas) - 1, j + 1)))
-    return dirs, theta, phi, np.array(tris, np.int32)
+    return dirs, theta, phi, _sphere_triangles(len(thetas), n_phi)
 
 
 def _eyeball(ring_pos: np.ndarray, side: str):
@@ -371,15 +410,10 @@ def _mouth_interior(lip_loop: np.ndarray, pos: np.ndarray, upper: np.ndarray):
     source = np.concatenate(source + [[-1]])
     depth = np.concatenate(depth + [[1.0]])
     n = len(lip_loop)
-    tris = []
-    for r in range(len(steps) - 1):
-        for j in range(n):
-            a, b = r * n + j, r * n + (j + 1) % n
-            tris += [(a, a + n, b + n), (a, b + n, b)]
     cap_id = len(verts) - 1
     last = (len(steps) - 1) * n
-    tris += [(last + j, cap_id, last + (j + 1) % n) for j in range(n)]
-    tris = np.array(tris, np.int32)
+    cap = [(last + j, cap_id, last + (j + 1) % n) for j in range(n)]
+    tris = np.vstack([_grid_triangles(len(steps), n, closed=True).reshape(-1, 3), cap]).astype(np.int32)
     # Face the cavity walls towards a point in front of the mouth (what the camera sees).
     p = verts[tris]
     normal = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
@@ -416,9 +450,8 @@ def _teeth_row(front: np.ndarray, edge_y: float, height: float, back_dir: np.nda
         rows.append(p)
     core = front + 0.5 * TOOTH_THICKNESS * back_dir
     core[:, 1] = edge_y + 0.5 * height
-    tris = [(r * n + j, (r + 1) * n + j, (r + 1) * n + j + 1) for r in range(5) for j in range(n - 1)]
-    tris += [(r * n + j, (r + 1) * n + j + 1, r * n + j + 1) for r in range(5) for j in range(n - 1)]
-    return np.concatenate(rows), np.repeat(np.arange(6) / 5.0, n), np.array(tris, np.int32), np.tile(core, (6, 1))
+    tris = _grid_triangles_by_half(6, n)
+    return np.concatenate(rows), np.repeat(np.arange(6) / 5.0, n), tris, np.tile(core, (6, 1))
 
 
 def _teeth_and_tongue(ring: np.ndarray):
@@ -450,11 +483,7 @@ def _teeth_and_tongue(ring: np.ndarray):
         back_dir /= np.linalg.norm(back_dir, axis=1, keepdims=True)
         back_dir *= -np.sign(back_dir[len(xs) // 2, 2])  # into the mouth (-z at the front)
         v, frac, t, core = _teeth_row(front, lip_y + edge_dy, height, back_dir)
-        # Face every triangle away from the tooth's core.
-        c = v[t].mean(1)
-        nrm = np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]])
-        if ((nrm * (c - core[t[:, 0]])).sum(1) < 0).mean() > 0.5:  # one strip, one orientation
-            t = t[:, ::-1].copy()
+        t = _face_outwards(v, t, core[t[:, 0]])  # away from the tooth's core
         u = maps.TEETH_U[0] + (maps.TEETH_U[1] - maps.TEETH_U[0]) * (0.5 + 0.5 * np.tile(arc, 6) / ends)
         v0, v1 = maps.TEETH_V[row]
         uvs.append(np.stack([u, v0 + (v1 - v0) * frac], 1))
@@ -472,10 +501,7 @@ def _teeth_and_tongue(ring: np.ndarray):
     tv[:, 1] = np.maximum(tv[:, 1], centre[1] - 0.1)  # flat underside
     tu = maps.TONGUE_UV[0] + (maps.TONGUE_UV[1] - maps.TONGUE_UV[0]) * (0.5 + 0.5 * d[:, 0])
     tvv = maps.TONGUE_UV[2] + (maps.TONGUE_UV[3] - maps.TONGUE_UV[2]) * (0.5 - 0.5 * d[:, 2])
-    c = tv[ttri].mean(1)
-    nrm = np.cross(tv[ttri[:, 1]] - tv[ttri[:, 0]], tv[ttri[:, 2]] - tv[ttri[:, 0]])
-    if ((nrm * (c - centre)).sum(1) < 0).mean() > 0.5:
-        ttri = ttri[:, ::-1].copy()
+    ttri = _face_outwards(tv, ttri, centre)
     verts.append(tv)
     uvs.append(np.stack([tu, tvv], 1))
     tris.append(ttri + offset)
@@ -560,17 +586,10 @@ def _head_shell(edge: np.ndarray, chin: np.ndarray):
         cols.append(np.arange(n + 1))
     pole = origin + HEAD_POLE * radius(HEAD_POLE[None])[0]  # the rings close on one vertex
     verts = np.vstack(rings + [pole[None]])
-    m = n + 1
-    tris = [(k * m + j, (k + 1) * m + j, (k + 1) * m + j + 1) for k in range(HEAD_RINGS - 1) for j in range(n)]
-    tris += [(k * m + j, (k + 1) * m + j + 1, k * m + j + 1) for k in range(HEAD_RINGS - 1) for j in range(n)]
-    last, pole_id = (HEAD_RINGS - 1) * m, len(verts) - 1
-    tris += [(last + j, pole_id, last + j + 1) for j in range(n)]
-    tris = np.array(tris, np.int32)
-    # Face outwards, away from the head's inside.
-    c = verts[tris].mean(1)
-    nrm = np.cross(verts[tris[:, 1]] - verts[tris[:, 0]], verts[tris[:, 2]] - verts[tris[:, 0]])
-    if ((nrm * (c - origin)).sum(1) < 0).mean() > 0.5:  # the grid has one orientation: the majority's
-        tris = tris[:, ::-1].copy()
+    last, pole_id = (HEAD_RINGS - 1) * (n + 1), len(verts) - 1
+    cap = [(last + j, pole_id, last + j + 1) for j in range(n)]
+    tris = np.vstack([_grid_triangles_by_half(HEAD_RINGS, n + 1), np.array(cap, np.int32)])
+    tris = _face_outwards(verts, tris, origin)  # away from the head's inside
     return verts, np.concatenate(ring_ids + [[HEAD_RINGS]]), np.concatenate(cols + [[n // 2]]), tris
 
 
@@ -600,15 +619,7 @@ def _ear(centre: np.ndarray, side: float, height: float, width: float):
     coords.append((0.0, 0.0))
     front.append(False)
     verts, coords, front = np.array(verts), np.array(coords), np.array(front)
-    rows = 2 * len(rs)
-    ring = lambda i, j: 1 + i * n_a + j % n_a
-    tris = [(0, ring(0, j), ring(0, j + 1)) for j in range(n_a)]
-    for i in range(rows - 1):
-        for j in range(n_a):
-            tris += [(ring(i, j), ring(i + 1, j), ring(i + 1, j + 1)), (ring(i, j), ring(i + 1, j + 1), ring(i, j + 1))]
-    back = len(verts) - 1
-    tris += [(ring(rows - 1, j), back, ring(rows - 1, j + 1)) for j in range(n_a)]
-    tris = np.array(tris, np.int32)
+    tris = _sphere_triangles(2 * len(rs), n_a, ring_by_ring=True)  # a sphere folded flat
     nrm = np.cross(verts[tris[:, 1]] - verts[tris[:, 0]], verts[tris[:, 2]] - verts[tris[:, 0]])
     is_front = front[tris].all(1)
     if ((nrm[is_front] @ out) < 0).mean() > 0.5:  # one folded sheet: the front faces out

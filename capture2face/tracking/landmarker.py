@@ -162,6 +162,7 @@ def _quiet_stderr():
 
 
 FACE_CHOICES = ("largest", "center")
+MAX_FACE = 15  # the highest --face: MediaPipe then looks for MAX_FACE + 1 faces in every frame
 _JUMP = 1.0  # a single-face result moving more than ~one face size in a frame is re-checked
 
 
@@ -217,11 +218,10 @@ class FaceLandmarker:
 
     @classmethod
     def create_from_options(cls, options: LandmarkerOptions | None = None) -> "FaceLandmarker":
+        from capture2face.tracking.tracker import TrackOptions  # (tracker imports this module)
+
         options = options or LandmarkerOptions()
-        if options.faces not in FACE_CHOICES:
-            raise CaptureError(f"--faces must be one of {', '.join(FACE_CHOICES)} (got {options.faces!r})")
-        if options.face is not None and int(options.face) < 0:
-            raise CaptureError(f"--face must be >= 0 (got {options.face})")
+        TrackOptions(faces=options.faces, face=options.face).validate()
         model = find_face_model(options.face_model)
         return cls(_mediapipe_landmarker(model, options, cls.faces_wanted(options)), options, model)
 

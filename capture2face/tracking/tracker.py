@@ -18,7 +18,8 @@ from capture2face.tracking.filtering import CausalOneEuro, OneEuro, filter_pose
 from capture2face.tracking.gaps import fill_pose, plan_gaps
 from capture2face.tracking.head_pose import FOV_Y_DEGREES, canonical_mesh, head_landmarks
 from capture2face.tracking.landmarker import (
-    BLENDSHAPE_NAMES, N_LANDMARKS, FaceLandmarker, FaceObservation, LandmarkerOptions, stack_observations,
+    BLENDSHAPE_NAMES, FACE_CHOICES, MAX_FACE, N_LANDMARKS, FaceLandmarker, FaceObservation, LandmarkerOptions,
+    stack_observations,
 )
 from capture2face.tracking.neutral import mouth_gap, pick_neutral
 from capture2face.tracking.track import Track
@@ -80,6 +81,20 @@ class TrackOptions:
     zero_phase: bool = True
     max_frames: int | None = None
     workers: int | None = None
+
+    def validate(self) -> None:
+        """The face choice, workers and neutral frame: one line ``CaptureError`` each, named
+        after the command line's flags. The one home of these bounds (``RunOptions``,
+        ``FaceLandmarker`` and the CLI ask it); the neutral frame's upper bound needs the
+        clip (:func:`capture2face.preflight.check_neutral_frame`)."""
+        if self.neutral_frame is not None and int(self.neutral_frame) < 0:
+            raise CaptureError(f"--neutral-frame must be >= 0 (got {self.neutral_frame})")
+        if self.faces not in FACE_CHOICES:
+            raise CaptureError(f"--faces must be one of {', '.join(FACE_CHOICES)} (got {self.faces!r})")
+        if self.face is not None and not 0 <= int(self.face) <= MAX_FACE:
+            raise CaptureError(f"--face must be 0..{MAX_FACE} (got {self.face})")
+        if self.workers is not None and int(self.workers) < 1:
+            raise CaptureError(f"--track-workers must be >= 1 (got {self.workers})")
 
     def landmarker_options(self) -> LandmarkerOptions:
         return LandmarkerOptions(
