@@ -127,8 +127,9 @@ def test_animation_glb_plays_in_threejs(run_out, expected, tmp_path):
     # It plays: everything moves between the sampled frames and stays finite ...
     assert found["all_finite"] and found["samples"] == len(expected["samples"]) >= 4
     assert found["moved"]["morph_influence"] > 0.2 and found["moved"]["bone_cm"] > 0.3
-    assert found["moved"]["eye_deg"] > 2.0 and found["moved"]["head_quat"] > 0.01
-    assert found["moved"]["vertex_cm"] > 0.3
+    assert found["moved"]["eye_deg"] > 2.0 and found["moved"]["turn_deg"] > 2.0
+    assert found["moved"]["vertex_cm"] > 0.3 and found["moved"]["surface_cm"] > 1.0
+    assert found["turned"] == ["capture2face_root (Object3D)", "eye_R (Bone)", "eye_L (Bone)"]
     # ... exactly as capture2face computes it (float32 keys, metres <-> cm).
     err = found["max_error"]
     assert err["morph"] <= 1e-6 and err["bone_cm"] <= 1e-4 and err["eye_deg"] <= 1e-3 and err["vertex_cm"] <= 1e-3

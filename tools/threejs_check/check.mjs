@@ -78,7 +78,10 @@ async function main() {
     page.on('requestfailed', (r) => browserMessages.push(`requestfailed: ${r.url()}`));
     const t0 = Date.now();
     await page.goto(`http://127.0.0.1:${server.address().port}/index.html`);
-    await page.waitForFunction(() => typeof window.runCheck === 'function');
+    // A page that fails to load (a syntax error, a missing module) fails now, not at the timeout.
+    const broken = new Promise((_, no) => page.once('pageerror', (e) => no(new Error(`page: ${e.message}`))));
+    broken.catch(() => {}); // a page error after this point is reported, not thrown
+    await Promise.race([page.waitForFunction(() => typeof window.runCheck === 'function'), broken]);
     findings = await page.evaluate((e) => window.runCheck(e), args.expect);
     findings.seconds = Number(((Date.now() - t0) / 1000).toFixed(2));
     findings.browser = context.browser() ? context.browser().version() : null;

@@ -80,6 +80,15 @@ window.runCheck = async function runCheck(expected) {
   const eyes = eyeNames.map((n) => scene.getObjectByName(n)).filter(Boolean);
   out.eye_joints = eyes.map((e) => e.name);
   const boneNames = skeleton ? skeleton.bones.map((b) => b.name).filter((n) => !eyeNames.includes(n)) : [];
+  // Which object each track drives, found the way the mixer finds it (by node name).
+  const target = (tr) => THREE.PropertyBinding.findNode(scene, THREE.PropertyBinding.parseTrackName(tr.name).nodeName);
+  const unbound = clip.tracks.filter((tr) => !target(tr)).map((tr) => tr.name);
+  if (unbound.length) fail(`tracks that find no node: ${unbound}`);
+  // The nodes the clip turns (head root, eyes; a third-party character's head joint).
+  const turned = clip.tracks.filter((tr) => classify(tr) === 'quaternion').map(target).filter(Boolean);
+  out.turned = turned.map((o) => `${o.name} (${o.type})`);
+  // Every 16th vertex of every mesh, for how far the surface moves (world space, cm).
+  const everyNth = meshes.map((m) => Array.from({ length: Math.ceil(m.geometry.attributes.position.count / 16) }, (_, i) => i * 16));
 
   // ---- play it --------------------------------------------------------------------------
   const mixer = new THREE.AnimationMixer(scene);
@@ -105,6 +114,9 @@ window.runCheck = async function runCheck(expected) {
     });
     s.eyes_deg = eyes.map((e) => yawPitch(e.getWorldQuaternion(q).premultiply(rootQ.clone().invert())));
     s.root_quat = root.quaternion.toArray();
+    s.turned = turned.map((o) => o.quaternion.clone());
+    s.surface_cm = meshes.map((m, j) => everyNth[j].map((i) => m.getVertexPosition(i, v).applyMatrix4(m.matrixWorld)
+      .multiplyScalar(100).toArray())).flat(2);
     if (ids && skinned.length) {
       const m = skinned[0];
       s.vertices_cm = ids.map((i) => m.getVertexPosition(i, v).applyMatrix4(m.matrixWorld).applyMatrix4(rootInv)
@@ -118,7 +130,8 @@ window.runCheck = async function runCheck(expected) {
   if (!sampleTimes.length) for (const f of [0, 0.25, 0.5, 0.75, 1]) sampleTimes.push(f * clip.duration);
   const ids = expected.vertex_ids || null;
   const states = sampleTimes.map((t) => { setTime(t); return state(ids); });
-  const flat = (s) => [...s.morph.flat(), ...s.bones_cm.flat(), ...s.eyes_deg.flat(), ...s.root_quat, ...(s.vertices_cm || []).flat()];
+  const flat = (s) => [...s.morph.flat(), ...s.bones_cm.flat(), ...s.eyes_deg.flat(), ...s.root_quat,
+    ...(s.vertices_cm || []).flat(), ...s.surface_cm];
   out.samples = sampleTimes.length;
   out.sample_times = sampleTimes.map((t) => round(t, 4));
   out.all_finite = states.every((s) => finite(flat(s)));
@@ -130,11 +143,15 @@ window.runCheck = async function runCheck(expected) {
     morph_influence: round(range((s) => s.morph.flat()), 4),
     bone_cm: round(range((s) => s.bones_cm.flat()), 4),
     eye_deg: round(range((s) => s.eyes_deg.flat()), 3),
-    head_quat: round(range((s) => s.root_quat), 4),
+    turn_deg: round(THREE.MathUtils.radToDeg(Math.max(0, ...states.flatMap((s) =>
+      s.turned.map((qq, j) => qq.angleTo(states[0].turned[j]))))), 3),
+    surface_cm: round(range((s) => s.surface_cm), 4),
   };
   if (states[0].vertices_cm) out.moved.vertex_cm = round(range((s) => s.vertices_cm.flat()), 4);
   if (out.morphs && !(out.moved.morph_influence > 0)) fail('morph influences do not change over time');
-  if (boneNames.length && !(out.moved.bone_cm > 0)) fail('bones do not move over time');
+  if (out.tracks.position && !(out.moved.bone_cm > 0)) fail('bones do not move over time');
+  if (turned.length && !(out.moved.turn_deg > 0)) fail('rotated nodes do not turn over time');
+  if (!(out.moved.surface_cm > 0)) fail('the mesh surface does not move over time');
   if (eyes.length && !(out.moved.eye_deg > 0)) fail('eye joints do not turn over time');
 
   // ---- against what capture2face says -------------------------------------------------
@@ -172,7 +189,7 @@ window.runCheck = async function runCheck(expected) {
 
   // ---- render two moments ------------------------------------------------------------
   if (expected.render !== false) {
-    try { out.render = render(scene, setTime, expected.render_times || [0, clip.duration / 2]); } catch (e) {
+    try { out.render = render(scene, setTime, expected.render_times || [0, clip.duration / 2], expected.render_size); } catch (e) {
       fail(`render failed: ${e && e.message ? e.message : e}`);
     }
     if (out.render) {
@@ -188,6 +205,7 @@ window.runCheck = async function runCheck(expected) {
 // Renders the scene at two times side by side (S x S each) and measures the picture:
 // the share of pixels the head covers in each half and the share that differ between them.
 function render(scene, setTime, times, S = 384) {
+  if (times.length !== 2) throw new Error('render_times: two times');
   const canvas = document.createElement('canvas');
   document.body.appendChild(canvas);
   const renderer = new THREE.WebGLRenderer({ canvas, antialias: false, preserveDrawingBuffer: true });
