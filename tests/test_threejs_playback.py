@@ -151,3 +151,36 @@ def test_threejs_check_fails_on_a_wrong_file(run_out, expected):
     moved = [float(f.split(" by ")[1].split()[0]) for f in found["failures"] if f.startswith("vertex_cm differs")]
     assert len(moved) == 1 and moved[0] == pytest.approx(1.0, abs=1e-3)
     assert len(found["failures"]) == 2
+
+
+def test_arkit_character_animation_glb_plays_in_threejs(tmp_path_factory):
+    # A third-party-style character (head, eyes, mouth, teeth, scalp as separate meshes with
+    # ARKit morphs, a Hips-Neck-Head skin, a body): its animation.glb is the user's file plus
+    # a weights channel per morph mesh and the head joint's rotation.
+    from capture2face import run
+    from capture2face.gltf.arkit_export import export_arkit_character
+    from capture2face.gltf.container import GlbReader
+    from capture2face.pipeline import RunOptions, load_character
+
+    folder = tmp_path_factory.mktemp("threejs_arkit")
+    character = folder / "head.glb"
+    export_arkit_character(load_character(None), character, skeleton=True, body=True)
+    run(SAMPLE, folder, RunOptions(character=character, size=128, compare=False, track_workers=1), progress=False)
+    glb = folder / "sample" / "animation.glb"
+    g = GlbReader(glb).gltf
+    paths = [c["target"]["path"] for c in g["animations"][0]["channels"]]
+    report = json.loads((folder / "sample" / "report.json").read_text())
+    expect = {"morphs": sum(len(m["primitives"][0].get("targets", [])) for m in g["meshes"]),
+              "joints": len(g["skins"][0]["joints"]), "skinned_meshes": sum("skin" in n for n in g["nodes"]),
+              "clips": 1, "keyframes": report["frames"], "duration": (report["frames"] - 1) / report["fps"],
+              "tracks": {"morphTargetInfluences": paths.count("weights"), "quaternion": paths.count("rotation")}}
+    assert expect["morphs"] == 47 and expect["joints"] == 3 and expect["skinned_meshes"] == 6
+    code, found = check(glb, expect, "--screenshot", str(folder / "shot.png"))
+    assert code == 0 and found["ok"], found["failures"]
+    assert [m["targets"] for m in found["morph_meshes"]] == [27, 14, 3, 3]  # head, mouth, teeth, scalp
+    assert found["tracks"] == {"morphTargetInfluences": 4, "quaternion": 1} and found["keyframes"] == 120
+    # The rotation binds to the Head joint, though a mesh node is also called "Head".
+    assert found["turned"] == ["Head_1 (Bone)"] and found["messages"] == []
+    assert found["moved"]["morph_influence"] > 0.2 and found["moved"]["turn_deg"] > 2.0
+    assert found["moved"]["surface_cm"] > 1.0 and found["all_finite"]
+    assert all(0.05 < d < 0.8 for d in found["render"]["drawn"]) and found["render"]["changed"] > 0.005
