@@ -11,7 +11,7 @@ import pytest
 
 import capture2face.retarget.driver as retarget_mod
 import capture2face.tracking.tracker as tracking_mod
-from capture2face.io.framestore import FrameArray
+from capture2face.io.framestore import FrameArray, take_points
 from capture2face.retarget import RetargetOptions, retarget
 from capture2face.retarget.windows import SpilledMedian, frame_windows
 from capture2face.rig.avatar import default_avatar
@@ -48,6 +48,12 @@ def test_frame_array_round_trip_and_indexing(tmp_path):
     np.testing.assert_array_equal(ro[123], x[123])
     with pytest.raises(ValueError):
         ro.append(x[:1])
+    # A few points of every frame, read in blocks (a block size that does not divide F).
+    ids = [6, 0, 3]
+    for frames in (fa, x):
+        got = take_points(frames, ids, chunk=64)
+        assert got.dtype == np.float64 and got.shape == (300, 3, 3)
+        np.testing.assert_array_equal(got, x[:, ids])
 
 
 def test_track_save_streams_disk_backed_arrays(tmp_path):

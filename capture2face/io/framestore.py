@@ -160,3 +160,15 @@ class FrameArray:
 
     def __getstate__(self):
         raise TypeError("a FrameArray is a view of a run's temporary file; np.asarray() it to pickle")
+
+
+def take_points(frames, ids, chunk: int = 512) -> np.ndarray:
+    """(F, len(ids), ...) float64 ``frames[:, ids]`` of an (F, L, ...) array or
+    :class:`FrameArray`, read ``chunk`` frames at a time: of a long clip's disk-backed
+    landmarks, only the few points asked for are ever in memory."""
+    ids = list(ids)
+    n = len(frames)
+    out = np.empty((n, len(ids)) + tuple(frames.shape[2:]))
+    for s in range(0, n, chunk):
+        out[s:s + chunk] = np.asarray(frames[s:s + chunk])[:, ids]
+    return out

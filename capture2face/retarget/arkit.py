@@ -28,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from capture2face.fidelity import pearson
+from capture2face.io.framestore import take_points
 from capture2face.tracking.filtering import OneEuro, one_euro
 from capture2face.tracking.tracker import TrackOptions
 
@@ -82,11 +83,8 @@ def geometric_measures(landmarks_head, neutral_frame: int, chunk: int = 512) -> 
     pairs = [pair for pairs in GEOMETRIC.values() for pair in pairs]
     ids = sorted({i for p in pairs for i in p} | set(IOD_PAIR))
     col = {i: k for k, i in enumerate(ids)}
-    n = len(landmarks_head)
-    pts = np.empty((n, len(ids), 3))
-    for s in range(0, n, chunk):  # one block of frames read, ~10 landmarks of it kept
-        pts[s:s + chunk] = np.asarray(landmarks_head[s:s + chunk])[:, ids]
-    out = np.empty((n, len(GEOMETRIC)))
+    pts = take_points(landmarks_head, ids, chunk)  # ~10 landmarks
+    out = np.empty((len(pts), len(GEOMETRIC)))
     for k, measure_pairs in enumerate(GEOMETRIC.values()):
         out[:, k] = np.mean([np.linalg.norm(pts[:, col[a]] - pts[:, col[b]], axis=-1) for a, b in measure_pairs], 0)
     iod = float(np.linalg.norm(pts[neutral_frame, col[IOD_PAIR[0]]] - pts[neutral_frame, col[IOD_PAIR[1]]]))

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from capture2face.io.framestore import take_points
 from capture2face.retarget.arkit import IOD_PAIR  # the outer eye corners: the face's size
 
 # Right eye (the subject's right, -x) first, as everywhere: (iris landmarks, corners, lids).
@@ -53,10 +54,8 @@ def iris_offsets(landmarks_head, chunk: int = 512) -> tuple[np.ndarray, np.ndarr
     """
     ids = sorted({int(i) for iris, c, l in EYES for i in (*iris, *c, *l)} | set(IOD_PAIR))
     col = {i: k for k, i in enumerate(ids)}
-    n = len(landmarks_head)
-    pts = np.empty((n, len(ids), 3))
-    for s in range(0, n, chunk):  # one block read, ~20 landmarks of it kept
-        pts[s:s + chunk] = np.asarray(landmarks_head[s:s + chunk])[:, ids]
+    pts = take_points(landmarks_head, ids, chunk)  # ~20 landmarks
+    n = len(pts)
     offsets = np.empty((n, 2, 3))
     opening = np.empty((n, 2))
     for e, (iris, (a, b), (up, lo)) in enumerate(EYES):
