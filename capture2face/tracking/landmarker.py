@@ -102,6 +102,15 @@ class FaceObservation:
     n_faces: int
 
 
+def face_boxes(points_px: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Centres (K, 2) and sizes (K,) in pixels of K faces' (478, 2) pixel landmarks (the
+    size: the larger side of their bounding box): what tracking compares to follow one
+    face from frame to frame and across segments."""
+    centres = np.array([p.mean(0) for p in points_px])
+    sizes = np.array([np.ptp(p, axis=0).max() for p in points_px])
+    return centres, sizes
+
+
 def stack_observations(obs: list[FaceObservation | None]) -> dict:
     """Per-frame faces (None: no face) as arrays: ``norm`` (k, 478, 3) float32,
     ``scores`` (k, 52) float64, ``presence`` (k,) bool (rows without a face are zeros),
@@ -260,12 +269,13 @@ class FaceLandmarker:
             result = self._single.detect_for_video(image, ms)
             self._since_probe += 1
             norms = self._norms(result)
+            boxes = self._boxes(norms, w, h)  # for _continues and _choose alike
             if self.max_faces == 1:
                 self.n_faces_max = max(self.n_faces_max, len(norms))
-                return self._observation(result, norms, w, h, self._choose(norms, w, h)) if norms else None
+                return self._observation(result, norms, w, h, self._choose(norms, w, h, boxes)) if norms else None
             probe = self._since_probe >= max(1, int(self.options.probe_every))
-            if norms and not probe and self._continues(norms[0], w, h):
-                return self._observation(result, norms, w, h, self._choose(norms, w, h))
+            if norms and not probe and self._continues(boxes):
+                return self._observation(result, norms, w, h, self._choose(norms, w, h, boxes))
             # Lost, jumped or time to look again: the several-face landmarker decides.
             self._since_probe = 0
             self._one_face_run = 0
@@ -273,9 +283,9 @@ class FaceLandmarker:
             several = self._lm.detect_for_video(image, ms)
             n = len(several.face_landmarks)
             self.n_faces_max = max(self.n_faces_max, n)
-            if norms and n <= 1 and self._continues(norms[0], w, h):
+            if norms and n <= 1 and self._continues(boxes):
                 self._use_single = True  # still alone: stay on the single-face landmarker
-                return self._observation(result, norms, w, h, self._choose(norms, w, h))
+                return self._observation(result, norms, w, h, self._choose(norms, w, h, boxes))
             result = several
         else:
             result = self._lm.detect_for_video(image, ms)
@@ -314,24 +324,23 @@ class FaceLandmarker:
     @staticmethod
     def _boxes(norms: list[np.ndarray], w: int, h: int) -> tuple[np.ndarray, np.ndarray]:
         scale = np.array([w, h], np.float32)
-        centres = np.array([n[:, :2].mean(0) * scale for n in norms])
-        sizes = np.array([np.ptp(n[:, :2] * scale, axis=0).max() for n in norms])
-        return centres, sizes
+        return face_boxes([n[:, :2] * scale for n in norms])
 
-    def _continues(self, norm: np.ndarray, w: int, h: int) -> bool:
-        """Whether a single-face result is plausibly the face tracked in the frame before."""
+    def _continues(self, boxes: tuple[np.ndarray, np.ndarray]) -> bool:
+        """Whether a single-face result (its :meth:`_boxes`) is plausibly the face tracked
+        in the frame before."""
         if self._prev_centre is None:
             return False
-        centres, sizes = self._boxes([norm], w, h)
+        centres, sizes = boxes
         ref = max(self._prev_size, 1.0)
         return float(np.linalg.norm(centres[0] - self._prev_centre) / ref
                      + abs(np.log(max(sizes[0], 1e-3) / ref))) < _JUMP
 
-    def _choose(self, norms: list[np.ndarray], w: int, h: int) -> int | None:
-        """Index of the tracked face among ``norms``: before the choice, the one the
-        options ask for (None while the face asked for by index is not in view); after,
-        the one continuing the track."""
-        centres, sizes = self._boxes(norms, w, h)
+    def _choose(self, norms: list[np.ndarray], w: int, h: int, boxes=None) -> int | None:
+        """Index of the tracked face among ``norms`` (``boxes``: their :meth:`_boxes`, if
+        already measured): before the choice, the one the options ask for (None while the
+        face asked for by index is not in view); after, the one continuing the track."""
+        centres, sizes = self._boxes(norms, w, h) if boxes is None else boxes
         if not self.chosen:
             face = self.options.face
             if face is not None:

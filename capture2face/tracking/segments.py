@@ -49,7 +49,7 @@ import numpy as np
 
 from capture2face.errors import CaptureError, raise_if_interrupted
 from capture2face.io.framestore import FrameArray
-from capture2face.tracking.landmarker import N_LANDMARKS, FaceLandmarker, LandmarkerOptions, defer_pyplot
+from capture2face.tracking.landmarker import N_LANDMARKS, FaceLandmarker, LandmarkerOptions, defer_pyplot, face_boxes
 from capture2face.tracking.video import FrameTimes, VideoInfo, frame_times, iter_frames, iter_segment, prefetch
 
 log = logging.getLogger("capture2face")
@@ -298,11 +298,12 @@ def _worker_main(send, recv, options: LandmarkerOptions) -> None:
 
 
 def _box(obs) -> tuple[float, float, float] | None:
-    """A face's centre (px) and size, or None."""
+    """A face's centre (px) and size (:func:`~capture2face.tracking.landmarker.face_boxes`),
+    or None."""
     if obs is None:
         return None
-    px = obs.landmarks_px
-    return float(px[:, 0].mean()), float(px[:, 1].mean()), float(np.ptp(px, axis=0).max())
+    (centre,), (size,) = face_boxes([obs.landmarks_px])
+    return float(centre[0]), float(centre[1]), float(size)
 
 
 def _track_segment(lm: FaceLandmarker, job: dict, send) -> dict:
