@@ -238,13 +238,15 @@ def builtin_avatar(variant: str | None = None, progress: bool = False) -> FaceRi
 
 # ---- stages (each callable on its own) ------------------------------------------------
 def track_stage(clip: str | os.PathLike, options: RunOptions, progress: bool = True,
-                workdir: str | os.PathLike | None = None, workers=None):
+                workdir: str | os.PathLike | None = None, workers=None, info=None):
     """Pass 1: the clip's :class:`~capture2face.tracking.track.Track` (with ``workdir``,
     its landmarks stay in files there: memory does not grow with the clip's length;
-    ``workers``: :func:`start_track_workers`' processes)."""
+    ``workers``: :func:`start_track_workers`' processes; ``info``: the clip's
+    :func:`~capture2face.tracking.video.open_video` probe, if already made)."""
     from capture2face.tracking import track_clip
 
-    return track_clip(clip, options.track_options(), progress=progress, workdir=workdir, workers=workers)
+    return track_clip(clip, options.track_options(), progress=progress, workdir=workdir, workers=workers,
+                      info=info)
 
 
 def start_track_workers(clip: str | os.PathLike, options: RunOptions):
@@ -619,7 +621,7 @@ def _run(clip, out_dir, options: RunOptions, progress: bool, name: str | None, w
         t = time.perf_counter()
         with watch_damage(clip) as damage:
             try:
-                track = track_stage(clip, options, progress, workdir=work, workers=workers)
+                track = track_stage(clip, options, progress, workdir=work, workers=workers, info=info)
             finally:
                 if workers is not None:
                     workers.close()

@@ -180,7 +180,7 @@ def test_damage_decision_does_not_read_warning_text(sample_clip, tmp_path, monke
     from capture2face import pipeline
     from capture2face.tracking.video import ClipDamage, _report_damage
 
-    def damaged_track(clip, options, progress=True, workdir=None, workers=None):
+    def damaged_track(clip, options, progress=True, workdir=None, workers=None, info=None):
         _report_damage(ClipDamage(str(clip), 3, 90, "decode_error", "frames lost after frame 3"))
         raise RuntimeError("tracking broke on the damage")
 

@@ -412,13 +412,14 @@ def build_track(times: list[float], obs: list[FaceObservation | None], size: tup
 
 
 def track_clip(clip: str | os.PathLike, options: TrackOptions | None = None, progress: bool = True,
-               workdir: str | os.PathLike | None = None, workers=None) -> Track:
+               workdir: str | os.PathLike | None = None, workers=None, info: VideoInfo | None = None) -> Track:
     """Track every frame of ``clip`` into a :class:`Track` (tqdm bar when ``progress``).
 
     ``workdir``: a folder for the landmark files of a long clip; the Track's landmark
     arrays are then read from there (see :class:`TrackBuilder`). None: an in-memory Track.
     ``workers``: :class:`~.segments.SegmentWorkers` started ahead for a segment-parallel
     track (:attr:`TrackOptions.workers`; None: started here when the clip is split).
+    ``info``: the clip's :func:`open_video` probe, when the caller has it (else probed here).
 
     Raises:
         CaptureError: unreadable clip, no model, or no face anywhere.
@@ -426,7 +427,7 @@ def track_clip(clip: str | os.PathLike, options: TrackOptions | None = None, pro
     from capture2face.tracking.segments import track_parallel
 
     options = options or TrackOptions()
-    info = open_video(clip)
+    info = open_video(clip) if info is None else info
     n_workers = options.n_workers()
     if n_workers > 1:
         track = track_parallel(clip, info, options, n_workers, progress, workdir, workers)
