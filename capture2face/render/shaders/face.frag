@@ -1,6 +1,9 @@
 // Shading pass, fragment stage: wrinkle maps over the base normal map (per-pixel weights
 // from the driver), skin lighting, filmic tone mapping, sRGB output.
-// Defines: N_MAPS (wrinkle maps, <= 4), SHADE_WRINKLES (0: weights only feed the
+// Defines: FACE_SKIN (1: the face skin, material 0, with its normal and wrinkle maps;
+// 0: every other material, drawn apart: llvmpipe runs every side of a branch, so leaving
+// the maps out of their program makes their pixels ~25% cheaper),
+// N_MAPS (wrinkle maps, <= 4), SHADE_WRINKLES (0: weights only feed the
 // influence output), BLEND_PD | BLEND_OAT, DRIVER_*, VIEW_SHADED | VIEW_INFLUENCE,
 // INFLUENCE_OUTPUT (shaded view: the influence view also goes to colour attachment 1).
 #include "normal_blend.glsl"
@@ -25,6 +28,7 @@ uniform vec4 u_compress_slot;
 uniform vec3 u_light_direction;    // camera space, unit, towards the key light
 uniform vec3 u_light_color;
 uniform vec3 u_fill_color;         // second light from the mirrored side
+uniform vec3 u_fill_direction;     // camera space, unit: the key light mirrored across the view axis
 uniform vec3 u_ambient;
 uniform vec3 u_map_color[4];       // influence view: colour of each wrinkle map
 
@@ -133,9 +137,13 @@ vec3 skin_diffuse(float ndotl) {
 void main() {
     vec3 ng = normalize(v_normal);
     vec3 l = u_light_direction;
-    vec3 lf = normalize(vec3(-l.x, 0.3 * l.y, l.z));  // fill: mirrored across the view axis
+    vec3 lf = u_fill_direction;
     vec3 v = normalize(-v_position);
-    vec4 w = v_material == 0 ? map_weights() : vec4(0.0);  // no wrinkles on eyes or mouth
+#if FACE_SKIN
+    vec4 w = map_weights();
+#else
+    vec4 w = vec4(0.0);  // no wrinkles beyond the face skin
+#endif
 
 #ifdef VIEW_INFLUENCE
     f_color = influence_color(ng, l, w);
@@ -144,12 +152,12 @@ void main() {
     f_influence = influence_color(ng, l, w);
 #endif
     vec3 n = ng;
-    if (v_material == 0) {  // the head beyond the face (4) has a flat normal map: no fetch
-        vec3 t = normalize(v_tangent.xyz - ng * dot(ng, v_tangent.xyz));
-        vec3 b = v_tangent.w * cross(ng, t);
-        vec3 tn = tangent_normal(w);
-        n = normalize(t * tn.x + b * tn.y + ng * tn.z);
-    }
+#if FACE_SKIN  // the head beyond the face (4) has a flat normal map
+    vec3 t = normalize(v_tangent.xyz - ng * dot(ng, v_tangent.xyz));
+    vec3 b = v_tangent.w * cross(ng, t);
+    vec3 tn = tangent_normal(w);
+    n = normalize(t * tn.x + b * tn.y + ng * tn.z);
+#endif
     vec3 albedo = texture(u_albedo, v_uv).rgb;
     float ndotl = dot(n, l);
     // One lighting path for every material (a software GL runs every side of a branch):
