@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import moderngl
 import numpy as np
 
@@ -271,6 +272,7 @@ class Renderer:
         ctx, opts = self.ctx, self.options
         size = opts.width_height
         self._size = size
+        self._rgba = np.empty((size[1], size[0], 4), np.uint8)  # read-back buffer
         samples = max(1, min(int(opts.samples), ctx.max_samples))
         n_colors = 2 if self._influence_output else 1
         rb = lambda s=0: self._keep(ctx.renderbuffer(size, 4, samples=s))  # noqa: E731
@@ -279,8 +281,10 @@ class Renderer:
             self._scene_tex = self._keep(ctx.texture(size, 4))
             self._scene_tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
             self._scene_tex.repeat_x = self._scene_tex.repeat_y = False
-            # Two passes: one marks the edge pixels in a depth buffer, the other blends
-            # along the edges with the early depth test skipping every other block.
+            # The image is copied (blitted) to the output, then two passes: one marks the
+            # edge pixels in a depth buffer, the other blends along the edges with the
+            # early depth test skipping every other block.
+            self._scene_only = self._keep(ctx.framebuffer(color_attachments=[self._scene_tex]))
             self._fxaa_mark = program("fullscreen.vert", "fxaa.frag", (("MARK_EDGES", 1),))
             self._fxaa = program("fullscreen.vert", "fxaa.frag")
             self._fxaa_mark_vao = self._keep(ctx.vertex_array(self._fxaa_mark, []))
@@ -422,23 +426,24 @@ class Renderer:
         if self._target is not self._single:
             ctx.copy_framebuffer(self._single, self._target)  # MSAA resolve, every attachment
         if self._fxaa is not None:
-            # Outside the mesh's screen box the image is the flat background, which FXAA
-            # leaves as it is: clear it there and run the pass on the box alone.
-            box = self._screen_box(state)
+            # The whole image to the output (a blit), then FXAA over the mesh's screen box:
+            # outside it the image is the flat background, which FXAA leaves as it is.
             self._fxaa_out.scissor = None
+            self._fxaa_out.use()  # the scissor test off for the blit too
+            ctx.copy_framebuffer(self._fxaa_out, self._scene_only)
+            box = self._screen_box(state)
+            self._fxaa_out.scissor = box
             self._fxaa_out.use()
-            if box is not None:
-                self._fxaa_out.clear(*map(float, self.options.background), 1.0)
-                self._fxaa_out.scissor = box
-                self._fxaa_out.use()
             self._scene_tex.use(_UNIT_SCENE)
             for prog in (self._fxaa_mark, self._fxaa):
                 _set(prog, "u_scene", _UNIT_SCENE)
                 _set(prog, "u_texel", (1.0 / self._size[0], 1.0 / self._size[1]))
-            # Pass 1 copies every pixel and writes depth 1 at edges, 0 elsewhere (over the
-            # box: no clear needed); pass 2, at depth 0.5, shades where '<' passes: the edges.
+            # Pass 1 writes depth alone, 1 at edges and 0 elsewhere (over the box: no clear
+            # needed); pass 2, at depth 0.5, shades where '<' passes: the edges.
+            self._fxaa_out.color_mask = (False, False, False, False)
             ctx.depth_func = "1"
             self._fxaa_mark_vao.render(moderngl.TRIANGLES, vertices=3)
+            self._fxaa_out.color_mask = (True, True, True, True)
             ctx.depth_func = "<"
             self._fxaa_vao.render(moderngl.TRIANGLES, vertices=3)
 
@@ -459,10 +464,10 @@ class Renderer:
         return int(x0), int(y0), int(max(x1 - x0, 0)), int(max(y1 - y0, 0))
 
     def _read(self, framebuffer, attachment: int = 0) -> np.ndarray:
-        width, height = self._size
-        image = np.empty((height, width, 3), np.uint8)  # a fresh array: callers queue it
-        framebuffer.read_into(image, components=3, attachment=attachment, alignment=1)
-        return image
+        # RGBA comes back as is, where GL's RGB read converts pixel by pixel (on llvmpipe
+        # 0.27 ms a 512x512 read, against 0.02 + OpenCV's 0.08 ms to drop the alpha).
+        framebuffer.read_into(self._rgba, components=4, attachment=attachment, alignment=1)
+        return cv2.cvtColor(self._rgba, cv2.COLOR_RGBA2RGB)  # a fresh array: callers queue it
 
     def render(self, state: FrameState) -> np.ndarray:
         """Draw one frame: (H, W, 3) uint8 sRGB, row 0 at the top."""
