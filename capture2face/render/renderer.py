@@ -7,7 +7,10 @@ shader's morph loop and per-joint uniform indexing cost ~12% of a frame. Uniform
 carry the head pose, lights and zone weights; textures are uploaded once.
 
 Wrinkle maps are uploaded as Jimenez's partial derivatives, two maps per RGBA16F layer, so
-the ``auto`` driver adds one texture fetch per pixel. The influence view can come out of
+the ``auto`` driver adds one texture fetch per pixel. A frame is two draws: the face skin
+with its normal and wrinkle maps, then everything else (eyes, mouth, the head beyond the
+face) with a program compiled without them, since a software GL runs every side of a
+branch and would run the maps' code for every pixel. The influence view can come out of
 the shaded draw itself (``influence_output``: a second colour attachment), so a
 compare video costs one rasterization per frame, not two. Images are rasterized with the
 projection's y flipped, so GL's bottom-up rows read back top-down without a copy.
