@@ -667,3 +667,27 @@ def test_back_face_culling_changes_no_visible_surface_of_the_avatar(avatar):
         for state in open_mouth:
             diff = np.abs(culled.render(state).astype(int) - full.render(state).astype(int)).max(-1)
             assert (diff > 8).sum() <= 40
+
+
+def test_face_skin_and_the_rest_drawn_apart_whatever_the_triangle_order(avatar):
+    """A frame is two draws (the face skin with its maps, the rest without): every
+    triangle is drawn once, by the program of its material, so shuffling a rig's
+    triangles (materials interleaved, as a glTF character's may be) draws the same image,
+    wrinkles and eyes included; and the eyes take no wrinkle weight in the influence view."""
+    rng = np.random.default_rng(3)
+    shuffled = avatar.replace(triangles=avatar.triangles[rng.permutation(len(avatar.triangles))])
+    state = FrameState.at_pose(avatar, framing_pose(avatar, 20.0, 5.0, 0.0, 30.0), "stretch")
+    opts = RenderOptions(size=256, wrinkles="auto", samples=1, influence_output=True)
+    with Renderer.create_from_options(avatar, opts) as r, Renderer.create_from_options(shuffled, opts) as s:
+        assert [count for _, _, count in r._draws] == [3 * int((avatar.material[avatar.triangles[:, 2]] == 0).sum()),
+                                                       3 * int((avatar.material[avatar.triangles[:, 2]] != 0).sum())]
+        image, influence = r.render_with_influence(state)
+        image_s, influence_s = s.render_with_influence(state)
+    assert np.array_equal(image, image_s) and np.array_equal(influence, influence_s)
+    # The stretch pose (eyes open) lights the influence view blue on the forehead, never
+    # on the irises, which show the plain grey shading.
+    irises = r.deformed_positions(state)[avatar.landmark_vertices[[468, 473]]]
+    px = np.floor(project(irises, state.head_pose, 30.0, (256, 256))).astype(int)
+    iris_colour = influence[px[:, 1], px[:, 0]].astype(int)
+    blue = influence[..., 2].astype(int) - influence[..., 0] > 60
+    assert blue.sum() > 200 and np.ptp(iris_colour, axis=1).max() <= 2
