@@ -53,12 +53,10 @@ def renderer(package: str, size: int, frames: int):
 
     render = importlib.import_module(f"{package}.render")
     benchmark = importlib.import_module(f"{package}.render.benchmark")
-    context = importlib.import_module(f"{package}.render.context")
+    pipeline = importlib.import_module(f"{package}.pipeline")
     avatar = importlib.import_module(f"{package}.rig.avatar")
     rig = avatar.default_avatar()
-    software = context.software_gl()
-    options = render.RenderOptions(size=size, wrinkles="auto", samples=1 if software else 4, fxaa=software,
-                                   influence_output=True)
+    options = pipeline.run_render_options(pipeline.RunOptions(size=size, wrinkles="auto"))
     r = render.Renderer.create_from_options(rig, options)
     states = benchmark.sweep_states(rig, frames, options.fov_y_degrees)
     with r.ctx:

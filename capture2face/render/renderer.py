@@ -242,7 +242,8 @@ class Renderer:
         skin = np.asarray(rig.material)[rig.triangles[:, 2]] == 0
         triangles = np.concatenate([rig.triangles[skin], rig.triangles[~skin]])
         index = self._keep(ctx.buffer(np.ascontiguousarray(triangles, np.int32).tobytes()))
-        runs = ((0, int(skin.sum())), (int(skin.sum()), int((~skin).sum())))
+        n_skin = int(skin.sum())
+        runs = ((0, n_skin), (n_skin, len(triangles) - n_skin))
         self._draws = [(self._keep(ctx.vertex_array(prog, bufs, index_buffer=index, index_element_size=4,
                                                     skip_errors=True)), 3 * first, 3 * count)
                        for prog, (first, count) in zip(self._programs, runs) if count]
