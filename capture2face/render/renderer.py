@@ -435,19 +435,20 @@ class Renderer:
             self._fxaa_out.scissor = None
             self._fxaa_out.use()  # the scissor test off for the blit too
             ctx.copy_framebuffer(self._fxaa_out, self._scene_only)
-            box = self._screen_box(state)
-            self._fxaa_out.scissor = box
-            self._fxaa_out.use()
             self._scene_tex.use(_UNIT_SCENE)
             for prog in (self._fxaa_mark, self._fxaa):
                 _set(prog, "u_scene", _UNIT_SCENE)
                 _set(prog, "u_texel", (1.0 / self._size[0], 1.0 / self._size[1]))
             # Pass 1 writes depth alone, 1 at edges and 0 elsewhere (over the box: no clear
-            # needed); pass 2, at depth 0.5, shades where '<' passes: the edges.
+            # needed); pass 2, at depth 0.5, shades where '<' passes: the edges. (A
+            # framebuffer's colour mask and scissor reach GL when it is used.)
+            self._fxaa_out.scissor = self._screen_box(state)
             self._fxaa_out.color_mask = (False, False, False, False)
+            self._fxaa_out.use()
             ctx.depth_func = "1"
             self._fxaa_mark_vao.render(moderngl.TRIANGLES, vertices=3)
             self._fxaa_out.color_mask = (True, True, True, True)
+            self._fxaa_out.use()
             ctx.depth_func = "<"
             self._fxaa_vao.render(moderngl.TRIANGLES, vertices=3)
 

@@ -30,11 +30,10 @@ void main() {
     float up = max(m, max(max(nw, ne), max(sw, se)));
     bool flat_area = up - lo < max(EDGE_MIN, up * EDGE_REL);  // most pixels
 #ifdef MARK_EDGES
-    // Pass 1 (colour writes masked off: the image was copied already): the depth marks
-    // the edges (1) for pass 2, drawn at depth 0.5, which the early depth test then skips
-    // everywhere else. (A software GL runs both sides of a branch, so one pass would
+    // Pass 1 writes no colour (masked off: the image was copied already): the depth
+    // marks the edges (1) for pass 2, drawn at depth 0.5, which the early depth test then
+    // skips everywhere else. (A software GL runs both sides of a branch, so one pass would
     // blend every pixel.)
-    f_color = vec4(rgb_m, 1.0);
     gl_FragDepth = flat_area ? 0.0 : 1.0;
 #else
     if (flat_area) {
