@@ -27,8 +27,14 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any, Iterable
 
+from tqdm import tqdm
+
 from capture2face.errors import CaptureError, install_process_defaults
 from capture2face.io.atomic import write_text_atomic
+from capture2face.io.staging import check_writable
+from capture2face.pipeline import RunOptions, options_json, outputs_complete, run
+from capture2face.pipeline.preflight import check_gl, check_shared
+from capture2face.runtime.cores import free_cores
 
 VIDEO_EXTENSIONS = (".mp4", ".mov", ".m4v", ".mkv", ".avi", ".webm", ".mpg", ".mpeg", ".wmv", ".flv")
 LIST_EXTENSIONS = (".txt", ".lst")
@@ -108,8 +114,6 @@ def _worker_init() -> None:
 
 def _run_clip(path: str, out: str, name: str, options: Any) -> dict:
     """Worker body: one clip through the pipeline; never raises for a bad clip."""
-    from capture2face.pipeline import run
-
     t0 = time.perf_counter()
     try:
         report = run(path, out, options, progress=False, name=name)
@@ -188,8 +192,6 @@ def resume_check(folder: str | os.PathLike, options: Any) -> tuple[bool, str | N
     normalised as report.json writes them; an option missing from an older report counts
     as its default.
     """
-    from capture2face.pipeline import RunOptions, _options_json, outputs_complete
-
     folder = Path(folder)
     if not (folder / "report.json").exists():
         return False, None
@@ -201,8 +203,8 @@ def resume_check(folder: str | os.PathLike, options: Any) -> tuple[bool, str | N
         stored = None
     if not isinstance(stored, dict):
         return False, "no options in its report.json"
-    wanted = _options_json(options)
-    defaults = _options_json(RunOptions())
+    wanted = options_json(options)
+    defaults = options_json(RunOptions())
     changed = []
     for name, new in wanted.items():
         if name in _RESUME_IGNORED:
@@ -258,9 +260,6 @@ def run_batch(inputs: Iterable[str | os.PathLike], out: str | os.PathLike, optio
     Raises:
         CaptureError: no clips found, output folder not writable, Ray not installed.
     """
-    from capture2face.io.staging import check_writable
-    from capture2face.pipeline import RunOptions
-
     options = options or RunOptions()
     out = Path(out)
     clips = expand_inputs(inputs)
@@ -269,7 +268,6 @@ def run_batch(inputs: Iterable[str | os.PathLike], out: str | os.PathLike, optio
     # limits, the face model, a drivable character (the default avatar is), and the GL
     # context where the workers are local processes (a Ray worker may be another machine).
     # The default avatar too: built here once (then cached) rather than by every worker.
-    from capture2face.preflight import check_gl, check_shared
 
     check_shared(options, progress)
     if not ray_address:
@@ -288,8 +286,6 @@ def run_batch(inputs: Iterable[str | os.PathLike], out: str | os.PathLike, optio
 
     bar = None
     if progress:
-        from tqdm import tqdm
-
         bar = tqdm(total=len(clips), initial=len(clips) - len(todo), desc="clips", unit="clip")
 
     def done(i: int, result: dict) -> None:
@@ -303,8 +299,6 @@ def run_batch(inputs: Iterable[str | os.PathLike], out: str | os.PathLike, optio
         if not todo:
             pass
         else:
-            from capture2face.tracking.segments import free_cores  # as tracking counts them
-
             n_jobs = max(1, min(jobs or free_cores(), len(todo)))
             if (ray_address or n_jobs > 1) and options.track_workers is None:
                 # Clips in parallel already fill the cores (and a Ray task has one CPU):

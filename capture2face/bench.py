@@ -3,7 +3,7 @@ synthetic clip; and a memory check (peak RSS of a long clip against a short one)
 
 Figures (all frames per second of wall time unless named otherwise):
 
-* ``decode_fps``: :func:`~capture2face.tracking.video.iter_frames` alone.
+* ``decode_fps``: :func:`~capture2face.io.video_input.iter_frames` alone.
 * ``mediapipe_fps``: MediaPipe's Face Landmarker alone (single-face, VIDEO mode, its
   Python API), only its calls timed, on the same frames.
 * ``track_fps``: :func:`~capture2face.tracking.track_clip` with one landmarker (decode +
@@ -44,11 +44,31 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from capture2face.errors import CaptureError
+from capture2face.io.atomic import atomic_path
+from capture2face.io.video_input import iter_frames
+from capture2face.io.video_output import VideoWriter
+from capture2face.models.face_model import find_face_model
+from capture2face.pipeline import (
+    RunOptions,
+    avatar_head_poses,
+    run,
+    run_render_options,
+    track_stage,
+)
+from capture2face.render import FrameState, Renderer
+from capture2face.retarget import RetargetOptions, retarget
+from capture2face.rig import influences as inf
+from capture2face.rig.avatar import default_avatar
+from capture2face.runtime.cores import free_cores
+from capture2face.synth import SynthOptions, synthesize
+from capture2face.tracking.landmarker import LandmarkerOptions, _mediapipe_landmarker
 
 RENDER_FRAMES_MAX = 40  # frames per round and driver; the renderer's speed is per frame
 RENDER_ROUNDS = 5
@@ -76,8 +96,6 @@ class _Clock:
 
 def cpu_cores() -> int:
     """Cores this process may run on."""
-    from capture2face.tracking.segments import free_cores
-
     return free_cores()
 
 
@@ -85,10 +103,6 @@ def mediapipe_alone(clip, max_frames: int | None = None) -> float:
     """Frames per second of MediaPipe's Face Landmarker alone on ``clip``'s frames (one
     single-face landmarker in VIDEO mode through its Python API; decoding not timed)."""
     import mediapipe as mp
-
-    from capture2face.tracking.landmarker import LandmarkerOptions, _mediapipe_landmarker
-    from capture2face.tracking.model import find_face_model
-    from capture2face.tracking.video import iter_frames
 
     lm = _mediapipe_landmarker(find_face_model(None), LandmarkerOptions(), 1)
     busy, n = 0.0, 0
@@ -115,8 +129,6 @@ def _best_of(fn, repeats: int = 3) -> float:
 
 def _wrinkle_part(animation, rig):
     """What retarget() computes for wrinkles from the solved bones (Dutreve §5.1-5.2)."""
-    from capture2face.retarget import influences as inf
-
     influences = inf.rig_influences(animation.bone_positions, rig)
     inf.rest_influence(influences)
     inf.region_influence(influences, rig)
@@ -131,15 +143,6 @@ def peak_rss_mb() -> float:
 def run_bench(size: int = 512, frames: int = 300, progress: bool = True, seed: int = 0) -> dict:
     """Measure each stage and the whole pipeline on a synthetic clip of ``frames`` frames
     at ``size`` x ``size``. Returns a dict of figures (see the module doc)."""
-    from dataclasses import replace
-
-    from capture2face.pipeline import RunOptions, run, track_stage
-    from capture2face.render.video import VideoWriter
-    from capture2face.retarget import RetargetOptions, retarget
-    from capture2face.rig.avatar import default_avatar
-    from capture2face.synth import SynthOptions, synthesize
-    from capture2face.tracking.video import iter_frames
-
     if frames < 10:
         raise CaptureError(f"--frames must be at least 10 (got {frames})")
     result: dict = {"size": int(size), "frames": int(frames)}
@@ -213,13 +216,6 @@ def _render_rounds(rig, animation, options, progress: bool = True) -> tuple[list
     """Render fps per wrinkle driver, interleaved (see the module doc). Returns up to 30
     ``auto`` frames (for the encode figure), the figures, and the ``auto`` driver's
     processor time per frame (ms)."""
-    from dataclasses import replace
-
-    from tqdm import tqdm
-
-    from capture2face.pipeline import avatar_head_poses, run_render_options
-    from capture2face.render import FrameState, Renderer
-
     drivers = ("off", "auto", "dynamic")
     n_render = min(animation.n_frames, RENDER_FRAMES_MAX)
     base = run_render_options(options)
@@ -284,8 +280,6 @@ def loop_clip(source: str | os.PathLike, dest: str | os.PathLike, seconds: float
     """
     import av
 
-    from capture2face.io.atomic import atomic_path
-
     with av.open(str(source)) as inp:
         stream = inp.streams.video[0]
         packets = [(bytes(p), p.pts, p.dts, p.duration, p.is_keyframe) for p in inp.demux(stream) if p.size]
@@ -339,8 +333,6 @@ def memory_check(long_seconds: float = 600.0, short_seconds: float = 10.0, size:
         ``short_peak_rss_mb``, ``long_peak_rss_mb``, ``ratio`` (long / short), the clip
         lengths in frames and the wall time of each run.
     """
-    from capture2face.synth import SynthOptions, synthesize
-
     fps = 30.0
     with tempfile.TemporaryDirectory(prefix="capture2face-memory-") as tmp:
         tmp = Path(tmp)

@@ -12,25 +12,36 @@ import json
 import sys
 from pathlib import Path
 
+from capture2face import batch, bench, pipeline
 from capture2face.errors import CaptureError, install_process_defaults
+from capture2face.eval.fidelity import evaluate_fidelity, table
+from capture2face.eval.synthetic import evaluate_synthetic, summary_line
+from capture2face.gltf import export_glb
+from capture2face.gltf.arkit_export import export_arkit_character
+from capture2face.io.atomic import write_text_atomic
+from capture2face.io.video_input import open_video
+from capture2face.models.face_model import find_face_model
+from capture2face.pipeline import RunOptions
+from capture2face.pipeline.options import MAX_SIZE, MIN_SIZE
+from capture2face.pipeline.preflight import check_neutral_frame
+from capture2face.render.renderer import WRINKLE_DRIVERS
+from capture2face.rig.avatar import default_avatar
+from capture2face.rig.maps import write_maps
+from capture2face.synth import SynthOptions, synthesize
+from capture2face.tracking import TrackOptions, track_clip
+from capture2face.tracking.landmarker import defer_pyplot
+from capture2face.tracking.overlay import write_overlay
+
 
 def _cmd_avatar(args: argparse.Namespace) -> int:
-    from capture2face.rig.avatar import default_avatar
-
     rig = default_avatar(variant=args.variant)
     if args.maps:
-        from capture2face.rig.maps import write_maps
-
         write_maps(rig, args.maps)
         print(f"wrote the textures and masks of '{rig.name}' to {args.maps}")
     if args.export:
-        from capture2face.gltf import export_glb
-
         export_glb(rig, args.export)
         print(f"wrote {args.export}")
     if args.export_arkit:
-        from capture2face.gltf.arkit_export import export_arkit_character
-
         export_arkit_character(rig, args.export_arkit, naming=args.naming, quantize=args.quantize,
                                skeleton=args.skeleton, body=args.body)
         print(f"wrote {args.export_arkit}")
@@ -46,8 +57,6 @@ def _cmd_avatar(args: argparse.Namespace) -> int:
 
 
 def _cmd_synth(args: argparse.Namespace) -> int:
-    from capture2face.synth import SynthOptions, synthesize
-
     opts = SynthOptions(
         frames=args.frames, seed=args.seed, size=args.size, fps=args.fps,
         head_motion=not args.no_head_motion, expression=not args.no_expression,
@@ -60,8 +69,6 @@ def _cmd_synth(args: argparse.Namespace) -> int:
 
 def _track_options(args: argparse.Namespace):
     """The ``track`` command's TrackOptions, checked (TrackOptions.validate's bounds)."""
-    from capture2face.tracking import TrackOptions
-
     options = TrackOptions(face_model=args.face_model, neutral_frame=args.neutral_frame,
                            faces=args.faces, face=args.face, workers=args.track_workers)
     options.validate()
@@ -69,11 +76,6 @@ def _track_options(args: argparse.Namespace):
 
 
 def _cmd_track(args: argparse.Namespace) -> int:
-    from capture2face.preflight import check_neutral_frame
-    from capture2face.tracking import track_clip
-    from capture2face.tracking.model import find_face_model
-    from capture2face.tracking.video import open_video
-
     # Before tracking: the options, the clip decodes, the neutral frame lies inside it,
     # the model exists.
     options = _track_options(args)
@@ -82,8 +84,6 @@ def _cmd_track(args: argparse.Namespace) -> int:
     track = track_clip(args.clip, options, progress=not args.quiet)
     track.save(args.output)
     if args.overlay:
-        from capture2face.tracking.overlay import write_overlay
-
         write_overlay(args.clip, track, args.overlay, progress=not args.quiet)
     print(
         f"{args.output}: {track.n_frames} frames, {track.tracked_frames} with a face, "
@@ -93,15 +93,13 @@ def _cmd_track(args: argparse.Namespace) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from capture2face.pipeline import RunOptions, run
-
     opts = RunOptions(
         character=args.character, wrinkles=args.wrinkles, size=args.size,
         neutral_frame=args.neutral_frame, face_model=args.face_model, audio=not args.no_audio,
         faces=args.faces, face=args.face, track_workers=args.track_workers,
     )
     opts.allow_truncated = args.allow_truncated
-    report = run(args.clip, args.output, opts, progress=not args.quiet)
+    report = pipeline.run(args.clip, args.output, opts, progress=not args.quiet)
     for warning in report["warnings"]:  # also in report.json
         print(f"capture2face: warning: {warning}", file=sys.stderr)
     print(f"wrote {report['output_dir']} ({report['frames']} frames, {report['fps_processing']:.1f} fps)")
@@ -109,20 +107,15 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_eval(args: argparse.Namespace) -> int:
-    from capture2face.evaluate import evaluate_synthetic
-
     result = evaluate_synthetic(
         frames=args.frames, seed=args.seed, target_variant=args.target_variant,
         size=args.size, progress=not args.quiet,
     )
     text = json.dumps(result, indent=2)
     if args.json:
-        from capture2face.io.atomic import write_text_atomic
-
         write_text_atomic(args.json, text + "\n")
     print(text)
     if not args.quiet:  # the ratios and goals at a glance; stdout stays plain JSON
-        from capture2face.evaluate import summary_line
 
         print(summary_line(result, "truth's neutral"), file=sys.stderr)
         if "auto_neutral" in result:
@@ -131,13 +124,9 @@ def _cmd_eval(args: argparse.Namespace) -> int:
 
 
 def _cmd_eval_fidelity(args: argparse.Namespace) -> int:
-    from capture2face.fidelity import evaluate_fidelity, table
-
     result = evaluate_fidelity(args.paths, character=args.character, plot_dir=args.plots,
                                progress=not args.quiet)
     if args.json:
-        from capture2face.io.atomic import write_text_atomic
-
         write_text_atomic(args.json, json.dumps(result, indent=2) + "\n")
     print(table(result["clips"]))
     print(result["summary"])
@@ -145,14 +134,11 @@ def _cmd_eval_fidelity(args: argparse.Namespace) -> int:
 
 
 def _cmd_batch(args: argparse.Namespace) -> int:
-    from capture2face.batch import run_batch
-    from capture2face.pipeline import RunOptions
-
     opts = RunOptions(character=args.character, wrinkles=args.wrinkles, size=args.size,
                       face_model=args.face_model, audio=not args.no_audio, faces=args.faces, face=args.face,
                       track_workers=args.track_workers)
     opts.allow_truncated = args.allow_truncated
-    report = run_batch(args.inputs, args.output, opts, jobs=args.jobs, resume=args.resume,
+    report = batch.run_batch(args.inputs, args.output, opts, jobs=args.jobs, resume=args.resume,
                        ray_address=args.ray, progress=not args.quiet)
     failed = report["summary"]["failed"]  # this batch's (the report also keeps earlier entries)
     print(f"{sum(report['summary'][s] for s in ('ok', 'failed', 'skipped', 'pending'))} clips, {failed} failed; see {Path(args.output) / 'batch_report.json'}")
@@ -160,22 +146,15 @@ def _cmd_batch(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
-    from capture2face.bench import run_bench
-
     if args.memory_seconds:
-        from capture2face.bench import memory_check
-
-        result = memory_check(long_seconds=args.memory_seconds, size=args.size, progress=not args.quiet)
+        result = bench.memory_check(long_seconds=args.memory_seconds, size=args.size, progress=not args.quiet)
     else:
-        result = run_bench(size=args.size, frames=args.frames, progress=not args.quiet)
+        result = bench.run_bench(size=args.size, frames=args.frames, progress=not args.quiet)
     text = json.dumps(result, indent=2)
     if args.json:
-        from capture2face.io.atomic import write_text_atomic
-
         write_text_atomic(args.json, text + "\n")
     print(text)
     if not args.quiet:  # the ratios and goals at a glance; stdout stays plain JSON
-        from capture2face.evaluate import summary_line
 
         print(summary_line(result, "truth's neutral"), file=sys.stderr)
         if "auto_neutral" in result:
@@ -188,9 +167,6 @@ NEUTRAL_HELP = ("index of the frame with the actor's neutral face (default: pick
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from capture2face.preflight import MAX_SIZE, MIN_SIZE
-    from capture2face.render.renderer import WRINKLE_DRIVERS
-
     parser = argparse.ArgumentParser(
         prog="capture2face",
         description="Performance capture: a face video drives a wrinkled 3D character.",
@@ -339,7 +315,6 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     install_process_defaults()
     if argv is None:  # the process is the command (not a caller's main(args))
-        from capture2face.tracking.landmarker import defer_pyplot
 
         defer_pyplot()  # it imports MediaPipe, never matplotlib
     try:

@@ -135,7 +135,7 @@ def test_an_animation_file_without_arkit_curves_still_loads(tmp_path):
 def test_jaw_open_follows_the_mouth_on_a_real_clip():
     """d18 opens the jaw wide twice: JawOpen follows the mouth opening (r >= 0.9) and
     reaches >= 0.7, where the tracker's raw score (beside it) does worse on r."""
-    from capture2face.fidelity import clip_fidelity
+    from capture2face.measures import clip_fidelity
     from capture2face.pipeline import RunOptions, load_character, retarget_stage, track_stage
 
     track = track_stage(shared_clip("d18.mp4"), RunOptions(), progress=False)

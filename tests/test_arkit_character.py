@@ -107,7 +107,7 @@ def test_arkit_character_is_driven_by_the_arkit_curves(tmp_path, avatar):
 
 
 def test_head_joint_turns_the_head_and_not_the_body(tmp_path, avatar):
-    from capture2face.render.camera import face_centre_and_height, rotation_matrix
+    from capture2face.camera import face_centre_and_height, rotation_matrix
     from capture2face.render.skinning import Deformer
 
     path = tmp_path / "body.glb"
@@ -198,7 +198,7 @@ def _static_morph_glb(path, names, extensions=()):
 
 
 def test_undrivable_character_says_what_is_missing(tmp_path):
-    from capture2face.preflight import check_character
+    from capture2face.pipeline.preflight import check_character
 
     bad = _static_morph_glb(tmp_path / "visemes.glb", ["viseme_aa", "viseme_O"])
     with pytest.raises(CaptureError, match="no ARKit names and no face bones") as err:
@@ -252,9 +252,9 @@ def _accessor(gltf, binary: bytes, index: int) -> np.ndarray:
 def test_animation_glb_of_the_users_character(tmp_path, avatar, skeleton):
     import pygltflib
 
-    from capture2face.gltf.animation import head_rotations
+    from capture2face.gltf.animation_export import head_rotations
     from capture2face.gltf.character import export_character_animation
-    from capture2face.render.camera import face_centre_and_height, rotation_ypr
+    from capture2face.camera import face_centre_and_height, rotation_ypr
     from capture2face.retarget import retarget
 
     src = tmp_path / "char.glb"
@@ -417,9 +417,9 @@ def test_webp_textures_are_read(tmp_path, avatar):
 # ---- automatic wrinkle influences ----------------------------------------------------------------
 def test_automatic_wrinkle_influences_follow_the_morphs(tmp_path, avatar):
     from capture2face.pipeline import load_character
-    from capture2face.retarget import influences as inf
+    from capture2face.rig import influences as inf
     from capture2face.rig.arkit_names import is_automatic
-    from capture2face.rig.auto_wrinkles import feature_positions
+    from capture2face.rig.feature_points import feature_positions
 
     path = tmp_path / "char.glb"
     export_arkit_character(avatar, path, naming="_L", skeleton=True, body=True)

@@ -9,7 +9,7 @@ import av
 import numpy as np
 import pytest
 
-from capture2face.render.video import VideoWriter, is_constant_rate
+from capture2face.io.video_output import VideoWriter, is_constant_rate
 
 SR = 44100
 VFR_MS = np.array([0, 33, 50, 116, 133, 233, 250, 300, 400, 416, 450, 550, 566, 600, 700, 716,

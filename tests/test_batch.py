@@ -114,11 +114,10 @@ def test_batch_imports_a_glb_character_once(tmp_path, monkeypatch):
     """Two clips with an ARKit .glb character, one process: the batch's check and both
     clips share one import, so the automatic wrinkles (2-6 s) are built once; a changed
     file is imported again."""
-    from capture2face import pipeline
     from capture2face.batch import run_batch
+    from capture2face.character import load
     from capture2face.gltf.arkit_export import export_arkit_character
     from capture2face.pipeline import RunOptions, load_character
-    from capture2face.rig import auto_wrinkles
     from capture2face.rig.arkit_names import is_automatic
     from capture2face.rig.avatar import default_avatar
     from capture2face.synth import SynthOptions, synthesize
@@ -129,9 +128,9 @@ def test_batch_imports_a_glb_character_once(tmp_path, monkeypatch):
     char = tmp_path / "char.glb"
     export_arkit_character(default_avatar(), char, naming=".L")
     built = []
-    real = auto_wrinkles.automatic_wrinkles
-    monkeypatch.setattr(auto_wrinkles, "automatic_wrinkles", lambda rig, *a, **k: built.append(1) or real(rig, *a, **k))
-    monkeypatch.setattr(pipeline, "_IMPORTED", {})
+    real = load.automatic_wrinkles
+    monkeypatch.setattr(load, "automatic_wrinkles", lambda rig, *a, **k: built.append(1) or real(rig, *a, **k))
+    monkeypatch.setattr(load, "_IMPORTED", {})
 
     report = run_batch([clip, tmp_path / "b.mp4"], tmp_path / "out", RunOptions(character=char, size=64, compare=False),
                        jobs=1, progress=False)

@@ -60,7 +60,7 @@ def test_bench_cli_reports_every_figure(tmp_path):
 
 def test_looped_clip_repeats_the_source_exactly(tmp_path):
     from capture2face.bench import loop_clip
-    from capture2face.tracking.video import iter_frames, open_video
+    from capture2face.io.video_input import iter_frames, open_video
 
     sys.path.insert(0, os.path.dirname(__file__))
     from test_bad_input import write_video

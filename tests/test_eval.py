@@ -11,7 +11,7 @@ import json
 import numpy as np
 import pytest
 
-from capture2face.evaluate import evaluate_track, local_rest_maps, summary_line, synthetic_case, truth_on_target
+from capture2face.eval.synthetic import evaluate_track, local_rest_maps, summary_line, synthetic_case, truth_on_target
 from capture2face.rig.avatar import default_avatar
 
 

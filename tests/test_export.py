@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from capture2face.errors import CaptureError
-from capture2face.gltf.animation import head_rotations, read_animation_keyframe_count, read_glb_animation
+from capture2face.gltf.animation_export import head_rotations, read_animation_keyframe_count, read_glb_animation
 from capture2face.export.livelink import HEADER, head_angles, timecodes, write_livelink_csv
 from capture2face.retarget.animation import Animation
 from capture2face.rig.face_rig import REGION_NAMES, ZONE_NAMES
@@ -154,7 +154,7 @@ def test_nearest_rotation_takes_out_scale_shear_and_reflection():
     joint parent and Live Link's head angles."""
     from scipy.spatial.transform import Rotation
 
-    from capture2face.rotations import nearest_rotation, rotation_part
+    from capture2face.maths.rotations import nearest_rotation, rotation_part
 
     r = Rotation.random(5, random_state=3).as_matrix()
     np.testing.assert_allclose(nearest_rotation(r * 2.5), r, atol=1e-12)  # batched

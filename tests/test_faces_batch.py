@@ -12,7 +12,7 @@ import pytest
 
 from capture2face.batch import _failure_line, resume_check, run_batch
 from capture2face.errors import CaptureError
-from capture2face.pipeline import OUTPUT_FILES, RunOptions, _options_json
+from capture2face.pipeline import OUTPUT_FILES, RunOptions, options_json
 from capture2face.tracking import TrackOptions, track_clip
 
 from conftest import shared_clip
@@ -28,8 +28,8 @@ def two_faces(tmp_path_factory) -> Path:
     (face 0) and a smaller one on the right (face 1)."""
     import cv2
 
-    from capture2face.render.video import VideoWriter
-    from capture2face.tracking.video import iter_frames
+    from capture2face.io.video_output import VideoWriter
+    from capture2face.io.video_input import iter_frames
 
     src = shared_clip("d3.mp4")
     path = tmp_path_factory.mktemp("faces") / "two.mp4"
@@ -145,7 +145,7 @@ def _fake_run(folder: Path, options: RunOptions, drop: tuple[str, ...] = ()) -> 
     names = [n for n in OUTPUT_FILES if n != "compare.mp4" or options.compare]
     for n in names:
         (folder / n).write_text("x")
-    stored = {k: v for k, v in _options_json(options).items() if k not in drop}
+    stored = {k: v for k, v in options_json(options).items() if k not in drop}
     (folder / "report.json").write_text(json.dumps({"outputs": names, "options": stored}))
 
 

@@ -1,4 +1,4 @@
-"""Expression fidelity on real clips (capture2face.fidelity, ``eval fidelity``)."""
+"""Expression fidelity on real clips (capture2face.measures, ``eval fidelity``)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from capture2face.fidelity import (
+from capture2face.measures import (
     MEASURES, ClipFidelity, character_measures, compare, direct_weights, faithful, lowpass,
     measures_from_points,
 )

@@ -89,7 +89,7 @@ def test_animation_glb_turns_the_eye_joints(avatar, tmp_path):
     sys.path.insert(0, str(Path(__file__).parent))
     from gltf_validator import validate
 
-    from capture2face.gltf.animation import read_glb_animation
+    from capture2face.gltf.animation_export import read_glb_animation
     from capture2face.rig.face_rig import eye_rotation_matrices
     from capture2face.gltf import export_glb, import_glb
     from tests.test_export import make_animation
@@ -114,7 +114,8 @@ def test_animation_glb_turns_the_eye_joints(avatar, tmp_path):
 
 
 def test_fidelity_judges_eye_yaw_against_the_eyelook_scores():
-    from capture2face.fidelity import GAZE_CHECKS, ClipFidelity, summary_line
+    from capture2face.eval.fidelity import summary_line
+    from capture2face.measures import GAZE_CHECKS, ClipFidelity
 
     T = 200
     t = np.arange(T) / 30.0

@@ -20,7 +20,7 @@ from capture2face.tracking import Track, TrackOptions, build_track
 from capture2face.tracking.filtering import CausalOneEuro, OneEuro, one_euro
 from capture2face.tracking.head_pose import canonical_mesh
 from capture2face.tracking.landmarker import BLENDSHAPE_NAMES, N_LANDMARKS, FaceObservation
-from capture2face.tracking.video import VideoInfo
+from capture2face.io.video_input import VideoInfo
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_retarget import perfect_track  # noqa: E402

@@ -165,7 +165,7 @@ def test_stale_staging_of_a_killed_run_is_removed_with_a_warning(tmp_path, caplo
 
 # ---- typed damage signal ------------------------------------------------------------------
 def test_damage_is_a_typed_event(sample_clip, tmp_path):
-    from capture2face.tracking.video import ClipDamage, iter_frames, watch_damage
+    from capture2face.io.video_input import ClipDamage, iter_frames, watch_damage
 
     cut = truncated_copy(sample_clip, tmp_path)
     with watch_damage(sample_clip) as other, watch_damage(cut) as damage:
@@ -178,13 +178,14 @@ def test_damage_is_a_typed_event(sample_clip, tmp_path):
 def test_damage_decision_does_not_read_warning_text(sample_clip, tmp_path, monkeypatch):
     """A damage event fails the run whatever its words; without one, no warning text does."""
     from capture2face import pipeline
-    from capture2face.tracking.video import ClipDamage, _report_damage
+    from capture2face.io.video_input import ClipDamage, _report_damage
+    from capture2face.pipeline import runner
 
     def damaged_track(clip, options, progress=True, workdir=None, workers=None, info=None):
         _report_damage(ClipDamage(str(clip), 3, 90, "decode_error", "frames lost after frame 3"))
         raise RuntimeError("tracking broke on the damage")
 
-    monkeypatch.setattr(pipeline, "track_stage", damaged_track)
+    monkeypatch.setattr(runner, "track_stage", damaged_track)
     with pytest.raises(CaptureError, match="^frames lost after frame 3$"):
         pipeline.run(sample_clip, tmp_path / "out", pipeline.RunOptions(compare=False, size=64), progress=False)
     assert not (tmp_path / "out").exists() or list((tmp_path / "out").iterdir()) == []
@@ -194,6 +195,8 @@ def test_damage_decision_does_not_read_warning_text(sample_clip, tmp_path, monke
 @pytest.mark.slow
 def test_run_keeps_user_files_and_replaces_only_its_own(sample_clip, tmp_path, monkeypatch, caplog):
     from capture2face import pipeline
+    from capture2face.pipeline import runner
+    from capture2face.runtime.log import log
 
     proj = tmp_path / "proj"
     folder = proj / "d19"
@@ -202,15 +205,15 @@ def test_run_keeps_user_files_and_replaces_only_its_own(sample_clip, tmp_path, m
     shutil.copy(sample_clip, clip)
     (folder / "notes.txt").write_text("take 3 was the good one")
     clip_bytes, clip_mtime = clip.read_bytes(), clip.stat().st_mtime_ns
-    real_track = pipeline.track_stage
+    real_track = runner.track_stage
 
     def track_with_a_truncated_word(*args, **kwargs):
-        pipeline.log.warning("the word truncated in a warning decides nothing")
+        log.warning("the word truncated in a warning decides nothing")
         return real_track(*args, **kwargs)
 
-    monkeypatch.setattr(pipeline, "track_stage", track_with_a_truncated_word)
+    monkeypatch.setattr(runner, "track_stage", track_with_a_truncated_word)
     report = pipeline.run(clip, proj, pipeline.RunOptions(size=64), progress=False)
-    monkeypatch.setattr(pipeline, "track_stage", real_track)
+    monkeypatch.setattr(runner, "track_stage", real_track)
     assert any("truncated" in w for w in report["warnings"])
     assert "compare.mp4" in report["outputs"]
     names = sorted(p.name for p in folder.iterdir())
@@ -240,12 +243,12 @@ def test_run_keeps_user_files_and_replaces_only_its_own(sample_clip, tmp_path, m
 # ---- OSError at the command line ------------------------------------------------------------
 ENOSPC_RUN = """
 import errno, os, sys
-from capture2face import pipeline
-real = pipeline.export_stage
+from capture2face.pipeline import runner
+real = runner.export_stage
 def export_stage(rig, animation, folder, track=None, **kw):
     real(rig, animation, folder, track, **kw)
     raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), os.path.join(folder, "livelink.csv"))
-pipeline.export_stage = export_stage
+runner.export_stage = export_stage
 from capture2face.cli import main
 raise SystemExit(main(sys.argv[1:]))
 """

@@ -42,7 +42,7 @@ def video_stats(path: Path) -> tuple[int, float, int, int]:
 
 def check_outputs(folder: Path, clip: Path) -> dict:
     """Every check of issue 6 on one run's output folder; returns its report."""
-    from capture2face.gltf.animation import read_animation_keyframe_count, read_glb_animation
+    from capture2face.gltf.animation_export import read_animation_keyframe_count, read_glb_animation
     from capture2face.retarget.animation import Animation
     from capture2face.gltf import import_glb
     from capture2face.tracking.track import Track
@@ -217,7 +217,7 @@ def test_glabella_compress_follows_frowns():
 
 
 def test_compare_frame_puts_landmarks_on_the_source_pixels():
-    from capture2face.compose import SourceFitter, compare_frame
+    from capture2face.pipeline.compose import SourceFitter, compare_frame
 
     source = np.zeros((480, 640, 3), np.uint8)
     source[300:310, 100:110] = 255  # a white square centred on (105, 305)
@@ -287,14 +287,14 @@ def test_a_face_that_leaves_the_frame_keeps_every_frame(tmp_path):
     assert any("no face in" in w for w in report["warnings"])
     assert video_stats(folder / "avatar.mp4")[0] == 75
     assert len((folder / "livelink.csv").read_text().splitlines()) == 76
-    from capture2face.gltf.animation import read_animation_keyframe_count
+    from capture2face.gltf.animation_export import read_animation_keyframe_count
 
     assert read_animation_keyframe_count(folder / "animation.glb") == 75
 
 
 def test_avatar_follows_the_tracked_head_rotation_centred():
     from capture2face.pipeline import avatar_head_poses, load_character
-    from capture2face.render.camera import framing_pose, rotation_matrix
+    from capture2face.camera import framing_pose, rotation_matrix
 
     rig = load_character(None)
     tracked = np.tile(np.eye(4), (3, 1, 1))
@@ -318,9 +318,9 @@ def test_encoders_get_threads_only_where_cores_are_free():
 @pytest.mark.slow
 def test_exports_written_beside_the_render_where_cores_are_free(sample_run, sample_clip, tmp_path, monkeypatch):
     from capture2face.pipeline import RunOptions, run
-    from capture2face.tracking import segments
+    from capture2face.pipeline import runner
 
-    monkeypatch.setattr(segments, "free_cores", lambda: 8)  # the exports go in a thread beside the render
+    monkeypatch.setattr(runner, "free_cores", lambda: 8)  # the exports go in a thread beside the render
     report = run(sample_clip, tmp_path, RunOptions(size=SIZE), progress=False)
     folder, _ = sample_run
     for name in ("animation.npz", "livelink.csv"):  # the same files as written after the render

@@ -168,7 +168,7 @@ RIGS = ["rig", "avatar"]  # the test patch (UV seam, known layout) and the defau
 # Helpers
 
 from capture2face.render import FrameState, Renderer, RenderOptions, heatmap  # noqa: E402
-from capture2face.render.camera import framing_pose, project  # noqa: E402
+from capture2face.camera import framing_pose, project  # noqa: E402
 from capture2face.render.dynamic import dynamic_wrinkle_weights  # noqa: E402
 from capture2face.render.normal_blend import oat_blend, pd_decode, pd_encode  # noqa: E402
 
@@ -345,7 +345,7 @@ def test_auto_with_zero_influence_equals_off(rendered, blend):
 
 @pytest.mark.parametrize("blend", ["pd", "oat"])
 def test_stretch_wrinkles_inside_forehead_only(rendered, blend):
-    from capture2face.retarget.influences import rig_influences, vertex_influences
+    from capture2face.rig.influences import rig_influences, vertex_influences
 
     rig, view, renders = rendered
     stretch = rig.pose_index("stretch")
@@ -424,7 +424,7 @@ def test_avatar_wrinkles_read_clearly(avatar, avatar_looks, pose, region, at_lea
 def test_avatar_wrinkles_fade_in_with_the_influence(avatar, avatar_looks):
     """Scaling the stretch influence from 0 to 1 raises the forehead's change steadily:
     no popping (no step much larger than the average one), nothing before 0."""
-    from capture2face.retarget.influences import rig_influences
+    from capture2face.rig.influences import rig_influences
 
     view, looks = avatar_looks
     k = avatar.pose_index("stretch")
@@ -447,7 +447,7 @@ def test_avatar_wrinkles_fade_in_with_the_influence(avatar, avatar_looks):
 def test_avatar_fills_the_frame(avatar, avatar_looks):
     """framing_pose makes the rendered face about 60% of the frame tall, centred; the rest
     of the head (scalp, ears, neck) goes on around it."""
-    from capture2face.render.camera import project
+    from capture2face.camera import project
 
     view, looks = avatar_looks
     img = looks["off", "compress"].astype(int)
@@ -614,7 +614,7 @@ def test_heatmap_endpoints_and_shape():
 def test_video_writer_frames_and_rate(tmp_path):
     import av
 
-    from capture2face.render.video import VideoWriter
+    from capture2face.io.video_output import VideoWriter
 
     path = tmp_path / "out.mp4"
     n, size = 12, (64, 48)
@@ -632,7 +632,7 @@ def test_video_writer_frames_and_rate(tmp_path):
 
 
 def test_video_writer_is_atomic(tmp_path):
-    from capture2face.render.video import VideoWriter
+    from capture2face.io.video_output import VideoWriter
 
     with pytest.raises(RuntimeError):
         with VideoWriter(tmp_path / "broken.mp4", 25, (32, 32)) as out:

@@ -14,7 +14,7 @@ def _points(svg: str) -> list[np.ndarray]:
 
 
 def test_svg_plot_draws_each_series_inside_its_frame():
-    from capture2face.report_html import svg_plot
+    from capture2face.pipeline.report_html import svg_plot
 
     t = np.linspace(0.0, 2.0, 11)
     up, down = t / 2, 1 - t / 2
@@ -35,7 +35,7 @@ def test_svg_plot_draws_each_series_inside_its_frame():
 
 
 def test_svg_plot_breaks_lines_at_nan_and_keeps_peaks_when_decimating():
-    from capture2face.report_html import svg_plot
+    from capture2face.pipeline.report_html import svg_plot
 
     y = np.array([0.0, 1.0, np.nan, np.nan, 2.0, 3.0, 4.0])
     assert len(_points(svg_plot(np.arange(7.0), [("y", y, "#000")]))) == 2
@@ -51,7 +51,7 @@ def test_svg_plot_breaks_lines_at_nan_and_keeps_peaks_when_decimating():
 
 
 def test_poster_frames_pick_the_strongest_expressions():
-    from capture2face.report_html import choose_poster_frames
+    from capture2face.pipeline.report_html import choose_poster_frames
 
     n = 120
     names = ["jawOpen", "browInnerUp", "eyeBlinkLeft", "eyeBlinkRight"]
@@ -73,7 +73,7 @@ def test_poster_frames_pick_the_strongest_expressions():
 
 
 def test_page_without_video_or_fidelity_still_renders():
-    from capture2face.report_html import render_report_html
+    from capture2face.pipeline.report_html import render_report_html
 
     n = 40
     anim = SimpleNamespace(
@@ -92,7 +92,7 @@ def test_page_without_video_or_fidelity_still_renders():
 
 
 def test_break_gaps_inserts_a_nan_row_where_frames_are_missing():
-    from capture2face.report_html import break_gaps
+    from capture2face.pipeline.report_html import break_gaps
 
     t = np.array([0.0, 0.1, 0.2, 0.9, 1.0])
     v = np.arange(10.0).reshape(5, 2)

@@ -14,7 +14,7 @@ import pytest
 from scipy.optimize import minimize
 
 from capture2face.retarget import RetargetOptions, retarget, retarget_ms_per_frame
-from capture2face.retarget import influences as inf
+from capture2face.rig import influences as inf
 from capture2face.retarget.animation import Animation
 from capture2face.retarget.rbf import fit_feature_map
 from capture2face.retarget.solve import LinearRigModel, LinearSolver
@@ -205,7 +205,7 @@ def test_neutral_frame_maps_exactly_and_animation_is_complete(rig, performance):
 
 
 def test_cross_character_neutral_and_motion_scale(rig, wide, performance):
-    from capture2face.evaluate import truth_on_target
+    from capture2face.eval.synthetic import truth_on_target
 
     track = perfect_track(rig, performance)
     anim = retarget(track, wide, EXACT)
@@ -288,7 +288,8 @@ def test_default_priors_stay_close_on_a_perfect_track(rig, performance):
 
 
 def test_depth_motion_scales_the_trackers_depth_motion_only(rig, performance):
-    from capture2face.retarget import _fit_network, feature_correspondence
+    from capture2face.retarget import feature_correspondence
+    from capture2face.retarget.driver import _fit_network
 
     track = perfect_track(rig, performance)
     landmarks, target, _ = feature_correspondence(rig)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from capture2face.retarget.influences import rig_influences
+from capture2face.rig.influences import rig_influences
 from capture2face.rig import avatar as avatar_mod
 from capture2face.rig import maps as maps_mod
 from capture2face.rig import mesh_ops
@@ -148,9 +148,9 @@ def test_eyes_turn_about_their_centres_behind_the_lids(rig):
 def test_rotation_conventions_shared_by_camera_and_eyes():
     """One rotation_ypr (no GL import) for the camera and the eyes: its axes, and the eyes'
     Ry(yaw) Rx(pitch) with the pitch tipping the gaze down."""
-    from capture2face.render import camera
+    from capture2face import camera
     from capture2face.rig.face_rig import eye_rotation_matrices
-    from capture2face.rotations import rotation_ypr
+    from capture2face.maths.rotations import rotation_ypr
 
     assert camera.rotation_ypr is rotation_ypr  # the old import path still works
     z, x = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
@@ -477,7 +477,7 @@ def test_forehead_and_glabella_follow_the_brows(rig):
     """Their skin is weighted to the brow bones (Dutreve bone masks), so at the reference
     poses their per-vertex wrinkle influence is close to 1; the hairline stays partly
     with the head."""
-    from capture2face.retarget.influences import vertex_influences
+    from capture2face.rig.influences import vertex_influences
 
     dense = rig.dense_skin_weights()
     for pose, region, at_least in (("stretch", "forehead", 0.88), ("compress", "glabella", 0.95)):

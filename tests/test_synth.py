@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from capture2face.retarget.influences import group_influences, pose_influences
+from capture2face.rig.influences import group_influences, pose_influences
 from capture2face.synth import SynthOptions, render_performance
 from capture2face.synth.trajectories import (
     KEY_NEUTRAL, KEY_POSE0, PITCH_LIMIT, ROLL_LIMIT, YAW_LIMIT, random_performance,
@@ -66,7 +66,7 @@ def test_truth_influences_are_the_grouped_pose_influences(rig):
 
 @pytest.mark.parametrize("seed", range(5))
 def test_head_pose_within_limits(rig, seed):
-    from capture2face.render.camera import framing_pose
+    from capture2face.camera import framing_pose
 
     perf = random_performance(rig, 200, seed=seed)
     yaw, pitch, roll = np.abs(perf.head_angles).max(0)
@@ -124,7 +124,7 @@ def test_truth_file_beside_the_video(synthetic_clip):
 
 
 def test_truth_landmarks_are_the_renderers_projection(synthetic_clip):
-    from capture2face.render.camera import project
+    from capture2face.camera import project
 
     t = synthetic_clip.truth
     expect = project(t.landmarks_head, t.head_pose, t.fov_y, (t.width, t.height))
@@ -188,7 +188,7 @@ def _mediapipe_landmarks(video_path, times):
     import mediapipe as mp
     from mediapipe.tasks.python import BaseOptions, vision
 
-    from capture2face.tracking.model import find_face_model
+    from capture2face.models.face_model import find_face_model
 
     options = vision.FaceLandmarkerOptions(
         base_options=BaseOptions(model_asset_path=str(find_face_model())),

@@ -12,9 +12,19 @@ import pytest
 
 from capture2face.tracking import TrackOptions, track_clip
 from capture2face.tracking import segments
-from capture2face.tracking.video import frame_times, iter_frames, iter_segment, open_video
+from capture2face.io.video_input import frame_times, iter_frames, iter_segment, open_video
 
 EYES = (33, 263)
+
+
+def _parallel(clip, options, n_workers, **kwargs):
+    """segments.track_parallel with a Tracker for this process's segment, as track_clip calls it."""
+    from capture2face.io.video_input import open_video
+    from capture2face.tracking import segments
+    from capture2face.tracking.tracker import Tracker
+
+    info = open_video(clip)
+    return segments.track_parallel(clip, info, options, n_workers, lambda: Tracker(info, options, None), **kwargs)
 
 
 def _write(path, frames, fps=30, gop=None):
@@ -75,7 +85,7 @@ def test_segments_stitch_into_the_sequential_track(exit_clip, monkeypatch, caplo
     options = TrackOptions(workers=3)
     plan = segments.plan_segments(clip, 3)
     assert plan is not None and plan.n_segments == 3
-    par = segments.track_parallel(clip, open_video(clip), options, 3, progress=False)
+    par = _parallel(clip, options, 3, progress=False)
     assert par is not None, caplog.text  # no check failed: the clip was tracked in three segments
 
     # gaps and the neutral frame: the same frames, whichever landmarker saw them
@@ -111,9 +121,9 @@ def test_short_clip_and_face_index_track_with_one_landmarker(exit_clip, monkeypa
     clip = exit_clip.video_path
     monkeypatch.setattr(segments, "MIN_SEGMENT_FRAMES", 80)
     assert segments.plan_segments(clip, 4) is None  # 150 frames < two segments of 80
-    assert segments.track_parallel(clip, open_video(clip), TrackOptions(workers=4), 4, progress=False) is None
+    assert _parallel(clip, TrackOptions(workers=4), 4, progress=False) is None
     monkeypatch.setattr(segments, "MIN_SEGMENT_FRAMES", 40)
-    assert segments.track_parallel(clip, open_video(clip), TrackOptions(workers=2, face=0), 2,
+    assert _parallel(clip, TrackOptions(workers=2, face=0), 2,
                                    progress=False) is None
 
 
@@ -165,7 +175,7 @@ def test_a_failed_stitch_check_falls_back_to_one_landmarker(exit_clip, monkeypat
     clip = exit_clip.video_path
     monkeypatch.setattr(segments, "MIN_SEGMENT_FRAMES", 40)
     monkeypatch.setattr(segments, "_same_face", lambda *a: False)  # as if a worker took another face
-    assert segments.track_parallel(clip, open_video(clip), TrackOptions(workers=2), 2, progress=False) is None
+    assert _parallel(clip, TrackOptions(workers=2), 2, progress=False) is None
     track = track_clip(clip, TrackOptions(workers=2), progress=False)
     seq = track_clip(clip, TrackOptions(workers=1), progress=False)
     np.testing.assert_array_equal(track.landmarks_px, seq.landmarks_px)  # tracked by one, from the start
@@ -188,7 +198,7 @@ def test_workers_finishing_before_this_process_are_stitched(exit_clip, monkeypat
         return process(self, t, rgb)
 
     monkeypatch.setattr(tracker_mod.Tracker, "process", slow)
-    par = segments.track_parallel(clip, open_video(clip), TrackOptions(workers=3), 3, progress=False)
+    par = _parallel(clip, TrackOptions(workers=3), 3, progress=False)
     assert par is not None, caplog.text
     monkeypatch.setattr(tracker_mod.Tracker, "process", process)
     seq = track_clip(clip, TrackOptions(workers=1), progress=False)

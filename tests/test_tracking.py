@@ -20,8 +20,8 @@ from capture2face.tracking.head_pose import (
 )
 from capture2face.tracking.landmarker import BLENDSHAPE_NAMES, FaceLandmarker, LandmarkerOptions
 from capture2face.tracking.neutral import expression_energy, pick_neutral
-from capture2face.tracking.tuning import jitter_lag
-from capture2face.tracking.video import iter_frames, open_video
+from capture2face.eval.filter_tuning import jitter_lag
+from capture2face.io.video_input import iter_frames, open_video
 
 CLIPS = Path(__file__).parents[2] / "shared" / "clips"
 EYES = (33, 263)  # outer eye corners: the inter-ocular distance (IOD) used throughout

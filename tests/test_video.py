@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from capture2face.errors import CaptureError
-from capture2face.tracking.video import iter_frames, open_video, prefetch
+from capture2face.io.video_input import iter_frames, open_video, prefetch
 
 
 def encode(path, frames, fps=30, pts=None, time_base=None, rotation=None, codec="libx264",

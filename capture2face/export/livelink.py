@@ -36,8 +36,9 @@ import numpy as np
 
 from capture2face.errors import CaptureError
 from capture2face.io.atomic import atomic_path
+from capture2face.maths.rotations import rotation_part
+from capture2face.retarget.arkit import arkit_curves
 from capture2face.rig.arkit_names import GAZE_SCORES
-from capture2face.rotations import rotation_part
 
 HEADER = (
     "Timecode,BlendShapeCount,EyeBlinkLeft,EyeLookDownLeft,EyeLookInLeft,EyeLookOutLeft,"
@@ -105,8 +106,6 @@ def _arkit(animation, track_or_blendshapes, scores, names) -> tuple[np.ndarray, 
     if getattr(animation, "arkit_weights", None) is not None:
         return np.asarray(animation.arkit_weights, np.float64), list(animation.arkit_names)
     if hasattr(track_or_blendshapes, "landmarks_head"):
-        from capture2face.retarget.arkit import arkit_curves
-
         return arkit_curves(track_or_blendshapes).astype(np.float64), list(track_or_blendshapes.blendshape_names)
     return scores.astype(np.float64), names
 

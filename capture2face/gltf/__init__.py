@@ -9,7 +9,12 @@ animation <- character.
 """
 
 from capture2face.gltf.container import (
-    CM_PER_METRE, EXTRAS_FORMAT, EXTRAS_KEY, METRES_PER_CM, ROOT_NODE_NAME, SAMPLER_LINEAR_CLAMP,
+    CM_PER_METRE,
+    EXTRAS_FORMAT,
+    EXTRAS_KEY,
+    METRES_PER_CM,
+    ROOT_NODE_NAME,
+    SAMPLER_LINEAR_CLAMP,
 )
 from capture2face.gltf.rig_export import build_rig_gltf, export_glb, import_glb
 

@@ -19,7 +19,11 @@ import numpy as np
 
 from capture2face.errors import CaptureError
 from capture2face.gltf.container import (
-    ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER, METRES_PER_CM, SAMPLER_LINEAR_CLAMP, GlbBuilder,
+    ARRAY_BUFFER,
+    ELEMENT_ARRAY_BUFFER,
+    METRES_PER_CM,
+    SAMPLER_LINEAR_CLAMP,
+    GlbBuilder,
 )
 from capture2face.io.atomic import write_bytes_atomic
 from capture2face.rig.arkit_names import canonical_arkit

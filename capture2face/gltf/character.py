@@ -26,14 +26,21 @@ from pathlib import Path
 import numpy as np
 import pygltflib
 
+from capture2face.camera import face_centre_and_height
 from capture2face.errors import CaptureError
-from capture2face.gltf.animation import _frame_times
+from capture2face.gltf.animation_export import _frame_times
 from capture2face.gltf.container import ROOT_NODE_NAME
-from capture2face.gltf.rig_import import _find_head, _load_mapping, _morph_key, _quat_matrix, _world_matrices
+from capture2face.gltf.rig_import import (
+    _find_head,
+    _load_mapping,
+    _morph_key,
+    _quat_matrix,
+    _world_matrices,
+)
 from capture2face.io.atomic import write_bytes_atomic
+from capture2face.maths.rotations import head_rotations, nearest_rotation, rotation_part
 from capture2face.rig.arkit_names import canonical_arkit
 from capture2face.rig.face_rig import FaceRig
-from capture2face.rotations import head_rotations, nearest_rotation, rotation_part
 
 
 class _Blob:
@@ -146,8 +153,6 @@ def export_character_animation(source: str | os.PathLike, rig: FaceRig, animatio
         turned = np.einsum("ij,fjk,kl,lm->fim", p.T, rot, p, local)
         channel(blob.accessor(_quats(turned), "VEC4"), head, "rotation")
     else:
-        from capture2face.render.camera import face_centre_and_height
-
         scene = gltf.scenes[gltf.scene or 0]
         gltf.nodes.append(pygltflib.Node(name=ROOT_NODE_NAME, children=list(scene.nodes)))
         root = len(gltf.nodes) - 1

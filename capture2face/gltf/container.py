@@ -4,7 +4,7 @@ pygltflib parses and writes the document and its chunks (GLB header, JSON, BIN; 
 URIs); the document is handled here as plain JSON-like dicts, and accessors are decoded
 (and encoded) with NumPy: sparse, ``byteStride``, normalized and quantized integers.
 What a FaceRig or an animation puts into a .glb is in :mod:`capture2face.gltf.rig_export`
-and :mod:`capture2face.gltf.animation`.
+and :mod:`capture2face.gltf.animation_export`.
 
 Writer rules that keep the Khronos validator quiet: every buffer view starts on a 4-byte
 boundary (so every accessor is aligned to its component size), vertex attributes are
@@ -14,6 +14,7 @@ and images are stored as PNG inside buffer views.
 
 from __future__ import annotations
 
+import base64
 import json
 import os
 import struct
@@ -284,8 +285,6 @@ class GlbReader:
     def _uri_bytes(self, uri: str) -> bytes:
         """Bytes behind a glTF URI: a base64 data URI or a file beside the .gltf."""
         if uri.startswith("data:"):
-            import base64
-
             return base64.b64decode(uri.split(",", 1)[1])
         with open(os.path.join(os.path.dirname(self.path), uri), "rb") as fh:
             return fh.read()

@@ -29,7 +29,7 @@ What an exported .glb holds (it passes the Khronos glTF validator without errors
 * **``extras.capture2face``** at the top level: everything else a FaceRig has (bone
   landmarks, groups and exact rest positions, reference poses, wrinkle-map and zone-mask
   image indices, zone table, region names, tracker landmark vertices), as JSON.
-* **Animation** (when given): see :mod:`capture2face.gltf.animation`.
+* **Animation** (when given): see :mod:`capture2face.gltf.animation_export`.
 """
 
 from __future__ import annotations
@@ -39,15 +39,22 @@ import os
 import numpy as np
 
 from capture2face.errors import CaptureError
-from capture2face.io.atomic import write_bytes_atomic
-from capture2face.gltf.animation import add_animation
+from capture2face.gltf.animation_export import add_animation
 from capture2face.gltf.container import (
-    ARRAY_BUFFER, CM_PER_METRE, ELEMENT_ARRAY_BUFFER, EXTRAS_FORMAT, EXTRAS_KEY, EYE_JOINT_NAMES, METRES_PER_CM,
-    ROOT_NODE_NAME, SAMPLER_LINEAR_CLAMP, GlbBuilder,
+    ARRAY_BUFFER,
+    CM_PER_METRE,
+    ELEMENT_ARRAY_BUFFER,
+    EXTRAS_FORMAT,
+    EXTRAS_KEY,
+    EYE_JOINT_NAMES,
+    METRES_PER_CM,
+    ROOT_NODE_NAME,
+    SAMPLER_LINEAR_CLAMP,
+    GlbBuilder,
 )
 from capture2face.gltf.rig_import import import_glb as _import
+from capture2face.io.atomic import write_bytes_atomic
 from capture2face.rig.face_rig import FaceRig
-
 
 
 def _unit(v: np.ndarray) -> np.ndarray:

@@ -88,11 +88,19 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 from capture2face.errors import CaptureError
-from capture2face.gltf.container import EXTRAS_FORMAT, EXTRAS_KEY, GlbReader, decode_image
+from capture2face.gltf.container import (
+    EXTRAS_FORMAT,
+    EXTRAS_KEY,
+    GlbReader,
+    decode_image,
+)
 from capture2face.rig.arkit_names import arkit_morphs, canonical_arkit
+from capture2face.rig.avatar import default_avatar
 from capture2face.rig.face_rig import REGION_NAMES, ZONE_NAMES, FaceRig
+from capture2face.rig.mesh_ops import uv_tangents, vertex_normals
 
 N_LANDMARKS = 478
 DEFAULT_TEXTURE_SIZE = 256
@@ -526,8 +534,6 @@ def _surface(r: GlbReader, picked: list[int], world, skel: dict, mapping: dict, 
     """Every drawn mesh in scene space, one vertex array: positions (cm), normals,
     tangents, UVs, triangles, material codes, skin joints (as bones) and weights, morph
     deltas with their names per mesh."""
-    from capture2face.rig.mesh_ops import uv_tangents, vertex_normals
-
     g = r.gltf
     nodes = g["nodes"]
     parts = []
@@ -930,7 +936,6 @@ def _lend_from_avatar(rig: FaceRig, posed: set, tabled: set) -> FaceRig:
         warnings.warn(f"character '{rig.name}': fewer than 3 bones tied to tracker landmarks; "
                       "no default poses, regions or landmark vertices", stacklevel=3)
         return rig
-    from capture2face.rig.avatar import default_avatar
 
     avatar = default_avatar()
     lm_pos = {}
@@ -963,7 +968,6 @@ def _lend_from_avatar(rig: FaceRig, posed: set, tabled: set) -> FaceRig:
         if n.lower() not in tabled and n.lower() in amorph:
             table[i] = avatar.zone_table[amorph[n.lower()]]
     # Regions and landmark vertices: nearest fitted avatar landmark / nearest skin vertex.
-    from scipy.spatial import cKDTree
 
     valid = np.flatnonzero(np.isfinite(fitted).all(1))
     skin = np.flatnonzero(rig.material == 0)

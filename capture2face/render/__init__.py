@@ -6,6 +6,11 @@ writing. GL stays inside this package.
 """
 
 from capture2face.render.heatmap import heatmap
-from capture2face.render.renderer import FrameState, RenderOptions, Renderer, WRINKLE_DRIVERS
+from capture2face.render.renderer import (
+    WRINKLE_DRIVERS,
+    FrameState,
+    Renderer,
+    RenderOptions,
+)
 
 __all__ = ["FrameState", "RenderOptions", "Renderer", "WRINKLE_DRIVERS", "heatmap"]

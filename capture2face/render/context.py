@@ -3,6 +3,7 @@ Mesa llvmpipe otherwise), created on first use and shared by every renderer."""
 
 from __future__ import annotations
 
+import ctypes.util
 import threading
 
 import moderngl
@@ -42,10 +43,8 @@ _GL_LIBRARIES = (("EGL", "libEGL.so.1", "libegl1"), ("GL", "libGL.so.1", "libgl1
 def missing_gl_library() -> str | None:
     """One line naming the system library the EGL backend needs and cannot find (moderngl's
     glcontext loads them by ``ctypes.util.find_library``), or None when both are there."""
-    from ctypes.util import find_library
-
     for name, soname, package in _GL_LIBRARIES:
-        if not find_library(name):
+        if not ctypes.util.find_library(name):  # looked up at call time (tests patch it)
             return (f"cannot render: the system library {soname} is missing; install {package} "
                     f"and Mesa's drivers ({MESA_PACKAGES}) or a GPU driver")
     return None

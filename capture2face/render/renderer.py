@@ -24,14 +24,15 @@ import cv2
 import moderngl
 import numpy as np
 
+from capture2face import camera
 from capture2face.errors import CaptureError
-from capture2face.render import camera
 from capture2face.render.context import gl_context, gl_renderer, software_gl
 from capture2face.render.dynamic import dynamic_wrinkle_weights
 from capture2face.render.normal_blend import wrinkle_pd_layers
 from capture2face.render.shaders import program
 from capture2face.render.skinning import Deformer
 from capture2face.rig.face_rig import FaceRig
+from capture2face.rig.influences import rig_influences, zone_weights
 
 WRINKLE_DRIVERS = ("auto", "zones", "dynamic", "off")
 NORMAL_BLENDS = ("pd", "oat")
@@ -367,8 +368,6 @@ class Renderer:
         if driver == "auto":
             infl = state.influences
             if infl is None:
-                from capture2face.retarget.influences import rig_influences
-
                 infl = rig_influences(np.asarray(state.bone_positions)[None], rig)[0]
             infl = np.asarray(infl, np.float32)
             if infl.shape != (len(rig.pose_names), rig.n_bones):
@@ -378,8 +377,6 @@ class Renderer:
         elif driver == "zones":
             zones = state.zone_weights
             if zones is None:
-                from capture2face.retarget.influences import zone_weights
-
                 zones = zone_weights(np.asarray(state.blend_weights)[None], rig.zone_table)[0]
             zones = np.asarray(zones, np.float32).ravel()
             if zones.shape != (8,):

@@ -10,7 +10,7 @@
    output at the bone landmarks as bone positions, and MediaPipe's scores as the weights
    of its ARKit-named morphs.
 3. Wrinkle influences (Dutreve 2009 §5.1-5.2) and zone weights
-   (:mod:`capture2face.retarget.influences`).
+   (:mod:`capture2face.rig.influences`).
 
 The driver (:func:`retarget`, :class:`RetargetOptions`) lives in
 :mod:`capture2face.retarget.driver`; this package re-exports it. Patch names there, where
@@ -19,16 +19,9 @@ they are used (a patch of this package's copy changes nothing).
 
 from __future__ import annotations
 
-from capture2face.errors import CaptureError
-from capture2face.retarget import influences as inf
 from capture2face.retarget.animation import Animation
-from capture2face.retarget.driver import (
-    FACE_OVAL, RELIABILITY_ADMM_ITERATIONS, RetargetOptions, _Blend, _fit_network, _joint_solver,
-    _mediapipe_weights, _per_frame, _reliability, _residual2, _retarget, feature_correspondence,
-    landmark_prior_weights, retarget, retarget_ms_per_frame, shared_blendshapes, solve_bones_weights,
-)
-from capture2face.retarget.rbf import FeatureMap, fit_feature_map
-from capture2face.retarget.solve import LinearSolver, linear_rig_model
-from capture2face.retarget.windows import MappedPoints, SpilledMedian, frame_windows
+from capture2face.retarget.driver import RetargetOptions, retarget, retarget_ms_per_frame, shared_blendshapes
+from capture2face.rig.feature_points import feature_correspondence
 
-__all__ = ["Animation", "RetargetOptions", "retarget", "retarget_ms_per_frame", "feature_correspondence"]
+__all__ = ["Animation", "RetargetOptions", "retarget", "retarget_ms_per_frame", "feature_correspondence",
+           "shared_blendshapes"]

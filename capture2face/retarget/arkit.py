@@ -27,8 +27,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from capture2face.fidelity import pearson
 from capture2face.io.framestore import take_points
+from capture2face.maths.stats import pearson
 from capture2face.tracking.filtering import OneEuro, one_euro
 from capture2face.tracking.tracker import TrackOptions
 

@@ -12,15 +12,15 @@ from threadpoolctl import threadpool_limits
 
 from capture2face.errors import CaptureError
 from capture2face.retarget import gaze
-from capture2face.retarget import influences as inf
 from capture2face.retarget.animation import Animation
 from capture2face.retarget.arkit import arkit_curves
 from capture2face.retarget.rbf import FeatureMap, fit_feature_map
 from capture2face.retarget.solve import LinearSolver, linear_rig_model
 from capture2face.retarget.windows import MappedPoints, SpilledMedian, frame_windows
+from capture2face.rig import influences as inf
 from capture2face.rig.arkit_names import arkit_weights, drive_mode
-from capture2face.rig.auto_wrinkles import feature_positions
 from capture2face.rig.avatar import close_lips
+from capture2face.rig.feature_points import feature_correspondence, feature_positions
 
 
 @dataclass
@@ -151,26 +151,6 @@ class RetargetOptions:
     window_frames: int = 1000
     window_overlap: int = 100
     eye_radius_iod: float = gaze.HUMAN_RADIUS_IOD
-
-
-def feature_correspondence(rig) -> tuple[np.ndarray, np.ndarray, bool]:
-    """Which tracker landmarks the rig has, and where.
-
-    Returns:
-        (landmarks (N,), target points (N, 3), per_vertex): with per-landmark vertices
-        (``per_vertex`` True) every landmark that sits on a skin vertex; otherwise the bones'
-        landmarks and the bones' rest positions.
-    """
-    lv = np.asarray(rig.landmark_vertices)
-    # Skin only: iris landmarks follow the gaze, which the rig's eyeballs do not.
-    has = np.flatnonzero(lv >= 0)
-    has = has[np.asarray(rig.material)[lv[has]] == 0]
-    if len(has) >= 3 * max(1, rig.n_bones - 1):
-        return has, rig.vertices[lv[has]].astype(np.float64), True
-    bones = np.flatnonzero(np.asarray(rig.bone_landmarks) >= 0)
-    if len(bones) < 4:
-        raise CaptureError(f"character '{rig.name}' has too few tracked feature points to retarget onto")
-    return np.asarray(rig.bone_landmarks)[bones], rig.bone_rest[bones].astype(np.float64), False
 
 
 def shared_blendshapes(morph_names: list[str], blendshape_names: list[str]) -> list[tuple[int, int]]:

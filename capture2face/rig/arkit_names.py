@@ -18,6 +18,7 @@ import re
 import numpy as np
 
 from capture2face.errors import CaptureError
+from capture2face.rig.feature_points import AUTO_PREFIX, feature_correspondence
 
 #: Apple's 52 ARKit blendshapes (MediaPipe has the same names, less ``tongueOut``).
 ARKIT_NAMES = [
@@ -43,8 +44,7 @@ GAZE_SCORES: dict[tuple[int, int], tuple[str, str]] = {
     (0, 1): ("eyeLookDownRight", "eyeLookUpRight"),
     (1, 1): ("eyeLookDownLeft", "eyeLookUpLeft"),
 }
-# Bone names of automatic feature points (capture2face.rig.auto_wrinkles): never a user's joint.
-AUTO_PREFIX = "auto_feature/"
+# Bone names of automatic feature points (capture2face.character.auto_wrinkles): never a user's joint.
 _SIDES = {"l": "left", "r": "right", "left": "left", "right": "right"}
 # Separators of namespaces and node prefixes: "blendShape1.jawOpen", "head:jawOpen", "a|b".
 _PREFIX = re.compile(r"[.:|]")
@@ -90,8 +90,6 @@ def arkit_morphs(morph_names: list[str]) -> dict[int, str]:
 def has_face_bones(rig) -> bool:
     """True when Dutreve's feature-point retargeting can drive ``rig`` (landmark vertices
     on its skin, or at least 4 bones tied to tracker landmarks)."""
-    from capture2face.retarget.driver import feature_correspondence
-
     try:
         feature_correspondence(rig)
     except CaptureError:
@@ -101,7 +99,7 @@ def has_face_bones(rig) -> bool:
 
 def is_automatic(rig) -> bool:
     """True when the rig's face bones are automatic feature points
-    (:mod:`capture2face.rig.auto_wrinkles`), which only measure wrinkle influences."""
+    (:mod:`capture2face.character.auto_wrinkles`), which only measure wrinkle influences."""
     return any(n.startswith(AUTO_PREFIX) for n in rig.bone_names)
 
 

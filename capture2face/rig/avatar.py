@@ -32,8 +32,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.sparse.csgraph import dijkstra
+from scipy.spatial import cKDTree
 
-from capture2face.rig import canonical, features, mesh_ops
+from capture2face.errors import CaptureError
+from capture2face.rig import canonical, features, maps, mesh_ops
 from capture2face.rig.face_rig import REGION_NAMES, ZONE_NAMES, FaceRig
 
 VARIANTS = ("default", "wide")
@@ -165,8 +168,6 @@ def cache_dir() -> Path:
 @functools.lru_cache(maxsize=None)
 def _source_hash() -> str:
     """Hash of the builder's source files: a code change gives a new cache file."""
-    from capture2face.rig import maps
-
     h = hashlib.sha256()
     for module in (canonical, features, mesh_ops, maps, __import__(__name__, fromlist=["x"])):
         h.update(Path(module.__file__).read_bytes())
@@ -199,8 +200,6 @@ def default_avatar(variant: str | None = None) -> FaceRig:
 
     Built on first use and cached on disk and in memory.
     """
-    from capture2face.errors import CaptureError
-
     variant = variant or "default"
     if variant not in VARIANTS:
         raise CaptureError(f"unknown avatar variant '{variant}' (choose from {', '.join(VARIANTS)})")
@@ -378,7 +377,6 @@ def _eyeball(ring_pos: np.ndarray, side: str):
     theta = np.where(np.isclose(theta, ring_thetas[k]), iris_theta, theta)
     dirs = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], 1)
     verts = centre + radius * dirs
-    from capture2face.rig import maps
 
     cu, cv = maps.EYE_TEXTURE_CENTRES[side]
     r_uv = maps.eye_uv_radius(theta)
@@ -423,10 +421,8 @@ def _mouth_interior(lip_loop: np.ndarray, pos: np.ndarray, upper: np.ndarray):
     return verts, source, depth, tris
 
 
-# Teeth: widths (cm, along the arch from the midline) of the incisors, canine and
-# premolars of one side; what shows between open lips. Upper teeth overlap the lower ones
-# in front (overbite) and stand a little further forward (overjet).
-TOOTH_WIDTHS = (0.85, 0.68, 0.78, 0.7, 0.7)
+# Upper teeth overlap the lower ones in front (overbite) and stand a little further
+# forward (overjet); their widths are maps.TOOTH_WIDTHS.
 TEETH = {  # row: (edge y offset from the lip line, height up (+) or down (-), z back from the upper row)
     "upper": (-0.22, 1.1, 0.0),
     "lower": (-0.1, -0.9, 0.14),
@@ -460,14 +456,12 @@ def _teeth_and_tongue(ring: np.ndarray):
 
     Returns (vertices (K, 3), uvs (K, 2), triangles (local), part (K,): 0 upper teeth,
     1 lower teeth, 2 tongue)."""
-    from capture2face.rig import maps
-
     lip_y = float(ring[np.argmax(ring[:, 2]), 1])  # the lips meet here on the midline
     z_front = float(ring[:, 2].max()) - TEETH_BEHIND_LIPS_CM
     half = float(np.abs(ring[:, 0]).max())
     # The arch: a parabola from the front teeth to just inside the lip corners, 1.3 cm
     # further back at the corners than at the front (what a dental arch does).
-    ends = sum(TOOTH_WIDTHS)
+    ends = sum(maps.TOOTH_WIDTHS)
     xs = np.linspace(-1.0, 1.0, 41)
     curve = lambda x, dz: np.stack([x * (half - 0.15), np.zeros_like(x), z_front - dz - 1.3 * x**2], 1)
     verts, uvs, tris, part = [], [], [], []
@@ -644,8 +638,6 @@ def _skin_weights(skin: np.ndarray, graph, loops: list[np.ndarray], lowerness: n
         skin: (n_skin, 3) skin vertex positions; graph: their edge-length graph;
         loops: the skin's boundary loops.
     Returns (joints (n_skin, 4), weights (n_skin, 4))."""
-    from scipy.sparse.csgraph import dijkstra
-
     n_skin = len(skin)
     dist = np.empty((len(BONES) - 1, n_skin))
     for i, b in enumerate(BONES[1:]):
@@ -705,8 +697,6 @@ class _MorphBuilder:
         self.graph = mesh_ops.edge_graph(pos, tris)
 
     def distance_to(self, vertices) -> np.ndarray:
-        from scipy.sparse.csgraph import dijkstra
-
         return dijkstra(self.graph, indices=np.asarray(vertices), directed=False, min_only=True)
 
     def extend(self, handles: dict, radius: float, pinned=()) -> np.ndarray:
@@ -736,8 +726,6 @@ class _MorphBuilder:
 
 def _mirror_map(v: np.ndarray) -> np.ndarray:
     """(468,) landmark index of each canonical landmark's mirror image (x -> -x)."""
-    from scipy.spatial import cKDTree
-
     _, idx = cKDTree(v).query(v * np.array([-1.0, 1.0, 1.0]))
     return idx
 
@@ -858,8 +846,6 @@ def _build_morphs(mb: _MorphBuilder, sets: dict, mirror: np.ndarray) -> dict[str
 
 def build_avatar(variant: str = "default") -> FaceRig:
     """Build the avatar from scratch (no cache). See :func:`default_avatar`."""
-    from capture2face.rig import maps
-
     mesh = canonical.load_canonical_mesh()
     base = _variant_shape(close_lips(mesh.vertices.astype(np.float64)), variant)
     mirror = _mirror_map(mesh.vertices.astype(np.float64))

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from capture2face.errors import CaptureError
+from capture2face.models.face_model import find_face_model
 
 MEMBER = "geometry_pipeline_metadata_landmarks.binarypb"
 
@@ -128,8 +129,6 @@ def parse_geometry_metadata(data: bytes) -> CanonicalMesh:
 
 def load_canonical_mesh(model_path: str | os.PathLike | None = None) -> CanonicalMesh:
     """Read the canonical mesh from ``face_landmarker.task`` (resolved by ``find_face_model``)."""
-    from capture2face.tracking.model import find_face_model
-
     path = find_face_model(model_path)
     try:
         with zipfile.ZipFile(path) as zf:

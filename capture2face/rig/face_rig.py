@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from capture2face.io.npz import load_dataclass, save_dataclass
-from capture2face.rotations import rotation_ypr
+from capture2face.maths.rotations import rotation_ypr
 
 FORMAT = "capture2face.FaceRig/1"
 
@@ -205,7 +205,7 @@ def eye_rotation_matrices(eye_rotation: np.ndarray) -> np.ndarray:
     """(..., 2) yaw, pitch in degrees -> (..., 3, 3) rotations R = Ry(yaw) Rx(pitch), in
     head coordinates: yaw > 0 turns the gaze (+z) towards +x (the subject's left), pitch > 0
     tips it down (the Live Link Face convention, :mod:`capture2face.export.livelink`):
-    :func:`capture2face.rotations.rotation_ypr` with the pitch negated."""
+    :func:`capture2face.maths.rotations.rotation_ypr` with the pitch negated."""
     a = np.asarray(eye_rotation, np.float64)
     # rotation_ypr's pitch tips +z up; the Live Link one tips it down. No roll.
     return rotation_ypr(np.stack([a[..., 0], -a[..., 1], np.zeros_like(a[..., 0])], -1))

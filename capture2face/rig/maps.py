@@ -23,7 +23,13 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
+from capture2face.errors import CaptureError
+from capture2face.io.atomic import atomic_path
 from capture2face.rig import features
+
+# Teeth: widths (cm, along the arch from the midline) of the incisors, canine and
+# premolars of one side; what shows between open lips.
+TOOTH_WIDTHS = (0.85, 0.68, 0.78, 0.7, 0.7)
 
 SIZE = 1024
 WRINKLE_STRENGTH = 6.0  # texels of height per unit of the wrinkle height fields
@@ -300,9 +306,7 @@ def _albedo(u, v, landmark_uvs, layout, rng, eye_iris_theta: dict) -> np.ndarray
 
 def _teeth_and_tongue_albedo(u, v, colour: np.ndarray) -> np.ndarray:
     """Paint the teeth (ivory crowns, dark gaps between teeth, gums at the roots; the
-    avatar's TOOTH_WIDTHS along the arch) and the tongue into ``colour`` (H, W, 3)."""
-    from capture2face.rig.avatar import TOOTH_WIDTHS
-
+    TOOTH_WIDTHS along the arch) and the tongue into ``colour`` (H, W, 3)."""
     u0, u1 = TEETH_U
     ends = sum(TOOTH_WIDTHS)
     arc = ((u - u0) / (u1 - u0) * 2.0 - 1.0) * ends  # arc length from the midline (cm)
@@ -415,8 +419,6 @@ def build_maps(landmark_uvs: np.ndarray, uvs: np.ndarray, triangles: np.ndarray,
 def write_maps(rig, directory: str | os.PathLike) -> list[Path]:
     """Write a rig's textures as PNGs: albedo.png, normal.png, wrinkle_<name>.png,
     zones_0.png and zones_1.png (RGBA: zones 0-3 and 4-7). Returns the paths written."""
-    from capture2face.io.atomic import atomic_path
-
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     images = {"albedo.png": rig.albedo, "normal.png": rig.normal_map}
@@ -431,8 +433,6 @@ def write_maps(rig, directory: str | os.PathLike) -> list[Path]:
         bgr = cv2.cvtColor(img, cv2.COLOR_RGBA2BGRA if img.shape[-1] == 4 else cv2.COLOR_RGB2BGR)
         with atomic_path(path) as tmp:
             if not cv2.imwrite(str(tmp), bgr):
-                from capture2face.errors import CaptureError
-
                 raise CaptureError(f"could not write {path}")
         written.append(path)
     return written

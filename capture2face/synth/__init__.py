@@ -10,8 +10,17 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
+from tqdm import tqdm
+
 from capture2face.errors import CaptureError
-from capture2face.synth.trajectories import DEFAULT_FOV_Y, Performance, random_performance
+from capture2face.io.video_output import VideoWriter
+from capture2face.render import FrameState, Renderer, RenderOptions
+from capture2face.rig.avatar import default_avatar
+from capture2face.synth.trajectories import (
+    DEFAULT_FOV_Y,
+    Performance,
+    random_performance,
+)
 from capture2face.synth.truth import SyntheticTruth, compute_truth, truth_path
 
 __all__ = ["SynthOptions", "SyntheticClip", "SyntheticTruth", "Performance", "synthesize",
@@ -65,8 +74,6 @@ def make_performance(rig, options: SynthOptions) -> Performance:
 def render_performance(truth: SyntheticTruth, renderer, frames=None):
     """Yield the (H, W, 3) uint8 frames of ``truth`` (all, or the indices ``frames``)
     rendered by an open ``Renderer`` of the same rig."""
-    from capture2face.render import FrameState
-
     for f in range(truth.n_frames) if frames is None else frames:
         yield renderer.render(FrameState(
             bone_positions=truth.bone_positions[f],
@@ -84,12 +91,6 @@ def synthesize(path: str | os.PathLike, options: SynthOptions | None = None, pro
 
     Frames stream straight to the encoder, so memory does not grow with the clip's length.
     """
-    from tqdm import tqdm
-
-    from capture2face.render import Renderer, RenderOptions
-    from capture2face.render.video import VideoWriter
-    from capture2face.rig.avatar import default_avatar
-
     options = options or SynthOptions()
     if options.size < 64 or options.size % 2:
         raise CaptureError(f"--size must be an even number of pixels >= 64 (got {options.size})")

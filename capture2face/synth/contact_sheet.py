@@ -14,6 +14,12 @@ import os
 
 import numpy as np
 
+from capture2face.camera import framing_distance
+from capture2face.io.atomic import atomic_path
+from capture2face.render import FrameState, Renderer, RenderOptions
+from capture2face.rig.avatar import default_avatar
+from capture2face.synth.trajectories import head_poses
+
 ROWS = ("neutral", "stretch", "compress")
 COLUMNS = (("wrinkles off", "off", "shaded"), ("wrinkles auto", "auto", "shaded"),
            ("influence view", "auto", "influence"))
@@ -28,11 +34,6 @@ FOV_Y = 30.0
 def contact_sheet(rig=None, cell: int = 256, supersample: int = 2) -> np.ndarray:
     """(3 * cell + header, 3 * cell, 3) uint8 RGB grid, labelled."""
     import cv2
-
-    from capture2face.render import FrameState, Renderer, RenderOptions
-    from capture2face.render.camera import framing_distance
-    from capture2face.rig.avatar import default_avatar
-    from capture2face.synth.trajectories import head_poses
 
     rig = rig or default_avatar()
     size = cell * supersample
@@ -77,11 +78,6 @@ def head_sheet(rig=None, cell: int = 256, supersample: int = 2) -> np.ndarray:
     """(cell + header, 5 * cell, 3) uint8 RGB strip of the whole head, labelled."""
     import cv2
 
-    from capture2face.render import FrameState, Renderer, RenderOptions
-    from capture2face.render.camera import framing_distance
-    from capture2face.rig.avatar import default_avatar
-    from capture2face.synth.trajectories import head_poses
-
     rig = rig or default_avatar()
     size = cell * supersample
     back = 0.05 * framing_distance(rig, FOV_Y)  # about the framing distance: the whole head, not just the face
@@ -103,8 +99,6 @@ def head_sheet(rig=None, cell: int = 256, supersample: int = 2) -> np.ndarray:
 
 def write_contact_sheet(path: str | os.PathLike, cell: int = 256, head: bool = False) -> None:
     import cv2
-
-    from capture2face.io.atomic import atomic_path
 
     sheet = head_sheet(cell=cell) if head else contact_sheet(cell=cell)
     with atomic_path(path) as tmp:

@@ -17,10 +17,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
+from capture2face.camera import face_centre_and_height, framing_distance
 from capture2face.errors import CaptureError
-from capture2face.render.camera import face_centre_and_height, framing_distance
+from capture2face.maths.rotations import rotation_ypr
 from capture2face.rig.face_rig import FaceRig
-from capture2face.rotations import rotation_ypr
 
 # MediaPipe's geometry pipeline assumes this vertical field of view (degrees) for its
 # facial transformation matrix; rendering with it makes the tracker's head pose comparable.

@@ -7,9 +7,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from capture2face.camera import project
 from capture2face.io.npz import load_dataclass, save_dataclass
-from capture2face.retarget.influences import region_influence, rig_influences, zone_weights
+from capture2face.rig.deform import deform
 from capture2face.rig.face_rig import FaceRig
+from capture2face.rig.influences import region_influence, rig_influences, zone_weights
 
 FORMAT = "capture2face.SyntheticTruth/1"
 
@@ -119,8 +121,6 @@ def deformed_landmarks(rig: FaceRig, bone_positions: np.ndarray, blend_weights: 
     Uses the CPU reference ``rig.deform.deform`` (the renderer is tested against it),
     ``chunk`` frames at a time to bound memory.
     """
-    from capture2face.rig.deform import deform
-
     lv = rig.landmark_vertices
     out = np.full((len(bone_positions), len(lv), 3), np.nan, np.float32)
     have = lv >= 0
@@ -134,8 +134,6 @@ def deformed_landmarks(rig: FaceRig, bone_positions: np.ndarray, blend_weights: 
 def compute_truth(rig: FaceRig, perf, width: int, height: int, variant: str | None = None,
                   wrinkles: str = "auto") -> SyntheticTruth:
     """Everything a test or benchmark compares against, from a ``Performance``."""
-    from capture2face.render.camera import project
-
     eyes = getattr(perf, "eye_rotation", None)
     landmarks_head = deformed_landmarks(rig, perf.bone_positions, perf.blend_weights, eye_rotation=eyes)
     landmarks_px = project(landmarks_head, perf.head_pose, perf.fov_y, (width, height)).astype(np.float32)

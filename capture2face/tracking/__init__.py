@@ -40,13 +40,13 @@ _API = {
     "WINDOW_FRAMES": "capture2face.tracking.tracker",
     "TrackBuilder": "capture2face.tracking.tracker",
     "Tracker": "capture2face.tracking.tracker",
-    "TrackOptions": "capture2face.tracking.tracker",
+    "TrackOptions": "capture2face.tracking.options",
     "build_track": "capture2face.tracking.tracker",
     "track_clip": "capture2face.tracking.tracker",
-    "VideoInfo": "capture2face.tracking.video",
-    "iter_frames": "capture2face.tracking.video",
-    "open_video": "capture2face.tracking.video",
-    "prefetch": "capture2face.tracking.video",
+    "VideoInfo": "capture2face.io.video_input",
+    "iter_frames": "capture2face.io.video_input",
+    "open_video": "capture2face.io.video_input",
+    "prefetch": "capture2face.io.video_input",
 }
 
 __all__ = ["Track", "TrackOptions", "Tracker", "TrackBuilder", "build_track", "track_clip", "open_video",

@@ -31,7 +31,7 @@ from dataclasses import dataclass  # noqa: E402
 import numpy as np  # noqa: E402
 
 from capture2face.errors import CaptureError  # noqa: E402
-from capture2face.tracking.model import find_face_model  # noqa: E402
+from capture2face.models.face_model import find_face_model  # noqa: E402
 
 N_LANDMARKS = 478
 
@@ -77,6 +77,14 @@ class LandmarkerOptions:
     min_detection_confidence: float = 0.5
     min_presence_confidence: float = 0.5
     min_tracking_confidence: float = 0.5
+
+    def validate(self) -> None:
+        """The face choice: one line ``CaptureError`` each, named after the command line's
+        flags (:meth:`capture2face.tracking.TrackOptions.validate` asks it too)."""
+        if self.faces not in FACE_CHOICES:
+            raise CaptureError(f"--faces must be one of {', '.join(FACE_CHOICES)} (got {self.faces!r})")
+        if self.face is not None and not 0 <= int(self.face) <= MAX_FACE:
+            raise CaptureError(f"--face must be 0..{MAX_FACE} (got {self.face})")
 
 
 @dataclass
@@ -227,10 +235,8 @@ class FaceLandmarker:
 
     @classmethod
     def create_from_options(cls, options: LandmarkerOptions | None = None) -> "FaceLandmarker":
-        from capture2face.tracking.tracker import TrackOptions  # (tracker imports this module)
-
         options = options or LandmarkerOptions()
-        TrackOptions(faces=options.faces, face=options.face).validate()
+        options.validate()
         model = find_face_model(options.face_model)
         return cls(_mediapipe_landmarker(model, options, cls.faces_wanted(options)), options, model)
 

@@ -11,10 +11,12 @@ import os
 
 import cv2
 import numpy as np
+from tqdm import tqdm
 
+from capture2face.io.video_input import iter_frames, prefetch
+from capture2face.io.video_output import VideoWriter
 from capture2face.tracking.head_pose import project_camera_points
 from capture2face.tracking.track import Track
-from capture2face.tracking.video import iter_frames, prefetch
 
 AXIS_CM = 5.0
 _COLORS = {"present": (40, 220, 60), "interpolated": (240, 220, 30), "held": (230, 40, 40)}
@@ -51,10 +53,6 @@ def write_overlay(clip: str | os.PathLike, track: Track, path: str | os.PathLike
 
     Odd frame sizes are padded by one black pixel row/column (H.264 yuv420p needs even).
     """
-    from tqdm import tqdm
-
-    from capture2face.render.video import VideoWriter
-
     w, h = track.width + track.width % 2, track.height + track.height % 2
     axes = head_axes_px(track)
     n = 0

@@ -46,11 +46,26 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from capture2face.errors import CaptureError, raise_if_interrupted
 from capture2face.io.framestore import FrameArray
-from capture2face.tracking.landmarker import N_LANDMARKS, FaceLandmarker, LandmarkerOptions, defer_pyplot, face_boxes
-from capture2face.tracking.video import FrameTimes, VideoInfo, frame_times, iter_frames, iter_segment, prefetch
+from capture2face.io.video_input import (
+    FrameTimes,
+    VideoInfo,
+    frame_times,
+    iter_frames,
+    iter_segment,
+    prefetch,
+)
+from capture2face.tracking.landmarker import (
+    N_LANDMARKS,
+    FaceLandmarker,
+    LandmarkerOptions,
+    defer_pyplot,
+    face_boxes,
+    stack_observations,
+)
 
 log = logging.getLogger("capture2face")
 
@@ -69,14 +84,6 @@ STARTUP_FRAMES = 60
 _SAME_FACE = 0.1  # centre distance / face size within which two tracks follow one face
 _PROGRESS_EVERY = 16
 _FLUSH_FRAMES = 256  # frames a worker holds before writing them
-
-
-def free_cores() -> int:
-    """Cores this process may run on."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
 
 
 @dataclass
@@ -309,8 +316,6 @@ def _box(obs) -> tuple[float, float, float] | None:
 def _track_segment(lm: FaceLandmarker, job: dict, send) -> dict:
     """Track one segment (warm-up first); its landmarks go to a file in ``job["folder"]``
     (the caller puts them in head coordinates, as for its own frames)."""
-    from capture2face.tracking.landmarker import stack_observations
-
     k, size = job["k"], tuple(job["size"])
     norm_f = FrameArray(Path(job["folder"]) / f"segment{k}_norm.f32", (N_LANDMARKS, 3), np.float32)
     times: list[float] = []
@@ -367,7 +372,8 @@ def _same_face(before: list, after: list, several_faces: bool) -> bool:
 
 
 # ---- the driver ------------------------------------------------------------------------
-def track_parallel(clip: str | os.PathLike, info: VideoInfo, options, n_workers: int, progress: bool = True,
+def track_parallel(clip: str | os.PathLike, info: VideoInfo, options, n_workers: int, new_tracker,
+                   progress: bool = True,
                    workdir: str | os.PathLike | None = None, workers: SegmentWorkers | None = None):
     """Track ``clip`` in segments (module doc); None when it is not split (too short, its
     frames cannot be located, ``--face N``) or a stitching check fails: the caller then
@@ -375,14 +381,12 @@ def track_parallel(clip: str | os.PathLike, info: VideoInfo, options, n_workers:
 
     Args:
         n_workers: landmarkers at once, this process's included.
+        new_tracker: () -> a :class:`~capture2face.tracking.tracker.Tracker` for this
+            process's segment, which takes the others' landmarks.
         workers: processes started ahead (:class:`SegmentWorkers`; up to ``n_workers -
             1`` of them are used, and all are closed once the clip is split); None: they
             are started here.
     """
-    from tqdm import tqdm
-
-    from capture2face.tracking.tracker import Tracker
-
     if options.face is not None or n_workers < 2:
         return None
     ready = workers is not None and len(workers) >= 1 and workers.ready()
@@ -401,7 +405,7 @@ def track_parallel(clip: str | os.PathLike, info: VideoInfo, options, n_workers:
             workers.submit(i - 1, plan.job(i, os.fspath(clip), info.rotation, size, os.fspath(scratch),
                                            options.face_model))
         with tqdm(total=n, disable=not progress, unit="frame", desc="tracking", leave=False) as bar:
-            tracker = Tracker(info, options, workdir)
+            tracker = new_tracker()
             try:
                 tail = collections.deque(maxlen=WARMUP_FRAMES)
                 frames = prefetch(iter_frames(clip, max_frames=int(plan.starts[1])))

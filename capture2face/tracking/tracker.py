@@ -1,4 +1,4 @@
-"""The tracking driver: :class:`TrackOptions`, the streaming :class:`Tracker`, the
+"""The tracking driver: the streaming :class:`Tracker`, the
 bounded-memory :class:`TrackBuilder` and :func:`track_clip` (the stage is described in
 :mod:`capture2face.tracking`)."""
 
@@ -7,115 +7,32 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from capture2face.errors import CaptureError, raise_if_interrupted
 from capture2face.io.framestore import FrameArray
-from capture2face.tracking.filtering import CausalOneEuro, OneEuro, filter_pose
+from capture2face.io.video_input import VideoInfo, iter_frames, open_video, prefetch
+from capture2face.tracking.filtering import CausalOneEuro, filter_pose
 from capture2face.tracking.gaps import fill_pose, plan_gaps
-from capture2face.tracking.head_pose import FOV_Y_DEGREES, canonical_mesh, head_landmarks
+from capture2face.tracking.head_pose import (
+    FOV_Y_DEGREES,
+    canonical_mesh,
+    head_landmarks,
+)
 from capture2face.tracking.landmarker import (
-    BLENDSHAPE_NAMES, FACE_CHOICES, MAX_FACE, N_LANDMARKS, FaceLandmarker, FaceObservation, LandmarkerOptions,
+    BLENDSHAPE_NAMES,
+    N_LANDMARKS,
+    FaceLandmarker,
+    FaceObservation,
     stack_observations,
 )
 from capture2face.tracking.neutral import mouth_gap, pick_neutral
+from capture2face.tracking.options import TrackOptions
+from capture2face.tracking.segments import track_parallel
 from capture2face.tracking.track import Track
-from capture2face.tracking.video import VideoInfo, iter_frames, open_video, prefetch
-
-
-@dataclass
-class TrackOptions:
-    """How a clip is tracked.
-
-    Attributes:
-        face_model: ``face_landmarker.task`` path (None: $CAPTURE2FACE_FACE_MODEL, else the
-            copy bundled in capture2face/models).
-        neutral_frame: index of the neutral frame (None: picked automatically).
-        num_faces: the most faces MediaPipe looks for (and counts) at once; 1: one face,
-            no choice, no count. Several cost little: see :mod:`.landmarker`.
-        faces: which face starts the track when several are in view: "largest" or
-            "center" (nearest the image centre); the one continuing it is followed.
-        face: instead, the face with this index (0-based, left to right) in the first
-            frame with more than ``face`` faces (earlier frames count as faceless).
-        min_detection_confidence, min_presence_confidence, min_tracking_confidence:
-            MediaPipe's thresholds.
-        max_gap_seconds: gaps up to this long are interpolated; longer ones hold.
-        min_cutoff, beta, d_cutoff: One Euro filter of the head-coordinate landmarks
-            (Hz, 1/cm, Hz); see :mod:`.filtering`.
-        pose_min_cutoff, pose_beta: One Euro filter of the head pose (Hz, 1/cm).
-        zero_phase: filter forward and backward (no lag; the whole clip is known).
-
-    Landmark filter defaults are chosen on the real clips of ../shared/clips (the
-    pose filter's on ``python -m capture2face.tracking.tuning``'s synthetic clips). The
-    synthetic tuning (min_cutoff 0.5 Hz, beta 0.2) kept only 0.65-0.90 of the mouth's and
-    0.7-0.8 of the eyes' motion on real faces (fast speech and blinks, which the synthetic
-    performances lack). Over the six clips (``capture2face eval fidelity``, lip-closed
-    neutral): faithful measures 16/33 -> 28/33, mean r 0.89 -> 0.95, mean |log gain|
-    0.19 -> 0.10; jitter (median second difference of the landmarks, IOD) 0.0003 ->
-    0.0011 against 0.0055 unfiltered. Settings with more jitter (min_cutoff 2-3 Hz or
-    beta 2-3) gain no more than one measure.
-        max_frames: track only the first N frames (None: all).
-        workers: landmarkers tracking segments of the clip at once, each in a process of
-            its own (:mod:`.segments`); None: one per free core; 1: one landmarker, this
-            process. A clip shorter than two segments, or tracked with ``face``, is
-            tracked by one. The Track is the same within MediaPipe's noise.
-    """
-
-    face_model: str | os.PathLike | None = None
-    neutral_frame: int | None = None
-    num_faces: int = 4
-    faces: str = "largest"
-    face: int | None = None
-    min_detection_confidence: float = 0.5
-    min_presence_confidence: float = 0.5
-    min_tracking_confidence: float = 0.5
-    max_gap_seconds: float = 0.25
-    min_cutoff: float = 1.5
-    beta: float = 1.0
-    d_cutoff: float = 1.0
-    pose_min_cutoff: float = 2.0
-    pose_beta: float = 0.0
-    zero_phase: bool = True
-    max_frames: int | None = None
-    workers: int | None = None
-
-    def validate(self) -> None:
-        """The face choice, workers and neutral frame: one line ``CaptureError`` each, named
-        after the command line's flags. The one home of these bounds (``RunOptions``,
-        ``FaceLandmarker`` and the CLI ask it); the neutral frame's upper bound needs the
-        clip (:func:`capture2face.preflight.check_neutral_frame`)."""
-        if self.neutral_frame is not None and int(self.neutral_frame) < 0:
-            raise CaptureError(f"--neutral-frame must be >= 0 (got {self.neutral_frame})")
-        if self.faces not in FACE_CHOICES:
-            raise CaptureError(f"--faces must be one of {', '.join(FACE_CHOICES)} (got {self.faces!r})")
-        if self.face is not None and not 0 <= int(self.face) <= MAX_FACE:
-            raise CaptureError(f"--face must be 0..{MAX_FACE} (got {self.face})")
-        if self.workers is not None and int(self.workers) < 1:
-            raise CaptureError(f"--track-workers must be >= 1 (got {self.workers})")
-
-    def landmarker_options(self) -> LandmarkerOptions:
-        return LandmarkerOptions(
-            face_model=self.face_model, num_faces=self.num_faces, faces=self.faces, face=self.face,
-            min_detection_confidence=self.min_detection_confidence,
-            min_presence_confidence=self.min_presence_confidence,
-            min_tracking_confidence=self.min_tracking_confidence,
-        )
-
-    def landmark_filter(self) -> OneEuro:
-        return OneEuro(self.min_cutoff, self.beta, self.d_cutoff, self.zero_phase)
-
-    def pose_filter(self) -> OneEuro:
-        return OneEuro(self.pose_min_cutoff, self.pose_beta, self.d_cutoff, self.zero_phase)
-
-    def n_workers(self) -> int:
-        """Landmarkers at once (:attr:`workers`, None resolved to the free cores)."""
-        from capture2face.tracking.segments import free_cores
-
-        return max(1, int(self.workers)) if self.workers is not None else free_cores()
-
 
 FLUSH_FRAMES = 256  # frames converted to head coordinates (and written to disk) at a time
 WINDOW_FRAMES = 256  # frames per window of the gap-fill and filter passes (the filter
@@ -291,8 +208,6 @@ class TrackBuilder:
         zero-phase filter, a backward one. Returns the three landmark arrays and the
         filtered landmarks' lip gap (F,) (:func:`~capture2face.tracking.neutral.mouth_gap`,
         taken from each window as it is written: the neutral pick needs no second read)."""
-        from tqdm import tqdm
-
         n = len(t)
         d = self._dir
         px = FrameArray(d / "landmarks_px.f32", (N_LANDMARKS, 2), np.float32)
@@ -424,13 +339,12 @@ def track_clip(clip: str | os.PathLike, options: TrackOptions | None = None, pro
     Raises:
         CaptureError: unreadable clip, no model, or no face anywhere.
     """
-    from capture2face.tracking.segments import track_parallel
-
     options = options or TrackOptions()
     info = open_video(clip) if info is None else info
     n_workers = options.n_workers()
     if n_workers > 1:
-        track = track_parallel(clip, info, options, n_workers, progress, workdir, workers)
+        track = track_parallel(clip, info, options, n_workers, lambda: Tracker(info, options, workdir), progress,
+                               workdir, workers)
         if track is not None:
             return track
     return _track_sequential(clip, info, options, progress, workdir)
@@ -438,8 +352,6 @@ def track_clip(clip: str | os.PathLike, options: TrackOptions | None = None, pro
 
 def _track_sequential(clip, info: VideoInfo, options: TrackOptions, progress: bool, workdir) -> Track:
     """One landmarker, frame after frame."""
-    from tqdm import tqdm
-
     total = info.n_frames if options.max_frames is None else min(info.n_frames, options.max_frames)
     frames = prefetch(iter_frames(clip, max_frames=options.max_frames))
     with Tracker(info, options, workdir) as tracker, tqdm(total=total, disable=not progress, unit="frame",

@@ -7,7 +7,7 @@ library, no script, no external stylesheet). Contents:
 * the run's facts (clip, character, frames, fps, neutral frame, warnings, seconds per stage);
 * poster frames where the expression is strongest (largest jawOpen, smile, browInnerUp,
   browDown, eyeBlink, mouthPucker), plus the neutral frame;
-* the expression-fidelity figures (:mod:`capture2face.fidelity`) as tables, and the six
+* the expression-fidelity figures (:mod:`capture2face.measures`) as tables, and the six
   measures over time (source vs character vs direct scores);
 * ARKit curves over time (``Animation.arkit_weights`` when present, else the tracker's
   scores) and the wrinkle-influence curves per region (``Animation.region_influence``).
@@ -26,6 +26,10 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+
+from capture2face.io.atomic import write_text_atomic
+from capture2face.io.video_input import iter_frames
+from capture2face.measures import EYE_MEASURES, GAIN_MAX, GAIN_MIN, MEASURES, R_MIN
 
 # Distinct, colour-blind-friendly line colours (Okabe-Ito, then a few extra).
 PALETTE = ("#0072B2", "#E69F00", "#009E73", "#D55E00", "#CC79A7", "#56B4E9", "#882255", "#000000",
@@ -255,8 +259,6 @@ def decode_poster_frames(video: str | os.PathLike, frames: Sequence[int],
                          max_width: int = POSTER_WIDTH) -> dict[int, np.ndarray]:
     """frame index -> RGB image of the wanted frames of ``video`` (the project's decoder;
     stops after the last wanted one), scaled down to ``max_width``."""
-    from capture2face.tracking.video import iter_frames
-
     wanted = set(int(i) for i in frames)
     out: dict[int, np.ndarray] = {}
     if not wanted:
@@ -362,8 +364,6 @@ def _warnings(report: dict) -> str:
 
 
 def _fidelity_tables(fig: dict) -> str:
-    from capture2face.fidelity import GAIN_MAX, GAIN_MIN, R_MIN
-
     rows = []
     for name, m in fig.get("measures", {}).items():
         judged = bool(m.get("judged"))
@@ -408,8 +408,6 @@ def break_gaps(times: np.ndarray, *columns: np.ndarray) -> tuple[np.ndarray, ...
 
 
 def _fidelity_plots(fid, fig: dict) -> str:
-    from capture2face.fidelity import EYE_MEASURES, MEASURES
-
     times, source, character, direct = break_gaps(fid.times, fid.source, fid.character, fid.direct)
     plots = []
     for k, name in enumerate(MEASURES):
@@ -441,7 +439,7 @@ def render_report_html(report: dict, track, animation, video: str | os.PathLike 
         track: the clip's :class:`~capture2face.tracking.track.Track` (times, presence).
         animation: the :class:`~capture2face.retarget.animation.Animation`.
         video: compare.mp4 (or avatar.mp4) to take the poster frames from; None: none.
-        fidelity: the :class:`~capture2face.fidelity.ClipFidelity` (measures over time), or None.
+        fidelity: the :class:`~capture2face.measures.ClipFidelity` (measures over time), or None.
         frames: the poster frames already in memory (index -> RGB, e.g. kept by ``run``
             while rendering, see :func:`poster_frames`); missing ones are decoded from
             ``video``.
@@ -534,6 +532,4 @@ def write_report_html(path: str | os.PathLike, report: dict, track, animation,
                       video: str | os.PathLike | None = None, fidelity=None,
                       frames: dict[int, np.ndarray] | None = None) -> None:
     """:func:`render_report_html` into ``path``, atomically."""
-    from capture2face.io.atomic import write_text_atomic
-
     write_text_atomic(path, render_report_html(report, track, animation, video, fidelity, frames))

@@ -23,6 +23,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import queue
 import threading
 from dataclasses import dataclass
 from fractions import Fraction
@@ -279,9 +280,6 @@ def prefetch(iterable, depth: int = 8):
     work (tracking, rendering). Exceptions are re-raised in the consumer; closing the
     returned generator stops the thread.
     """
-    import queue
-    import threading
-
     q: queue.Queue = queue.Queue(maxsize=max(1, depth))
     stop = threading.Event()
     done = object()

@@ -1,6 +1,6 @@
 """Jitter versus lag of the One Euro filter, measured against synthetic ground truth.
 
-``python -m capture2face.tracking.tuning [--frames 150] [--seeds 1 2]`` renders synthetic
+``python -m capture2face.eval.filter_tuning [--frames 150] [--seeds 1 2]`` renders synthetic
 clips (or reuses them in ``--dir``), tracks each once, then rebuilds the Track with a grid
 of filter settings and prints, per setting, on head-coordinate landmarks (% of the
 inter-ocular distance, outer eye corners 33-263):
@@ -28,9 +28,11 @@ from pathlib import Path
 
 import numpy as np
 
+from capture2face.io.video_input import iter_frames, open_video
+from capture2face.synth import SyntheticTruth, SynthOptions, synthesize, truth_path
 from capture2face.tracking import TrackOptions, build_track
+from capture2face.tracking.head_pose import canonical_mesh
 from capture2face.tracking.landmarker import FaceLandmarker
-from capture2face.tracking.video import iter_frames, open_video
 
 EYE_CORNERS = (33, 263)
 
@@ -85,8 +87,6 @@ def observe(clip: str | Path, options: TrackOptions | None = None):
 
 def posed_face(pose: np.ndarray) -> np.ndarray:
     """(F, 468, 3) the canonical face carried into camera space by ``pose`` (F, 4, 4)."""
-    from capture2face.tracking.head_pose import canonical_mesh
-
     verts = canonical_mesh().vertices.astype(np.float64)
     pose = np.asarray(pose, np.float64)
     return np.einsum("fij,nj->fni", pose[:, :3, :3], verts) + pose[:, None, :3, 3]
@@ -113,8 +113,6 @@ def sweep(observations, truths, grid: dict, target: str = "landmarks") -> list[d
 
 
 def main(argv=None) -> None:
-    from capture2face.synth import SynthOptions, SyntheticTruth, synthesize, truth_path
-
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     cache = Path(os.environ.get("CAPTURE2FACE_CACHE", Path.home() / ".cache" / "capture2face"))
     ap.add_argument("--dir", default=str(cache / "synth_tuning"), help="where the synthetic clips live")

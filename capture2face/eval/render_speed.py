@@ -1,4 +1,4 @@
-"""Render throughput: ``python -m capture2face.render.benchmark [--size 512] [--frames 60]
+"""Render throughput: ``python -m capture2face.eval.render_speed [--size 512] [--frames 60]
 [--rounds 5] [--wrinkles off auto] [--samples 4] [--fxaa]``.
 
 Frames sweep rest -> stretch -> rest -> compress with a slowly turning head, so every
@@ -16,8 +16,14 @@ import time
 
 import numpy as np
 
-from capture2face.render.camera import framing_pose
-from capture2face.render.renderer import WRINKLE_DRIVERS, FrameState, Renderer, RenderOptions
+from capture2face.camera import framing_pose
+from capture2face.render.renderer import (
+    WRINKLE_DRIVERS,
+    FrameState,
+    Renderer,
+    RenderOptions,
+)
+from capture2face.rig.avatar import default_avatar
 from capture2face.rig.face_rig import FaceRig
 
 
@@ -78,8 +84,6 @@ def main(argv: list[str] | None = None) -> None:
     if args.rig:
         rig = FaceRig.load(args.rig)
     else:
-        from capture2face.rig.avatar import default_avatar
-
         rig = default_avatar()
     drivers = list(dict.fromkeys(args.wrinkles))
     fps = interleaved_fps(rig, drivers, args.frames, args.rounds, args.size, samples=args.samples, fxaa=args.fxaa)

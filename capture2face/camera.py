@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from capture2face.maths.rotations import rotation_ypr  # noqa: F401  (re-exported: its old home)
+from capture2face.rig.arkit_names import is_automatic
 from capture2face.rig.face_rig import FaceRig
-from capture2face.rotations import rotation_ypr  # noqa: F401  (re-exported: its old home)
 
 # Fraction of the frame height the face's skin fills in ``framing_pose``.
 FRAMING_FILL = 0.6
@@ -65,7 +66,7 @@ def project(points_head: np.ndarray, head_pose: np.ndarray, fov_y_degrees: float
 
 def rotation_matrix(yaw: float, pitch: float, roll: float) -> np.ndarray:
     """(3, 3) head rotation from angles in degrees: ``Rz(roll) @ Ry(yaw) @ Rx(pitch)``
-    (:func:`capture2face.rotations.rotation_ypr` for arrays of angles).
+    (:func:`capture2face.maths.rotations.rotation_ypr` for arrays of angles).
 
     Positive yaw turns the face (+z) towards +x (the subject's left, the camera's right
     when facing it), positive pitch tilts it up towards +y, positive roll turns +x
@@ -82,8 +83,6 @@ def face_points(rig: FaceRig) -> np.ndarray:
     """(N, 3) the points the camera frames: the skin; for an ARKit character (morphs and
     no face bones of its own, maybe on a whole body with hair and clothes, all of it
     "skin"), the vertices its morphs move: the face."""
-    from capture2face.rig.arkit_names import is_automatic
-
     skin = rig.material == 0
     if rig.n_morphs and (is_automatic(rig) or not (np.asarray(rig.landmark_vertices) >= 0).any()):
         moved = np.zeros(rig.n_vertices, bool)

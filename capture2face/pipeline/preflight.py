@@ -12,28 +12,22 @@ from __future__ import annotations
 import os
 from typing import Any
 
+from capture2face.character.load import load_character
 from capture2face.errors import CaptureError
+from capture2face.io.video_input import open_video
+from capture2face.models.face_model import find_face_model
+from capture2face.render.context import gl_context
+from capture2face.rig.arkit_names import drive_mode
 
-MIN_SIZE = 64
-MAX_SIZE = 4096  # 4096^2 renders at ~0.1 fps on a software GL; 8K textures break drivers
 # A frame count estimated from the duration (no count in the container) may be low by
 # a few percent on variable-frame-rate clips: only a neutral frame clearly past the end is
 # refused here; the tracker checks against the frames it decoded.
 _ESTIMATE_SLACK = 1.25
 
 
-def check_size(size: Any) -> None:
-    """The render size: an even number of pixels in MIN_SIZE..MAX_SIZE."""
-    if isinstance(size, bool) or not isinstance(size, int) and not hasattr(size, "__index__"):
-        raise CaptureError(f"--size must be an even number of pixels from {MIN_SIZE} to {MAX_SIZE} (got {size!r})")
-    size = int(size)
-    if not MIN_SIZE <= size <= MAX_SIZE or size % 2:
-        raise CaptureError(f"--size must be an even number of pixels from {MIN_SIZE} to {MAX_SIZE} (got {size})")
-
-
 def check_neutral_frame(neutral_frame: int | None, info) -> None:
     """``--neutral-frame`` against the clip's frame count (a
-    :class:`~capture2face.tracking.video.VideoInfo`)."""
+    :class:`~capture2face.io.video_input.VideoInfo`)."""
     if neutral_frame is None:
         return
     n = int(info.n_frames)
@@ -54,9 +48,6 @@ def check_character(character: Any = None, progress: bool = False):
         CaptureError: missing or corrupt file (an unsupported required glTF extension
             named), or a character with neither face bones nor ARKit-named morphs.
     """
-    from capture2face.pipeline import load_character
-    from capture2face.rig.arkit_names import drive_mode
-
     rig = load_character(character, progress)
     drive_mode(rig)  # raises CaptureError for an undrivable character, saying what is missing
     return rig
@@ -65,8 +56,6 @@ def check_character(character: Any = None, progress: bool = False):
 def check_gl() -> None:
     """The headless OpenGL context can be created (one line naming the missing package
     otherwise; see :mod:`capture2face.render.context`)."""
-    from capture2face.render.context import gl_context
-
     gl_context()
 
 
@@ -77,8 +66,6 @@ def check_shared(options, progress: bool = False) -> Any:
     Returns:
         The character's FaceRig.
     """
-    from capture2face.tracking.model import find_face_model
-
     options.validate()
     find_face_model(options.face_model)
     return check_character(options.character, progress)
@@ -93,8 +80,6 @@ def preflight(clip: str | os.PathLike, options, progress: bool = False) -> tuple
     Raises:
         CaptureError: the first problem found, as one line.
     """
-    from capture2face.tracking.video import open_video
-
     options.validate()
     info = open_video(clip)
     check_neutral_frame(options.neutral_frame, info)

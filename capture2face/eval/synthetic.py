@@ -30,7 +30,7 @@ dimensionless) and how each is measured:
   deformed by the solved bones and weights, against the source rig deformed by the true
   ones: std(solved) / std(true), and Pearson r. The rest pose has gain 0.
 * ``measures``: where expression amplitude is lost, per fidelity measure (mouth opening
-  and width, brows, eyes; :data:`capture2face.fidelity.MEASURES`): ``tracker``: the
+  and width, brows, eyes; :data:`capture2face.measures.MEASURES`): ``tracker``: the
   tracker's own raw landmarks (as ``eval fidelity`` measures an actor) against the truth;
   ``character``: the solved character against the truth; ``character_vs_tracker``: the
   solved character against the tracker (what ``eval fidelity`` reports on real clips).
@@ -65,15 +65,26 @@ bones under the target's reference poses.
 
 from __future__ import annotations
 
+import dataclasses
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from capture2face.fidelity import MEASURES, character_measures, compare, pearson, source_measures
+from capture2face.maths.stats import pearson
+from capture2face.measures import MEASURES, character_measures, compare, source_measures
 from capture2face.retarget import RetargetOptions, retarget, shared_blendshapes
-from capture2face.retarget.influences import region_influence, rig_influences, vertex_influences
+from capture2face.retarget.gaze import eye_radius_iod
+from capture2face.rig.avatar import default_avatar
+from capture2face.rig.face_rig import gaze_directions
+from capture2face.rig.influences import (
+    region_influence,
+    rig_influences,
+    vertex_influences,
+)
+from capture2face.synth import SynthOptions, synthesize
+from capture2face.tracking import TrackOptions, track_clip
 
 # A morph is active in a clip when its true weight's std over the scored frames exceeds this.
 ACTIVE_STD = 0.02
@@ -148,7 +159,7 @@ def _face_bones(rig) -> np.ndarray:
 def measure_chain(true: np.ndarray, seen: np.ndarray, solved: np.ndarray) -> dict:
     """Per fidelity measure, (r, gain) of the tracker (``seen``) and of the solved
     character against the truth, and of the character against the tracker; each (F, 6)
-    :data:`~capture2face.fidelity.MEASURES` over the same frames."""
+    :data:`~capture2face.measures.MEASURES` over the same frames."""
     out = {}
     for k, name in enumerate(MEASURES):
         pairs = {"tracker": (true, seen), "character": (true, solved), "character_vs_tracker": (seen, solved)}
@@ -326,8 +337,6 @@ def score(track, animation, truth, source, target) -> dict:
 def gaze_errors(animation, truth, use: np.ndarray) -> dict:
     """Gaze figures (see the module docstring) over the frames ``use`` (F,) bool; empty
     when the truth or the animation has no gaze."""
-    from capture2face.rig.face_rig import gaze_directions
-
     if getattr(truth, "eye_rotation", None) is None or getattr(animation, "eye_rotation", None) is None:
         return {}
     names = list(truth.blend_names)
@@ -361,9 +370,6 @@ def synthetic_case(frames: int = 300, seed: int = 0, size: int = 512, folder: st
     Returns:
         (SyntheticClip, Track).
     """
-    from capture2face.synth import SynthOptions, synthesize
-    from capture2face.tracking import TrackOptions, track_clip
-
     with tempfile.TemporaryDirectory(prefix="capture2face-eval-") as tmp:
         folder = Path(folder) if folder else Path(tmp)
         clip = synthesize(folder / "synthetic.mp4", SynthOptions(frames=frames, seed=seed, size=size),
@@ -386,12 +392,6 @@ def evaluate_track(track, truth, target_variant: str | None = None,
     tracker's own pick and score it into the nested ``auto_neutral`` block (same keys,
     its own ``goals``). When the pick is the truth's frame the block repeats the figures.
     """
-    import dataclasses
-
-    from capture2face.rig.avatar import default_avatar
-
-    from capture2face.retarget.gaze import eye_radius_iod
-
     auto = int(track.neutral_frame)
     held = truth.pose_frames("neutral")
     source = default_avatar()

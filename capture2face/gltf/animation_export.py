@@ -27,8 +27,10 @@ import numpy as np
 
 from capture2face.errors import CaptureError
 from capture2face.gltf.container import METRES_PER_CM, GlbBuilder, GlbReader
+
 # rotation_part and head_rotations lived here; importable from here still.
-from capture2face.rotations import head_rotations, rotation_part  # noqa: F401
+from capture2face.maths.rotations import head_rotations, rotation_part  # noqa: F401
+from capture2face.rig.face_rig import eye_rotation_matrices
 
 
 def _frame_times(animation, fps: float | None) -> np.ndarray:
@@ -97,8 +99,6 @@ def add_animation(builder: GlbBuilder, rig, animation, nodes: dict, fps: float |
 
     gaze = getattr(animation, "eye_rotation", None)
     if nodes.get("eyes") and gaze is not None and len(gaze) == F:
-        from capture2face.rig.face_rig import eye_rotation_matrices
-
         rot = eye_rotation_matrices(np.nan_to_num(np.asarray(gaze, np.float64)))  # (F, 2, 3, 3)
         for side, node in enumerate(nodes["eyes"]):
             channel(builder.accessor(head_rotations(rot[:, side]).astype(np.float32)), node, "rotation")

@@ -56,7 +56,7 @@ class _AudioCopy:
     """The source's first audio stream, muxed into an output container as video arrives.
 
     Output time 0 is the source's video start (its first frame), as in
-    :func:`capture2face.tracking.video.iter_frames`; audio before it is dropped.
+    :func:`capture2face.io.video_input.iter_frames`; audio before it is dropped.
     """
 
     def __init__(self, source: str | os.PathLike, container) -> None:

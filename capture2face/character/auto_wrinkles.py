@@ -12,7 +12,7 @@ vertices play their part:
    for that landmark, grouped as the avatar groups its bones. They never translate
    (``Animation.bone_positions`` keep them at rest; the morphs move the face): their
    per-frame positions for the influences are the feature vertices deformed by the
-   morph weights (:func:`feature_positions`).
+   morph weights (:func:`capture2face.rig.feature_points.feature_positions`).
 3. **Reference poses from the ARKit morphs**: "stretch" = browInnerUp + browOuterUp + eyeWide,
    "compress" = browDown + eyeSquint + noseSneer (all at 1): each feature bone's pose
    position is its vertex under that morph mix.
@@ -37,10 +37,15 @@ from __future__ import annotations
 import logging
 
 import numpy as np
+from scipy.spatial import cKDTree
 
+from capture2face.character.landmarks import find_landmark_vertices
 from capture2face.errors import CaptureError
-from capture2face.rig.arkit_names import AUTO_PREFIX, arkit_morphs
+from capture2face.gltf.rig_import import _similarity
+from capture2face.rig.arkit_names import arkit_morphs
+from capture2face.rig.avatar import default_avatar
 from capture2face.rig.face_rig import FaceRig
+from capture2face.rig.feature_points import AUTO_PREFIX
 from capture2face.rig.maps import decode_normals, encode_normals
 
 log = logging.getLogger("capture2face")
@@ -50,71 +55,9 @@ POSES = {
     "compress": ("browDownLeft", "browDownRight", "eyeSquintLeft", "eyeSquintRight", "noseSneerLeft",
                  "noseSneerRight"),
 }
-RENDER_SIZE = 512
 # A face vertex further than this (in inter-ocular distances) from every fitted avatar
 # skin vertex is not face (hair, ears, neck): it keeps its own skin and no region.
 _FACE_REACH_IOD = 0.08
-
-
-def find_landmark_vertices(rig: FaceRig) -> np.ndarray:
-    """(478,) int32 vertex under each MediaPipe landmark of the character's neutral face
-    rendered from the front (-1 where none).
-
-    Raises:
-        CaptureError: the tracker finds no face in the render.
-    """
-    from scipy.spatial import cKDTree
-
-    from capture2face.render import FrameState, Renderer, RenderOptions
-    from capture2face.render.camera import framing_pose, project
-    from capture2face.tracking.landmarker import FaceLandmarker, LandmarkerOptions
-
-    opts = RenderOptions(size=RENDER_SIZE, wrinkles="off", samples=4)
-    pose = framing_pose(rig, fov_y_degrees=opts.fov_y_degrees)
-    with Renderer(rig, opts) as renderer:
-        image = renderer.render(FrameState.at_pose(rig, pose))
-    with FaceLandmarker.create_from_options(LandmarkerOptions(num_faces=1)) as landmarker:
-        obs = landmarker.detect(image, 0.0)
-    if obs is None:
-        raise CaptureError(f"character '{rig.name}': the tracker finds no face in its front view")
-    px = project(rig.vertices, pose, opts.fov_y_degrees, RENDER_SIZE)  # (V, 2)
-    cam = rig.vertices.astype(np.float64) @ pose[:3, :3].T + pose[:3, 3]
-    depth = -cam[:, 2]
-    # Only vertices facing the camera: the back of a whole head projects onto the face too.
-    facing = np.einsum("vc,vc->v", rig.normals.astype(np.float64) @ pose[:3, :3].T, -cam) > 0
-    out = np.full(len(obs.landmarks_px), -1, np.int32)
-    lm = obs.landmarks_px.astype(np.float64)
-    for material, rows in ((0, slice(0, 468)), (1, slice(468, None))):  # skin; irises on the eyes
-        cand = np.flatnonzero((rig.material == material) & facing & np.isfinite(px).all(1))
-        if not len(cand):
-            continue
-        k = min(32, len(cand))
-        d, idx = cKDTree(px[cand]).query(lm[rows], k=k)
-        d, idx = d.reshape(len(d), k), idx.reshape(len(idx), k)
-        # The front-most vertex among those within 2 px (or the nearest, if further): the
-        # surface under the landmark, not the back of the head behind it.
-        near = d <= np.maximum(d[:, :1], 2.0)
-        front = np.where(near, depth[cand][idx], np.inf)
-        out[rows] = cand[idx[np.arange(len(idx)), np.argmin(front, axis=1)]]
-    return out
-
-
-def feature_positions(rig: FaceRig, blend_weights: np.ndarray) -> np.ndarray:
-    """(F, B, 3) float32 bone positions for the influences: the rest positions, with each
-    automatic feature bone at its vertex deformed by the frame's morph weights.
-
-    Args:
-        blend_weights: (F, M) morph weights.
-    """
-    weights = np.asarray(blend_weights, np.float32)
-    out = np.repeat(rig.bone_rest[None].astype(np.float32), len(weights), 0)
-    auto = [b for b, n in enumerate(rig.bone_names) if n.startswith(AUTO_PREFIX)]
-    if not auto:
-        return out
-    verts = rig.landmark_vertices[rig.bone_landmarks[auto]]
-    deltas = rig.morph_positions[:, verts].reshape(rig.n_morphs, -1).astype(np.float32)  # (M, n*3)
-    out[:, auto] += (weights @ deltas).reshape(len(weights), len(auto), 3)
-    return out
 
 
 def automatic_wrinkles(rig: FaceRig) -> FaceRig:
@@ -124,11 +67,6 @@ def automatic_wrinkles(rig: FaceRig) -> FaceRig:
     Raises:
         CaptureError: no face found in its front view, or too few ARKit pose morphs.
     """
-    from scipy.spatial import cKDTree
-
-    from capture2face.gltf.rig_import import _similarity
-    from capture2face.rig.avatar import default_avatar
-
     by_name = {a: m for m, a in arkit_morphs(rig.morph_names).items()}
     if not any(n in by_name for names in POSES.values() for n in names):
         raise CaptureError(f"character '{rig.name}': none of the brow / eye / nose ARKit morphs that make "

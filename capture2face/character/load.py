@@ -1,0 +1,134 @@
+"""Any character, loaded: the built-in avatars, a FaceRig .npz, or a user's .glb / .gltf
+(with its mapping JSON and its automatic wrinkles)."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from capture2face.character.auto_wrinkles import automatic_wrinkles
+from capture2face.errors import CaptureError
+from capture2face.gltf import import_glb
+from capture2face.rig import avatar
+from capture2face.rig.arkit_names import drive_mode, is_automatic
+from capture2face.rig.face_rig import FaceRig
+from capture2face.runtime.log import collect_warnings, log
+
+BUILTIN_CHARACTERS = ("default", "wide")
+
+
+def load_character(character: Any = None, progress: bool = False) -> FaceRig:
+    """The rig to animate (see :attr:`RunOptions.character`); ``progress``: a progress bar
+    while a built-in avatar is built (the first use on a machine, then it is cached).
+
+    Raises:
+        CaptureError: missing, corrupt or unsupported character file.
+    """
+    if character is None:
+        return builtin_avatar(None, progress)
+    if isinstance(character, FaceRig):
+        return character
+    text = os.fspath(character)
+    if text in BUILTIN_CHARACTERS and not Path(text).exists():
+        return builtin_avatar(None if text == "default" else text, progress)
+    path = Path(text)
+    if not path.is_file():
+        raise CaptureError(f"character {path}: no such file" if not path.exists()
+                           else f"character {path}: not a file")
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".npz":
+            return FaceRig.load(path)
+        if suffix in (".glb", ".gltf"):
+            return _imported_character(path)
+    except CaptureError as exc:
+        # The readers turn a malformed file into CaptureError; anything else is a bug of
+        # ours and keeps its traceback (--debug) instead of blaming the user's file.
+        msg = str(exc)
+        raise CaptureError(msg if msg.startswith(("character", str(path))) else f"character {path}: {msg}") from None
+    raise CaptureError(f"character {path}: unsupported format '{suffix}'; "
+                       "use a FaceRig .npz or a .glb with its mapping .json")
+
+
+# The last .glb / .gltf character imported in this process, by _file_key: a batch (its
+# check, then every clip run in this process) imports it and redoes its automatic
+# wrinkles (2-6 s) once. Callers treat a FaceRig as read-only (as default_avatar's memo).
+_IMPORTED: dict[tuple, tuple[FaceRig, list[str]]] = {}
+
+
+def _file_key(path: Path) -> tuple:
+    """(resolved path, mtime, size) of a file, or (path, None) where there is none."""
+    try:
+        st = path.stat()
+    except OSError:
+        return str(path.resolve()), None
+    return str(path.resolve()), st.st_mtime_ns, st.st_size
+
+
+def _imported_character(path: Path) -> FaceRig:
+    """``path`` (.glb / .gltf) imported, with the mapping JSON beside it if any, and its
+    automatic wrinkles; the same rig again while neither file changes."""
+    mapping = path.with_suffix(".json")
+    key = (_file_key(path), _file_key(mapping))
+    if key in _IMPORTED:
+        rig, said = _IMPORTED[key]
+        for message in said:  # what the import warned, said again for this use
+            log.warning("%s", message)
+        return rig
+
+    with collect_warnings() as said:
+        rig = with_automatic_wrinkles(import_glb(path, mapping if mapping.is_file() else None))
+    _IMPORTED.clear()  # one character kept: a body .glb may be hundreds of MB
+    _IMPORTED[key] = rig, list(said)
+    return rig
+
+
+def with_automatic_wrinkles(rig: FaceRig) -> FaceRig:
+    """An ARKit morph character without face bones with its automatic wrinkle influences
+    (:mod:`capture2face.character.auto_wrinkles`: its front view tracked, feature points, poses
+    from its morphs); any other rig as it is. Where its face cannot be found, the rig
+    as it is, with a warning (it is still driven, without wrinkle influences)."""
+    try:
+        if is_automatic(rig) or drive_mode(rig) != "arkit":
+            return rig
+    except CaptureError:
+        return rig  # undrivable: the check before tracking says why
+    try:
+        return automatic_wrinkles(rig)
+    except CaptureError as exc:
+        log.warning("no automatic wrinkles: %s", exc)
+        return rig
+
+
+def builtin_avatar(variant: str | None = None, progress: bool = False) -> FaceRig:
+    """:func:`~capture2face.rig.avatar.default_avatar`, with a progress bar (and an entry
+    in the log) when it is not cached yet: its build takes ~5 s, once per machine and
+    version (``run`` counts it in report.json's ``seconds["checks"]``)."""
+    if avatar.is_cached(variant):
+        return avatar.default_avatar(variant)
+
+    log.info("building the %s avatar (first use; cached in %s)", variant or "default", avatar.cache_dir())
+    t = time.perf_counter()
+    with tqdm(total=1, disable=not progress, desc=f"building the {variant or 'default'} avatar (first use, "
+              "then cached)", bar_format="{desc}: {elapsed}", leave=False) as bar:
+        done = threading.Event()
+
+        def tick() -> None:  # the elapsed time counts while the build runs
+            while not done.wait(0.5):
+                bar.refresh()
+
+        ticker = threading.Thread(target=tick, daemon=True)
+        ticker.start()
+        try:
+            rig = avatar.default_avatar(variant)
+        finally:
+            done.set()
+            ticker.join()
+        bar.update(1)
+    log.info("built the %s avatar in %.1f s", variant or "default", time.perf_counter() - t)
+    return rig

@@ -1,0 +1,138 @@
+"""``capture2face eval fidelity``: the expression-fidelity figures (:mod:`capture2face.measures`)
+of clips, tracked and retargeted here, or of ``run`` output folders; a table, a summary
+line and a picture per clip."""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from capture2face.character.load import load_character
+from capture2face.errors import CaptureError
+from capture2face.io.atomic import atomic_path
+from capture2face.measures import (
+    GAIN_MAX,
+    GAIN_MIN,
+    GAZE_R_GOAL,
+    MEASURES,
+    R_MIN,
+    ClipFidelity,
+    clip_fidelity,
+)
+from capture2face.pipeline import RunOptions, retarget_stage, track_stage
+from capture2face.retarget.animation import Animation
+from capture2face.tracking.track import Track
+
+
+# ---- clips and run folders -----------------------------------------------------------------
+def _load_run(folder: Path):
+    missing = [f for f in ("track.npz", "animation.npz") if not (folder / f).is_file()]
+    if missing:
+        raise CaptureError(f"{folder}: not a run folder (no {', '.join(missing)})")
+    track, animation = Track.load(folder / "track.npz"), Animation.load(folder / "animation.npz")
+    character = None
+    try:
+        report = json.loads((folder / "report.json").read_text(encoding="utf-8"))
+        character = report.get("options", {}).get("character")
+    except (OSError, ValueError):
+        pass
+    return track, animation, load_character(character)
+
+
+def fidelity_of(path: str | os.PathLike, character=None, progress: bool = False) -> ClipFidelity:
+    """A clip (tracked and retargeted here, nothing rendered) or a ``run`` output folder."""
+    path = Path(path)
+    if path.is_dir():
+        track, animation, rig = _load_run(path)
+        return clip_fidelity(track, animation, rig, path.name)
+    rig = load_character(character)
+    with tempfile.TemporaryDirectory(prefix="capture2face-fidelity-") as work:
+        track = track_stage(path, RunOptions(), progress=progress, workdir=work)
+        animation = retarget_stage(track, rig)
+        return clip_fidelity(track, animation, rig, path.stem)
+
+
+def summary_line(results: list[dict]) -> str:
+    judged = sum(r["summary"]["judged"] for r in results)
+    ok = sum(r["summary"]["faithful"] for r in results)
+    beats = sum(r["summary"]["not_worse_than_direct"] for r in results)
+    arkit = [a for r in results for a in r["arkit"].values()]
+    gaze = [g for r in results for g in r.get("gaze", {}).values() if g["judged"]]
+    return (f"{len(results)} clips: {ok}/{judged} judged measures faithful (r >= {R_MIN}, gain "
+            f"{GAIN_MIN}-{GAIN_MAX}), {beats}/{judged} not worse than the direct scores; "
+            f"ARKit curves {sum(a['met'] for a in arkit)}/{len(arkit)} meet their r goal"
+            + (f"; eye yaw {sum(g['met'] for g in gaze)}/{len(gaze)} follows eyeLookIn/Out (r >= {GAZE_R_GOAL})"
+               if gaze else ""))
+
+
+def table(results: list[dict]) -> str:
+    """A plain-text (Markdown) table: clip x measure, ``r / gain`` (direct in brackets)."""
+    head = "| clip | " + " | ".join(MEASURES) + " |"
+    lines = [head, "|" + "---|" * (len(MEASURES) + 1)]
+    for res in results:
+        cells = []
+        for name in MEASURES:
+            m = res["measures"][name]
+            mark = "" if not m["judged"] else (" ✓" if m["faithful"] else " ✗")
+            cells.append(f"{m['r']:.2f} / {m['gain']:.2f}{mark} ({m['direct_r']:.2f} / {m['direct_gain']:.2f})"
+                         if m["judged"] else f"— ({m['range']:.3f})")
+        lines.append(f"| {res['clip']} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+# ---- picture ------------------------------------------------------------------------------
+def plot(fid: ClipFidelity, path: str | os.PathLike, width: int = 960, row: int = 110) -> None:
+    """A PNG: each measure over time, source (white), character (orange), direct (blue)."""
+    import cv2
+
+    names = list(MEASURES)
+    img = np.full((row * len(names) + 30, width, 3), 24, np.uint8)
+    x0, x1 = 120, width - 10
+    n = len(fid.times)
+    xs = x0 + (np.arange(n) / max(1, n - 1)) * (x1 - x0)
+    colours = {"source": (235, 235, 235), "character": (40, 150, 255), "direct": (230, 140, 60)}  # BGR
+    for k, name in enumerate(names):
+        top = 10 + k * row
+        series = {"source": fid.source[:, k], "character": fid.character[:, k], "direct": fid.direct[:, k]}
+        lo = min(float(s.min()) for s in series.values()) if n else 0.0
+        hi = max(float(s.max()) for s in series.values()) if n else 1.0
+        span = max(hi - lo, 1e-6)
+        cv2.rectangle(img, (x0, top), (x1, top + row - 14), (60, 60, 60), 1)
+        cv2.putText(img, name, (8, top + 20), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (220, 220, 220), 1, cv2.LINE_AA)
+        cv2.putText(img, f"{hi:.3f}", (8, top + 40), cv2.FONT_HERSHEY_SIMPLEX, 0.38, (150, 150, 150), 1, cv2.LINE_AA)
+        cv2.putText(img, f"{lo:.3f}", (8, top + row - 18), cv2.FONT_HERSHEY_SIMPLEX, 0.38, (150, 150, 150), 1,
+                    cv2.LINE_AA)
+        for label, values in series.items():
+            ys = top + (row - 16) - (values - lo) / span * (row - 20)
+            pts = np.stack([xs, ys], 1).round().astype(np.int32)
+            cv2.polylines(img, [pts], False, colours[label], 1, cv2.LINE_AA)
+    legend_y = img.shape[0] - 8
+    for i, (label, colour) in enumerate(colours.items()):
+        cv2.putText(img, label, (x0 + 110 * i, legend_y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, colour, 1, cv2.LINE_AA)
+    path = Path(path)
+    with atomic_path(path) as tmp:  # keeps the .png suffix OpenCV picks the format from
+        if not cv2.imwrite(str(tmp), img):
+            raise CaptureError(f"{path}: cannot write the picture")
+
+
+def evaluate_fidelity(paths: list[str | os.PathLike], character=None, plot_dir: str | os.PathLike | None = None,
+                      progress: bool = False) -> dict:
+    """Fidelity figures of clips or run folders: ``{"clips": [...], "summary": line}``.
+
+    With ``plot_dir``, one ``<clip>.fidelity.png`` per clip is written there.
+    """
+    results = []
+    for p in paths:
+        fid = fidelity_of(p, character, progress)
+        res = fid.figures()
+        if plot_dir is not None:
+            Path(plot_dir).mkdir(parents=True, exist_ok=True)
+            picture = Path(plot_dir) / f"{fid.name}.fidelity.png"
+            plot(fid, picture)
+            res["picture"] = os.fspath(picture)
+        results.append(res)
+    return {"clips": results, "summary": summary_line(results)}

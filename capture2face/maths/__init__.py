@@ -1,0 +1,1 @@
+"""Maths with no GL, glTF or files: rotations (:mod:`.rotations`) and small statistics (:mod:`.stats`)."""
