@@ -25,7 +25,7 @@ from capture2face.rig.feature_points import feature_correspondence, feature_posi
 
 @dataclass
 class RetargetOptions:
-    """Retargeting settings (defaults chosen by ``capture2face eval synthetic``).
+    """Retargeting settings (how each default was chosen, with its figures: docs/tuning.md).
 
     Attributes:
         kernel: RBF kernel of the feature-point network.
@@ -65,89 +65,24 @@ class RetargetOptions:
             (:func:`capture2face.retarget.gaze.eye_rotation`); a human's by default.
     """
 
-    # Chosen on 300 synthetic frames (``capture2face eval synthetic``): thin-plate,
-    # linear and cubic kernels with 64-128 centres all land within 0.001 IOD of bone error
-    # of each other (the tracker's landmark error dominates); all centres is slightly worse
-    # (it fits the tracker's neutral-frame noise) and 4x slower. The cubic polyharmonic
-    # kernel needs no shape parameter (no epsilon to tune against face size) and is
-    # cheaper to evaluate than the thin-plate spline's r^2 log r. Smoothing changed nothing
-    # measurable: the neutral pairs are fitted exactly and the offset term keeps the
-    # neutral exact anyway.
     kernel: str = "cubic"
     smoothing: float = 0.0
     epsilon: float | None = None
     n_centers: int | None = 96
     temporal_smoothness: float = 0.05
     ridge: float = 1e-4
-    # Morph priors, a compromise measured both ways. MediaPipe's landmark error on the
-    # synthetic face (~0.15 cm, mostly view-dependent, so temporal smoothing cannot remove
-    # it) is as large as most morphs' motion. On 300 tracked synthetic frames, blendweight
-    # MAE: 0.17 (morph_ridge 1e-4, no L1), 0.10 (0.1, 0.05: the default), 0.074 (1.0,
-    # 0.05); all-zero weights score 0.065, MediaPipe's own scores 0.12. But on a
-    # noise-free track the strong prior shrinks every weight to ~0 (MAE 0.057 = the
-    # all-zero score) while the default still follows the motion (0.043) and weak priors
-    # recover it exactly (morph_ridge=1e-4, sparsity=0: 0.0006).
     morph_ridge: float = 0.1
     sparsity: float = 0.05
     depth_weight: float = 1.0
-    # The tracker's depth is its weakest coordinate: MediaPipe regresses a relative z
-    # from the image, and on tracked synthetic clips the depth motion of the retargeted
-    # bones correlates 0.06 with the true one (x: 0.62, y: 0.80). Giving the network half
-    # of it, bone_error_iod_p95 on seeds 0-4 (300 frames): 0.066/0.055/0.064/0.060/0.072
-    # -> 0.062/0.051/0.063/0.057/0.068, median 0.027 -> 0.026, blend weights and
-    # influences unchanged (0.0 is no better than 0.5). A perfect 3D track is recovered
-    # exactly with depth_motion=1. With the eye corners weighted (eye_corner_weight) 0.6:
-    # on real clips the brow height above the eye over-expresses a little less (d11 gain
-    # 1.25 -> 1.23; at 0.75 1.21, 1.0 1.09 with brow r down) for p95 0.0645 -> 0.0646
-    # (seed 7); 0.75 costs 3-7% of p95 on seeds 7/0/1.
     depth_motion: float = 0.6
-    # The network pins each neutral pair; an actor's neutral lips are apart (0.1-1.2 cm
-    # on real clips) where the character's touch, so an unclosed source squashes all
-    # vertical motion between the lips (mouth-opening gain 0.21-0.66 on four of six
-    # clips). Closing the source neutral's lips the way the avatar closes the canonical
-    # face's (rig.avatar.close_lips) keeps the neutral exact elsewhere and lets the
-    # opening through: with the real-clip filter and neutral pick, gain 0.93-1.10.
     close_source_lips: bool = True
     solve_blend_weights: bool = True
     joint_solve: bool = True
-    # Feature-point reliability, chosen on seed 1 and checked on seeds 0 and 2 (300
-    # synthetic frames; bone_error_iod_p95 0.072/0.063/0.084 -> 0.066/0.057/0.066,
-    # blendweight_mae 0.094/0.089/0.097 -> 0.074/0.070/0.068; a floor of 0.02 cm or
-    # one pass less costs ~0.001 p95, and so does giving the oval full weight). The tracker's error is
-    # far from uniform: lip and chin landmarks err 2-3x more than eye and nose ones, and
-    # the silhouette is a guess wherever there is no visible head outline.
     oval_weight: float = 0.1
-    # The outer eye corners are where the rig and the tracker disagree most about what a
-    # brow does: the avatar skins them partly to the outer and middle brow bones (0.28 +
-    # 0.05), so a raised brow drags the corner up, while the actor's corner stays put
-    # (and squints on its own). At weight 1 the solve trades the corner for the brow and
-    # the brow height above the eye (fidelity's |p105 - p33|, |p334 - p263|) loses
-    # correlation; weighting the corners lets the cheek bones hold them. Six real clips
-    # (eval fidelity, with depth_motion 0.6), weight 1 -> 20: faithful measures 28/33 ->
-    # 33/33, mean r 0.949 -> 0.967, worst brow r 0.74 -> 0.91, brow gains 0.85-1.24
-    # (10-30 all within one measure of that; weighting only the corners' y, or x and z,
-    # is not enough). Synthetic, seeds 7/0/1 (300 frames, with depth_motion 0.6):
-    # bone_error_iod_p95 0.0648/0.0654/0.0509 -> 0.0646/0.0660/0.0521, blendweight_mae
-    # 0.070/0.076/0.069 -> 0.070/0.079/0.072, wrinkle_influence_mae 0.079/0.080/0.060 ->
-    # 0.078/0.079/0.060; the cost is in which morph a brow-lowering goes to (browDown's
-    # active r 0.77-0.88 -> 0.38-0.51 on seeds 7 and 1, eyeSquint's up 0.31-0.43 ->
-    # 0.55 on seed 7). Any weight from 10 on costs the same there.
     eye_corner_weight: float = 20.0
-    # The mouth corners likewise: the solve fits the mapped points around the mouth well
-    # (their width gain 0.94-1.06 against the actor) but puts the corners themselves
-    # 15-20% further out (the smile morph and corner bones move them more than their
-    # neighbours). Six real clips, weight 1 / 3 / 5 / 10: mouth-width gain 1.05-1.20 /
-    # 0.98-1.16 / 0.95-1.12 / 0.92-1.08, every measure faithful and mean r 0.967 at each,
-    # mean |log gain| over all measures 0.091 / 0.079 / 0.073 / 0.076. Synthetic (truth
-    # neutral; seeds 7 and 8, 300 frames, and the 60-frame test clip), weight 1 -> 5:
-    # bone_error_iod_p95 0.0646/0.0612/0.0782 -> 0.0644/0.0608/0.0767, blendweight_mae
-    # 0.070/0.069/0.070 -> 0.070/0.068/0.068, mouthPucker r 0.87/0.86/0.96 ->
-    # 0.83/0.85/0.97; at 10 the pucker gives way to the corner bones (r 0.30-0.79).
     mouth_corner_weight: float = 5.0
     reweight_iterations: int = 2
     reweight_floor: float = 0.01
-    # Windows: memory stays flat whatever the clip's length; the overlap is many times
-    # the temporal term's reach, so the result matches one whole-clip solve (tests).
     window_frames: int = 1000
     window_overlap: int = 100
     eye_radius_iod: float = gaze.HUMAN_RADIUS_IOD

@@ -13,7 +13,7 @@ from capture2face.tracking.landmarker import LandmarkerOptions
 
 @dataclass
 class TrackOptions:
-    """How a clip is tracked.
+    """How a clip is tracked (how each default was chosen, with its figures: docs/tuning.md).
 
     Attributes:
         face_model: ``face_landmarker.task`` path (None: $CAPTURE2FACE_FACE_MODEL, else the
@@ -32,16 +32,6 @@ class TrackOptions:
             (Hz, 1/cm, Hz); see :mod:`.filtering`.
         pose_min_cutoff, pose_beta: One Euro filter of the head pose (Hz, 1/cm).
         zero_phase: filter forward and backward (no lag; the whole clip is known).
-
-    Landmark filter defaults are chosen on the real clips of ../shared/clips (the
-    pose filter's on ``python -m capture2face.eval.filter_tuning``'s synthetic clips). The
-    synthetic tuning (min_cutoff 0.5 Hz, beta 0.2) kept only 0.65-0.90 of the mouth's and
-    0.7-0.8 of the eyes' motion on real faces (fast speech and blinks, which the synthetic
-    performances lack). Over the six clips (``capture2face eval fidelity``, lip-closed
-    neutral): faithful measures 16/33 -> 28/33, mean r 0.89 -> 0.95, mean |log gain|
-    0.19 -> 0.10; jitter (median second difference of the landmarks, IOD) 0.0003 ->
-    0.0011 against 0.0055 unfiltered. Settings with more jitter (min_cutoff 2-3 Hz or
-    beta 2-3) gain no more than one measure.
         max_frames: track only the first N frames (None: all).
         workers: landmarkers tracking segments of the clip at once, each in a process of
             its own (:mod:`.segments`); None: one per free core; 1: one landmarker, this
