@@ -128,7 +128,6 @@ def _timed(fn, *args, **kwargs) -> float:
 
 
 def _run(clip, out_dir, options: RunOptions, progress: bool, name: str | None, workers, t_start: float) -> dict:
-
     # Bad input fails here, before anything is written or tracked: options and limits, the
     # clip, the neutral frame, the face model, a drivable character, the GL context.
     info, rig = preflight(clip, options, progress=progress)
@@ -140,17 +139,7 @@ def _run(clip, out_dir, options: RunOptions, progress: bool, name: str | None, w
     with collect_warnings() as warnings, \
             staged_folder(final, OUTPUT_FILES, protect=[clip]) as tmp, _work_folder(tmp) as work:
         t = time.perf_counter()
-        with watch_damage(clip) as damage:
-            try:
-                track = track_stage(clip, options, progress, workdir=work, workers=workers, info=info)
-            finally:
-                if workers is not None:
-                    workers.close()
-                # The decoder keeps the frames before any damage; a run would silently lose
-                # the clip's tail, so that takes an explicit opt-in. (Checked even when
-                # tracking failed: a damaged file is the cause to report.)
-                if damage and not options.allow_truncated:
-                    raise CaptureError(damage[0].message)
+        track = _track(clip, options, progress, work, workers, info)
         track.save(tmp / "track.npz")
         release_free_memory()
         seconds["track"] = time.perf_counter() - t
@@ -162,32 +151,7 @@ def _run(clip, out_dir, options: RunOptions, progress: bool, name: str | None, w
         seconds["retarget"] = time.perf_counter() - t
         raise_if_interrupted()
 
-        # The render pass starts as soon as the animation is solved. The exports need
-        # nothing it makes: with cores to spare they are written beside it; on two cores,
-        # which the render pass fills, after it (beside it they would gain nothing and
-        # their transient memory, ~1.7 KB a frame, would add to the render pass's peak).
-        beside = free_cores() > 2
-        with concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="capture2face-export") as pool:
-            exported = (pool.submit(_timed, export_stage, rig, animation, tmp, track,
-                                     character=options.character)
-                        if beside else None)
-            try:
-                t = time.perf_counter()
-                posters = [i for i, _ in poster_frames(animation, track.neutral_frame)]  # report.html's
-                rendered = render_stage(clip, track, animation, rig, tmp, options, progress, keep_frames=posters)
-                seconds["render_encode"] = time.perf_counter() - t
-                seconds["render_gl"] = rendered["render_s"]
-            except BaseException:
-                if exported is not None:
-                    concurrent.futures.wait([exported])  # it writes into the staging folder: done first
-                raise  # the render's error (an export error too would hide it)
-            if exported is None:
-                # The render pass's threads leave free but resident heap behind (~3 KB a
-                # frame); handed back first, the exports' transient memory (~1.7 KB a frame)
-                # rises from the post-render baseline instead of stacking on the render's peak.
-                release_free_memory()
-            seconds["export"] = exported.result() if exported is not None else \
-                _timed(export_stage, rig, animation, tmp, track, character=options.character)
+        kept = _render_and_export(clip, track, animation, rig, tmp, options, progress, seconds)
         release_free_memory()
         raise_if_interrupted()
 
@@ -197,35 +161,88 @@ def _run(clip, out_dir, options: RunOptions, progress: bool, name: str | None, w
         seconds["fidelity"] = time.perf_counter() - t
 
         seconds["total"] = time.perf_counter() - t_start
-        n = track.n_frames
-        report = {
-            "clip": os.fspath(clip),
-            "output_dir": os.fspath(final),
-            "character": rig.name,
-            "wrinkles": options.wrinkles,
-            "size": int(options.size),
-            "frames": n,
-            "tracked_frames": track.tracked_frames,
-            "fps": float(track.fps),
-            "source_size": [int(track.width), int(track.height)],
-            "neutral_frame": int(track.neutral_frame),
-            "seconds": {k: round(v, 3) for k, v in seconds.items()},
-            "fps_processing": n / seconds["total"],
-            "track_fps": n / seconds["track"],
-            "warnings": track_warnings(track, options) + list(warnings),
-            "outputs": outputs,  # the run's manifest (capture2face.io.staging)
-            "options": options_json(options),
-            "video": {"codec": info.codec, "rotation": info.rotation},
-            "fidelity": fidelity.figures() if fidelity is not None else None,
-        }
+        report = _report(clip, final, rig, track, info, options, outputs, seconds, list(warnings), fidelity)
         # report.html shows the seconds up to here; report.json adds its own and the total.
         t = time.perf_counter()
         write_report_html(tmp / "report.html", report, track, animation,
-                          tmp / ("compare.mp4" if options.compare else "avatar.mp4"), fidelity, rendered["kept"])
+                          tmp / ("compare.mp4" if options.compare else "avatar.mp4"), fidelity, kept)
         seconds["report_html"] = time.perf_counter() - t
         seconds["total"] = time.perf_counter() - t_start
         report["seconds"] = {k: round(v, 3) for k, v in seconds.items()}
-        report["fps_processing"] = n / seconds["total"]
+        report["fps_processing"] = track.n_frames / seconds["total"]
         raise_if_interrupted()  # the last moment before the outputs replace the old ones
         write_text_atomic(tmp / "report.json", json.dumps(report, indent=2) + "\n")
     return report
+
+
+def _track(clip, options: RunOptions, progress: bool, work: Path, workers, info):
+    """Pass 1, refusing a damaged clip unless ``options.allow_truncated``."""
+    with watch_damage(clip) as damage:
+        try:
+            return track_stage(clip, options, progress, workdir=work, workers=workers, info=info)
+        finally:
+            if workers is not None:
+                workers.close()
+            # The decoder keeps the frames before any damage; a run would silently lose
+            # the clip's tail, so that takes an explicit opt-in. (Checked even when
+            # tracking failed: a damaged file is the cause to report.)
+            if damage and not options.allow_truncated:
+                raise CaptureError(damage[0].message)
+
+
+def _render_and_export(clip, track, animation, rig: FaceRig, tmp: Path, options: RunOptions, progress: bool,
+                       seconds: dict[str, float]) -> dict:
+    """Pass 3 and the exports into ``tmp``; their seconds into ``seconds``. Returns the
+    frames kept for report.html."""
+    # The render pass starts as soon as the animation is solved. The exports need
+    # nothing it makes: with cores to spare they are written beside it; on two cores,
+    # which the render pass fills, after it (beside it they would gain nothing and
+    # their transient memory, ~1.7 KB a frame, would add to the render pass's peak).
+    beside = free_cores() > 2
+    with concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="capture2face-export") as pool:
+        exported = (pool.submit(_timed, export_stage, rig, animation, tmp, track, character=options.character)
+                    if beside else None)
+        try:
+            t = time.perf_counter()
+            posters = [i for i, _ in poster_frames(animation, track.neutral_frame)]  # report.html's
+            rendered = render_stage(clip, track, animation, rig, tmp, options, progress, keep_frames=posters)
+            seconds["render_encode"] = time.perf_counter() - t
+            seconds["render_gl"] = rendered["render_s"]
+        except BaseException:
+            if exported is not None:
+                concurrent.futures.wait([exported])  # it writes into the staging folder: done first
+            raise  # the render's error (an export error too would hide it)
+        if exported is None:
+            # The render pass's threads leave free but resident heap behind (~3 KB a
+            # frame); handed back first, the exports' transient memory (~1.7 KB a frame)
+            # rises from the post-render baseline instead of stacking on the render's peak.
+            release_free_memory()
+        seconds["export"] = exported.result() if exported is not None else \
+            _timed(export_stage, rig, animation, tmp, track, character=options.character)
+    return rendered["kept"]
+
+
+def _report(clip, final: Path, rig: FaceRig, track, info, options: RunOptions, outputs: list[str],
+            seconds: dict[str, float], warnings: list[str], fidelity) -> dict:
+    """report.json's content (its seconds are updated once report.html is written)."""
+    n = track.n_frames
+    return {
+        "clip": os.fspath(clip),
+        "output_dir": os.fspath(final),
+        "character": rig.name,
+        "wrinkles": options.wrinkles,
+        "size": int(options.size),
+        "frames": n,
+        "tracked_frames": track.tracked_frames,
+        "fps": float(track.fps),
+        "source_size": [int(track.width), int(track.height)],
+        "neutral_frame": int(track.neutral_frame),
+        "seconds": {k: round(v, 3) for k, v in seconds.items()},
+        "fps_processing": n / seconds["total"],
+        "track_fps": n / seconds["track"],
+        "warnings": track_warnings(track, options) + warnings,
+        "outputs": outputs,  # the run's manifest (capture2face.io.staging)
+        "options": options_json(options),
+        "video": {"codec": info.codec, "rotation": info.rotation},
+        "fidelity": fidelity.figures() if fidelity is not None else None,
+    }
