@@ -174,13 +174,23 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
         write_text_atomic(args.json, text + "\n")
     print(text)
-    if not args.quiet:  # the ratios and goals at a glance; stdout stays plain JSON
-        from capture2face.evaluate import summary_line
-
-        print(summary_line(result, "truth's neutral"), file=sys.stderr)
-        if "auto_neutral" in result:
-            print(summary_line(result["auto_neutral"], "tracker's neutral"), file=sys.stderr)
+    if not args.quiet:  # the main figures and goals at a glance; stdout stays plain JSON
+        print(bench_summary_line(result), file=sys.stderr)
     return 0
+
+
+def bench_summary_line(result: dict) -> str:
+    """One line: the bench's main figures and its goals met (or the memory check's peaks)."""
+    if "goals" not in result:  # --memory-seconds
+        return (f"peak RSS {result['short_peak_rss_mb']:.0f} MB for {result['short_frames']} frames, "
+                f"{result['long_peak_rss_mb']:.0f} MB for {result['long_frames']} ({result['ratio']:.2f}x)")
+    goals = result["goals"]
+    missed = [name for name, met in goals.items() if not met]
+    return (f"end to end {result['end_to_end_fps']:.1f} fps ({result['end_to_end_over_cpu_bound']:.2f}x the "
+            f"{result['cpu_cores']}-core CPU bound), track {result['track_fps']:.1f} fps, render auto "
+            f"{result['render_fps_wrinkles_auto']:.1f} fps ({result['render_auto_over_off']:.2f}x off), retarget + "
+            f"wrinkles {result['retarget_ms_per_frame'] + result['wrinkle_ms_per_frame']:.2f} ms/frame; "
+            f"goals met {len(goals) - len(missed)}/{len(goals)}" + (f" (missed: {'; '.join(missed)})" if missed else ""))
 
 
 NEUTRAL_HELP = ("index of the frame with the actor's neutral face (default: picked "
