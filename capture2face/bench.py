@@ -350,3 +350,17 @@ def memory_check(long_seconds: float = 600.0, short_seconds: float = 10.0, size:
         "ratio": round(long_rss / short_rss, 3),
         "short_run_seconds": round(short_s, 1), "long_run_seconds": round(long_s, 1),
     }
+
+
+def summary_line(result: dict) -> str:
+    """One line: the bench's main figures and its goals met (or the memory check's peaks)."""
+    if "goals" not in result:  # --memory-seconds
+        return (f"peak RSS {result['short_peak_rss_mb']:.0f} MB for {result['short_frames']} frames, "
+                f"{result['long_peak_rss_mb']:.0f} MB for {result['long_frames']} ({result['ratio']:.2f}x)")
+    goals = result["goals"]
+    missed = [name for name, met in goals.items() if not met]
+    return (f"end to end {result['end_to_end_fps']:.1f} fps ({result['end_to_end_over_cpu_bound']:.2f}x the "
+            f"{result['cpu_cores']}-core CPU bound), track {result['track_fps']:.1f} fps, render auto "
+            f"{result['render_fps_wrinkles_auto']:.1f} fps ({result['render_auto_over_off']:.2f}x off), retarget + "
+            f"wrinkles {result['retarget_ms_per_frame'] + result['wrinkle_ms_per_frame']:.2f} ms/frame; "
+            f"goals met {len(goals) - len(missed)}/{len(goals)}" + (f" (missed: {'; '.join(missed)})" if missed else ""))

@@ -154,11 +154,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if args.json:
         write_text_atomic(args.json, text + "\n")
     print(text)
-    if not args.quiet:  # the ratios and goals at a glance; stdout stays plain JSON
-
-        print(summary_line(result, "truth's neutral"), file=sys.stderr)
-        if "auto_neutral" in result:
-            print(summary_line(result["auto_neutral"], "tracker's neutral"), file=sys.stderr)
+    if not args.quiet:  # the main figures and goals at a glance; stdout stays plain JSON
+        print(bench.summary_line(result), file=sys.stderr)
     return 0
 
 

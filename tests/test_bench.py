@@ -6,6 +6,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -17,45 +18,79 @@ KEYS = ["decode_fps", "mediapipe_fps", "track_fps", "track_fps_parallel", "retar
 
 @pytest.mark.slow
 def test_bench_cli_reports_every_figure(tmp_path):
+    """Each rate is checked against clocks outside the bench: the bench's process as the OS
+    accounts for it (wall time, processor time and peak memory from ``wait4``). Every
+    stage's time (frames / rate) fits in the process's wall time and is no less than its
+    own processor time spread over the cores; the processor times per frame add up to no
+    more than the process used; the peak memory is the process's."""
     out = tmp_path / "bench.json"
     env = dict(os.environ, GLOG_minloglevel="2", TF_CPP_MIN_LOG_LEVEL="2")
-    result = subprocess.run([sys.executable, "-m", "capture2face", "-q", "bench", "--size", "128", "--frames", "24",
-                             "--json", str(out)], capture_output=True, text=True, timeout=900, env=env)
-    assert result.returncode == 0, result.stderr[-3000:]
+    frames = 24
+    cmd = [sys.executable, "-m", "capture2face", "-q", "bench", "--size", "128", "--frames", str(frames),
+           "--json", str(out)]
+    start = time.perf_counter()
+    with open(tmp_path / "stdout", "w") as so, open(tmp_path / "stderr", "w") as se:
+        proc = subprocess.Popen(cmd, stdout=so, stderr=se, env=env)
+        try:
+            _, status, usage = os.wait4(proc.pid, 0)  # the child's own rusage
+        except BaseException:
+            proc.kill()
+            raise
+    wall = time.perf_counter() - start
+    stdout, stderr = (tmp_path / "stdout").read_text(), (tmp_path / "stderr").read_text()
+    assert os.waitstatus_to_exitcode(status) == 0, stderr[-3000:]
+    proc.returncode = 0
     figures = json.loads(out.read_text())
-    assert figures == json.loads(result.stdout)
-    for key in KEYS[:-1]:
-        assert isinstance(figures[key], (int, float)) and np.isfinite(figures[key]) and figures[key] > 0, key
+    assert figures == json.loads(stdout)
+    assert (figures["size"], figures["frames"]) == (128, frames)
+    cores = len(os.sched_getaffinity(0))
+    assert figures["cpu_cores"] == cores
     assert isinstance(figures["gl_renderer"], str) and figures["gl_renderer"]
-    # Wall-clock rates of separately timed stages are not compared here: on a shared
-    # 2-core machine their order flips with load (CI saw end_to_end 19.1 > track 16.5).
-    # Processor time: every stage costs some, the whole pipeline more than tracking alone,
-    # and no run beats the bound its own work sets on this many cores.
-    cpu = figures["cpu_ms_per_frame"]
-    assert set(cpu) == {"decode", "track", "track_parallel", "render_wrinkles_auto", "encode", "end_to_end"}
-    assert all(v > 0 for v in cpu.values())
-    assert cpu["end_to_end"] > cpu["track"]
-    assert figures["cpu_cores"] >= 1
-    assert figures["end_to_end_fps_cpu_bound"] == pytest.approx(figures["cpu_cores"] * 1000 / cpu["end_to_end"], rel=0.01)
-    assert figures["end_to_end_fps"] <= figures["end_to_end_fps_cpu_bound"] * 1.01
-    assert figures["end_to_end_over_cpu_bound"] == pytest.approx(
-        figures["end_to_end_fps"] / figures["end_to_end_fps_cpu_bound"], rel=0.01)
-    assert figures["track_overhead_ms_per_frame"] == pytest.approx(
-        1000 / figures["track_fps"] - 1000 / figures["mediapipe_fps"], rel=0.02, abs=0.05)
-    assert 1 <= figures["track_workers"] <= figures["cpu_cores"]
-    assert figures["peak_rss_mb"] > 50  # MediaPipe + GL + NumPy are loaded: not a bogus figure
-    assert (figures["size"], figures["frames"]) == (128, 24)
-    assert set(figures["goals"]) and all(isinstance(v, bool) for v in figures["goals"].values())
-    # Render drivers are timed interleaved: each figure is the median of its rounds, and
-    # the wrinkle cost is the median per-round ratio.
+
+    # Seconds each stage took, from its rate: decode, tracking (one landmarker, then
+    # several), the renders (RENDER_ROUNDS rounds of min(frames, 40) frames per driver),
+    # the encode (ENCODE_FRAMES frames) and the whole run.
+    from capture2face.bench import ENCODE_FRAMES, RENDER_FRAMES_MAX, RENDER_ROUNDS
+
     rounds = figures["render_rounds_fps"]
-    assert set(rounds) == {"off", "auto", "dynamic"} and len({len(v) for v in rounds.values()}) == 1
-    assert len(rounds["off"]) >= 3
-    for driver, fps in rounds.items():
-        assert figures[f"render_fps_wrinkles_{driver}"] == pytest.approx(np.median(fps), rel=0.01, abs=0.02)
-    ratio = np.median(np.array(rounds["auto"]) / np.array(rounds["off"]))
-    assert figures["render_auto_over_off"] == pytest.approx(ratio, rel=0.02)
-    assert figures["goals"]["render auto >= 0.9 x off"] == (figures["render_auto_over_off"] >= 0.9)
+    assert set(rounds) == {"off", "auto", "dynamic"} and all(len(v) == RENDER_ROUNDS for v in rounds.values())
+    n_render = min(frames, RENDER_FRAMES_MAX)
+    stage_s = {
+        "decode": frames / figures["decode_fps"],
+        "track": frames / figures["track_fps"],
+        "track_parallel": frames / figures["track_fps_parallel"],
+        "render_wrinkles_auto": RENDER_ROUNDS * n_render / figures["render_fps_wrinkles_auto"],
+        "encode": ENCODE_FRAMES / figures["encode_fps"],
+        "end_to_end": frames / figures["end_to_end_fps"],
+    }
+    render_s = sum(n_render / fps for v in rounds.values() for fps in v)
+    timed = (figures["synth_seconds"] + sum(stage_s.values()) - stage_s["render_wrinkles_auto"] + render_s
+             + 3 * frames * (figures["retarget_ms_per_frame"] + figures["wrinkle_ms_per_frame"]) / 1000)
+    # The stages ran one after another inside the process (which also imported, built the
+    # avatar and started renderers): together within its wall time, and most of it.
+    assert 0.3 * wall < timed < wall, (timed, wall)
+    # MediaPipe alone is part of tracking: its calls take less time than the whole stage.
+    assert frames / figures["mediapipe_fps"] < stage_s["track"]
+    # The run's own clock (report.json's seconds) sits inside the bench's clock of it.
+    total = figures["end_to_end_seconds"]["total"]
+    assert total <= stage_s["end_to_end"] <= total + 2.0
+    # Processor time: no stage used more than its wall time on every core, and all of them
+    # together no more than the process (and its waited-for workers) used in all.
+    cpu = figures["cpu_ms_per_frame"]
+    assert set(cpu) == set(stage_s)
+    for stage, seconds in stage_s.items():
+        n = {"render_wrinkles_auto": RENDER_ROUNDS * n_render, "encode": ENCODE_FRAMES}.get(stage, frames)
+        assert 0 < cpu[stage] * n / 1000 <= cores * seconds * 1.05 + 0.02, stage
+    process_cpu = usage.ru_utime + usage.ru_stime
+    assert sum(cpu[k] * (ENCODE_FRAMES if k == "encode" else frames) / 1000 for k in cpu if k != "render_wrinkles_auto") \
+        + cpu["render_wrinkles_auto"] * RENDER_ROUNDS * n_render / 1000 < process_cpu
+    # Peak memory: the process's own, as the OS measured it (wait4 reports the larger of it
+    # and its children's; the tracking workers are smaller).
+    os_peak_mb = usage.ru_maxrss / 1024.0
+    assert 0.9 * os_peak_mb <= figures["peak_rss_mb"] <= os_peak_mb * 1.001
+    assert 1 <= figures["track_workers"] <= cores
+    goals = figures["goals"]
+    assert goals["render auto >= 0.9 x off"] == (figures["render_auto_over_off"] >= 0.9)
 
 
 def test_looped_clip_repeats_the_source_exactly(tmp_path):

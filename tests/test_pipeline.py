@@ -80,6 +80,20 @@ def check_outputs(folder: Path, clip: Path) -> dict:
         assert len(cells) == 63 and cells[1] == "61"
     values = np.array([[float(x) for x in row.split(",")[2:]] for row in lines[1:]])
     assert np.isfinite(values).all() and values[:, :52].min() >= 0 and values[:, :52].max() <= 1
+    # The blendshape columns are the animation's ARKit curves (to the CSV's 6 decimals),
+    # found by name: JawOpen follows the jaw through the clip, not a constant.
+    columns = LIVELINK_HEADER.split(",")[2:]
+    curves = {name.lower(): animation.arkit_weights[:, i] for i, name in enumerate(animation.arkit_names)}
+    jaw = values[:, columns.index("JawOpen")]
+    assert jaw.max() - jaw.min() > 0.2
+    for c, name in enumerate(columns[:52]):
+        expected = np.clip(curves.get(name.lower(), np.zeros(n_clip)), 0, 1)
+        np.testing.assert_allclose(values[:, c], expected, atol=1e-5, err_msg=name)
+    # Head yaw is the head pose's, a quarter turn being 1.
+    r = animation.head_pose[:, :3, :3].astype(np.float64)
+    r /= np.linalg.norm(r, axis=1, keepdims=True)
+    yaw = np.arctan2(r[:, 0, 2], r[:, 2, 2]) / (np.pi / 2)
+    np.testing.assert_allclose(values[:, columns.index("HeadYaw")], yaw, atol=2e-3)
 
     rig = import_glb(folder / "animation.glb")
     assert rig.n_vertices > 0 and rig.n_bones == len(animation.bone_names)

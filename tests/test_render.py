@@ -483,19 +483,35 @@ def test_zones_driver_follows_zone_weights(rig, view):
 
 
 def test_dynamic_driver_and_influence_view_render(rig, view):
+    """Stretch raises the brow bones (1, 2) and leaves the jaw bone (3) at rest: the dynamic
+    driver and the influence view change the skin the brows skin, and nothing the jaw
+    alone skins."""
     stretch = FrameState.at_pose(rig, view, "stretch")
     images = {}
     for driver, mode in (("dynamic", "shaded"), ("off", "shaded"), ("auto", "influence"), ("off", "influence")):
         with Renderer.create_from_options(rig, RenderOptions(size=SIZE, wrinkles=driver, view=mode)) as r:
             images[driver, mode] = r.render(stretch)
+    brows = skinned_mask(rig, stretch.bone_positions, view, SIZE, [1, 2])
+    jaw_only = skinned_mask(rig, stretch.bone_positions, view, SIZE, [3], dilate=0) & ~skinned_mask(
+        rig, stretch.bone_positions, view, SIZE, [1, 2], dilate=6)
+    assert brows.sum() > 2000 and jaw_only.sum() > 1000
+    centres = np.round(project(stretch.bone_positions[1:3].astype(np.float64), view, 30.0, SIZE)).astype(int)
+
     dyn = np.abs(images["dynamic", "shaded"].astype(int) - images["off", "shaded"]).sum(2)
     assert (dyn > 4).sum() > 100 and dyn.max() > 10
-    # Influence view: the stretch pose paints the forehead in the stretch colour (blue).
+    assert (dyn > 4)[brows].sum() >= 0.97 * (dyn > 4).sum()  # where the mesh stretched
+    assert dyn[jaw_only].max() <= 4
+    # Influence view: the stretch pose paints the skin the brows skin in the stretch colour
+    # (blue), most strongly at the brow bones themselves; no influence: grey.
     infl = images["auto", "influence"].astype(int)
     grey = images["off", "influence"].astype(int)
     bluer = (infl[..., 2] - infl[..., 0]) - (grey[..., 2] - grey[..., 0])
     assert (bluer > 60).sum() > 200
-    assert np.abs(grey[..., 0] - grey[..., 2]).max() < 30  # no influence: grey
+    assert (bluer > 20)[~brows].sum() == 0  # nothing beyond the brows' skin
+    for x, y in centres:
+        assert bluer[y - 2:y + 3, x - 2:x + 3].min() > 100, (x, y)
+    assert np.abs(bluer[jaw_only]).max() <= 2
+    assert np.abs(grey[..., 0] - grey[..., 2]).max() < 30
 
 
 def test_wrinkle_pd_layers_pack_two_maps_per_layer():

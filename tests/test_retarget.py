@@ -308,5 +308,19 @@ def test_depth_motion_scales_the_trackers_depth_motion_only(rig, performance):
 
 
 def test_retarget_timing_is_measurable(rig, performance):
-    ms = retarget_ms_per_frame(perfect_track(rig, performance), rig, repeats=1)
-    assert np.isfinite(ms) and ms > 0.0
+    """The figure is the retarget call's wall time per frame: one run (repeats=1) timed
+    from outside by an independent clock, divided by the track's frames."""
+    import time
+
+    track = perfect_track(rig, performance)
+    assert track.n_frames == 120
+    start = time.perf_counter()
+    ms = retarget_ms_per_frame(track, rig, repeats=1)
+    outside_ms = 1000.0 * (time.perf_counter() - start)
+    # ms x frames is the call's time: within the outside clock's, and all but its overhead.
+    assert 0.85 * outside_ms <= ms * track.n_frames <= outside_ms
+    # Best of 3: at most a third of the three runs' time (and not a sliver of it).
+    start = time.perf_counter()
+    best = retarget_ms_per_frame(track, rig, repeats=3)
+    outside_ms = 1000.0 * (time.perf_counter() - start)
+    assert outside_ms / 10 <= best * track.n_frames <= outside_ms / 3
