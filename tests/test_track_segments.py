@@ -12,6 +12,7 @@ import pytest
 
 from capture2face.tracking import TrackOptions, track_clip
 from capture2face.tracking import segments
+from capture2face.tracking.tracker import Tracker
 from capture2face.io.video_input import frame_times, iter_frames, iter_segment, open_video
 
 EYES = (33, 263)
@@ -19,10 +20,6 @@ EYES = (33, 263)
 
 def _parallel(clip, options, n_workers, **kwargs):
     """segments.track_parallel with a Tracker for this process's segment, as track_clip calls it."""
-    from capture2face.io.video_input import open_video
-    from capture2face.tracking import segments
-    from capture2face.tracking.tracker import Tracker
-
     info = open_video(clip)
     return segments.track_parallel(clip, info, options, n_workers, lambda: Tracker(info, options, None), **kwargs)
 
