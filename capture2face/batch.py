@@ -264,15 +264,36 @@ def run_batch(inputs: Iterable[str | os.PathLike], out: str | os.PathLike, optio
     out = Path(out)
     clips = expand_inputs(inputs)
     check_writable(out)
+    _check_batch(options, progress, ray_address)
+    report = _Report(out, clips, options)
+    todo = _plan_clips(report, clips, out, options, resume)
+    bar = None
+    if progress:
+        bar = tqdm(total=len(clips), initial=len(clips) - len(todo), desc="clips", unit="clip")
+    try:
+        if todo:
+            _run_clips(clips, todo, out, options, jobs, ray_address, _clip_done(report, clips, bar))
+    finally:
+        if bar is not None:
+            bar.close()
+        report.write()
+    return report.data
+
+
+def _check_batch(options: Any, progress: bool, ray_address: str | None) -> None:
+    """The checks :func:`run_batch` makes before any clip runs (raise CaptureError)."""
     # Checked once for the whole batch, before any clip is tracked: the options and their
     # limits, the face model, a drivable character (the default avatar is), and the GL
     # context where the workers are local processes (a Ray worker may be another machine).
     # The default avatar too: built here once (then cached) rather than by every worker.
-
     check_shared(options, progress)
     if not ray_address:
         check_gl()
-    report = _Report(out, clips, options)
+
+
+def _plan_clips(report: _Report, clips: list[BatchClip], out: Path, options: Any, resume: bool) -> list[int]:
+    """The indices of the clips to run; with ``resume`` the complete ones are marked skipped
+    and the others say why they run again. Writes the report."""
     todo = []
     for i, c in enumerate(clips):
         skip, why = resume_check(out / c.name, options) if resume else (False, None)
@@ -283,10 +304,12 @@ def run_batch(inputs: Iterable[str | os.PathLike], out: str | os.PathLike, optio
                 report.entries[i]["rerun"] = why
             todo.append(i)
     report.write()
+    return todo
 
-    bar = None
-    if progress:
-        bar = tqdm(total=len(clips), initial=len(clips) - len(todo), desc="clips", unit="clip")
+
+def _clip_done(report: _Report, clips: list[BatchClip], bar):
+    """The callback ``done(i, result)`` a finished clip ``i`` reports to: its report entry,
+    the progress bar and, for a failure, a line under the bar."""
 
     def done(i: int, result: dict) -> None:
         report.set(i, result)
@@ -295,28 +318,26 @@ def run_batch(inputs: Iterable[str | os.PathLike], out: str | os.PathLike, optio
             if result["status"] == "failed":
                 bar.write(_failure_line(clips[i].path, result["error"]))
 
-    try:
-        if not todo:
-            pass
-        else:
-            n_jobs = max(1, min(jobs or free_cores(), len(todo)))
-            if (ray_address or n_jobs > 1) and options.track_workers is None:
-                # Clips in parallel already fill the cores (and a Ray task has one CPU):
-                # each tracks with one landmarker (segment workers on top would
-                # oversubscribe them).
-                options = dataclasses.replace(options, track_workers=1)
-            if ray_address:
-                _run_ray(clips, todo, out, options, ray_address, done)
-            elif n_jobs == 1:
-                for i in todo:
-                    done(i, _run_clip(clips[i].path, str(out), clips[i].name, options))
-            else:
-                _run_pool(clips, todo, out, options, n_jobs, done)
-    finally:
-        if bar is not None:
-            bar.close()
-        report.write()
-    return report.data
+    return done
+
+
+def _run_clips(clips: list[BatchClip], todo: list[int], out: Path, options: Any, jobs: int | None,
+               ray_address: str | None, done) -> None:
+    """Run the clips ``todo``: as Ray tasks, one after another in this process (one job),
+    or in a process pool."""
+    n_jobs = max(1, min(jobs or free_cores(), len(todo)))
+    if (ray_address or n_jobs > 1) and options.track_workers is None:
+        # Clips in parallel already fill the cores (and a Ray task has one CPU):
+        # each tracks with one landmarker (segment workers on top would
+        # oversubscribe them).
+        options = dataclasses.replace(options, track_workers=1)
+    if ray_address:
+        _run_ray(clips, todo, out, options, ray_address, done)
+    elif n_jobs == 1:
+        for i in todo:
+            done(i, _run_clip(clips[i].path, str(out), clips[i].name, options))
+    else:
+        _run_pool(clips, todo, out, options, n_jobs, done)
 
 
 def _run_pool(clips: list[BatchClip], todo: list[int], out: Path, options: Any, n_jobs: int,

@@ -163,11 +163,8 @@ NEUTRAL_HELP = ("index of the frame with the actor's neutral face (default: pick
                 "automatically); must lie inside the clip")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="capture2face",
-        description="Performance capture: a face video drives a wrinkled 3D character.",
-    )
+def _common_options() -> argparse.ArgumentParser:
+    """The global flags as a parent parser for every subparser."""
     # The global flags work before and after the subcommand (`capture2face -q run ...` and
     # `capture2face run ... -q`): every subparser has them too, defaulting to SUPPRESS so
     # that a subparser never overwrites what the main parser saw.
@@ -176,26 +173,48 @@ def build_parser() -> argparse.ArgumentParser:
                         help="show tracebacks on errors")
     common.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
                         help="no progress bars")
-    parser.add_argument("--debug", action="store_true", default=False, help="show tracebacks on errors")
-    parser.add_argument("-q", "--quiet", action="store_true", default=False, help="no progress bars")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    return common
 
-    def face_model(p):
-        p.add_argument("--face-model", metavar="PATH", default=None,
-                       help="MediaPipe face_landmarker.task (default: $CAPTURE2FACE_FACE_MODEL, "
-                            "else the one bundled in capture2face/models)")
 
-    def face_choice(p):
-        p.add_argument("--faces", choices=("largest", "center"), default="largest",
-                       help="several faces in view: track the largest (default) or the one nearest "
-                            "the centre, then the one continuing it; report.json warns how many were seen")
-        p.add_argument("--face", type=int, default=None, metavar="N",
-                       help="instead, track face N (0-based, left to right) of the first frame with "
-                            "more than N faces, then the one continuing it")
-        p.add_argument("--track-workers", type=int, default=None, metavar="N",
-                       help="MediaPipe landmarkers tracking segments of a clip at once, one process "
-                            "each (default: one per free core; batch: one per clip when clips run in parallel)")
+def _add_face_model_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--face-model", metavar="PATH", default=None,
+                   help="MediaPipe face_landmarker.task (default: $CAPTURE2FACE_FACE_MODEL, "
+                        "else the one bundled in capture2face/models)")
 
+
+def _add_face_choice_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--faces", choices=("largest", "center"), default="largest",
+                   help="several faces in view: track the largest (default) or the one nearest "
+                        "the centre, then the one continuing it; report.json warns how many were seen")
+    p.add_argument("--face", type=int, default=None, metavar="N",
+                   help="instead, track face N (0-based, left to right) of the first frame with "
+                        "more than N faces, then the one continuing it")
+    p.add_argument("--track-workers", type=int, default=None, metavar="N",
+                   help="MediaPipe landmarkers tracking segments of a clip at once, one process "
+                        "each (default: one per free core; batch: one per clip when clips run in parallel)")
+
+
+def _add_run_options(p: argparse.ArgumentParser) -> None:
+    """The options `run` and `batch` share (RunOptions)."""
+    p.add_argument("--character", metavar="FILE", default=None,
+                   help="a FaceRig .npz or a .glb: ARKit-named morphs need nothing else; a mapping "
+                        ".json beside it for face bones or other morph names")
+    p.add_argument("--wrinkles", choices=WRINKLE_DRIVERS, default="auto",
+                   help="wrinkle driver: auto (each bone's progress to the reference poses, "
+                        "default), zones (masked face zones), dynamic (the mesh's area change "
+                        "each frame), off")
+    p.add_argument("--size", type=int, default=512,
+                   help=f"render size in pixels, square, even, {MIN_SIZE}..{MAX_SIZE} (default: 512)")
+    p.add_argument("--allow-truncated", action="store_true",
+                   help="process the frames before the damage of a truncated or corrupt clip "
+                        "(with a warning) instead of failing")
+    p.add_argument("--no-audio", action="store_true",
+                   help="leave the clip's audio out of avatar.mp4 and compare.mp4")
+    _add_face_model_option(p)
+    _add_face_choice_options(p)
+
+
+def _add_avatar_parser(sub, common: argparse.ArgumentParser) -> None:
     p = sub.add_parser("avatar", parents=[common], help="build the default avatar; write its maps or a .glb")
     p.add_argument("--maps", metavar="DIR", help="write textures and zone masks as PNGs")
     p.add_argument("--export", metavar="GLB", help="write the avatar as glTF binary (.glb)")
@@ -212,6 +231,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--variant", default=None, help="a built-in variant, e.g. 'wide'")
     p.set_defaults(func=_cmd_avatar)
 
+
+def _add_synth_parser(sub, common: argparse.ArgumentParser) -> None:
     p = sub.add_parser("synth", parents=[common], help="render a synthetic performance with ground truth")
     p.add_argument("-o", "--output", required=True, metavar="MP4",
                    help="the clip to write (its ground truth goes beside it as .truth.npz)")
@@ -225,43 +246,36 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--variant", default=None, help="render a built-in avatar variant")
     p.set_defaults(func=_cmd_synth)
 
+
+def _add_track_parser(sub, common: argparse.ArgumentParser) -> None:
     p = sub.add_parser("track", parents=[common], help="track a clip's face into track.npz")
     p.add_argument("clip", help="the video to track")
     p.add_argument("-o", "--output", required=True, metavar="NPZ", help="the track file to write")
     p.add_argument("--overlay", metavar="MP4", help="also write the source with landmarks drawn")
     p.add_argument("--neutral-frame", type=int, default=None, metavar="N", help=NEUTRAL_HELP)
-    face_model(p)
-    face_choice(p)
+    _add_face_model_option(p)
+    _add_face_choice_options(p)
     p.set_defaults(func=_cmd_track)
 
-    def run_args(p):
-        p.add_argument("--character", metavar="FILE", default=None,
-                       help="a FaceRig .npz or a .glb: ARKit-named morphs need nothing else; a mapping "
-                            ".json beside it for face bones or other morph names")
-        p.add_argument("--wrinkles", choices=WRINKLE_DRIVERS, default="auto",
-                       help="wrinkle driver: auto (each bone's progress to the reference poses, "
-                            "default), zones (masked face zones), dynamic (the mesh's area change "
-                            "each frame), off")
-        p.add_argument("--size", type=int, default=512,
-                       help=f"render size in pixels, square, even, {MIN_SIZE}..{MAX_SIZE} (default: 512)")
-        p.add_argument("--allow-truncated", action="store_true",
-                       help="process the frames before the damage of a truncated or corrupt clip "
-                            "(with a warning) instead of failing")
-        p.add_argument("--no-audio", action="store_true",
-                       help="leave the clip's audio out of avatar.mp4 and compare.mp4")
-        face_model(p)
-        face_choice(p)
 
+def _add_run_parser(sub, common: argparse.ArgumentParser) -> None:
     p = sub.add_parser("run", parents=[common], help="clip -> animated, wrinkled character (video + exports)")
     p.add_argument("clip", help="the video of a face")
     p.add_argument("-o", "--output", required=True, metavar="DIR",
                    help="output folder: the results go to DIR/<clip stem>/")
     p.add_argument("--neutral-frame", type=int, default=None, metavar="N", help=NEUTRAL_HELP)
-    run_args(p)
+    _add_run_options(p)
     p.set_defaults(func=_cmd_run)
 
+
+def _add_eval_parser(sub, common: argparse.ArgumentParser) -> None:
     p = sub.add_parser("eval", parents=[common], help="accuracy: synthetic ground truth, or fidelity on real clips")
     evals = p.add_subparsers(dest="dataset", required=True, metavar="DATASET")
+    _add_eval_synthetic_parser(evals, common)
+    _add_eval_fidelity_parser(evals, common)
+
+
+def _add_eval_synthetic_parser(evals, common: argparse.ArgumentParser) -> None:
     p = evals.add_parser("synthetic", parents=[common], help="closed-loop accuracy against synthetic ground truth")
     p.add_argument("--frames", type=int, default=300, help="frames of the synthetic clip (default: 300)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the performance (default: 0)")
@@ -269,6 +283,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--target-variant", default=None, help="retarget onto another avatar, e.g. 'wide'")
     p.add_argument("--json", metavar="PATH", help="also write the figures as JSON")
     p.set_defaults(func=_cmd_eval)
+
+
+def _add_eval_fidelity_parser(evals, common: argparse.ArgumentParser) -> None:
     p = evals.add_parser("fidelity", parents=[common], help="does the character do what the actor does? (real clips, no truth)")
     p.add_argument("paths", nargs="+", metavar="CLIP_OR_RUN_DIR",
                    help="clips (tracked and retargeted, nothing rendered) or `run` output folders")
@@ -278,6 +295,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", metavar="PATH", help="write every figure as JSON")
     p.set_defaults(func=_cmd_eval_fidelity)
 
+
+def _add_batch_parser(sub, common: argparse.ArgumentParser) -> None:
     p = sub.add_parser("batch", parents=[common], help="run many clips in parallel")
     p.add_argument("inputs", nargs="+", help="clips, folders or glob patterns")
     p.add_argument("-o", "--output", required=True, metavar="DIR",
@@ -286,9 +305,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--jobs", type=int, default=None, help="parallel clips (default: the cores this process may use)")
     p.add_argument("--resume", action="store_true", help="skip clips whose outputs are complete")
     p.add_argument("--ray", metavar="ADDRESS", default=None, help="distribute over a Ray cluster")
-    run_args(p)
+    _add_run_options(p)
     p.set_defaults(func=_cmd_batch)
 
+
+def _add_bench_parser(sub, common: argparse.ArgumentParser) -> None:
     p = sub.add_parser("bench", parents=[common], help="measure each stage and the whole pipeline")
     p.add_argument("--size", type=int, default=512, help="frame size in pixels (default: 512)")
     p.add_argument("--frames", type=int, default=300, help="frames of the synthetic clip (default: 300)")
@@ -296,6 +317,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--memory-seconds", type=float, default=0, metavar="S",
                    help="instead: peak memory of a run on an S-second clip vs a 10-second one")
     p.set_defaults(func=_cmd_bench)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``capture2face`` parser: the global flags, then one subparser per command."""
+    parser = argparse.ArgumentParser(
+        prog="capture2face",
+        description="Performance capture: a face video drives a wrinkled 3D character.",
+    )
+    common = _common_options()
+    parser.add_argument("--debug", action="store_true", default=False, help="show tracebacks on errors")
+    parser.add_argument("-q", "--quiet", action="store_true", default=False, help="no progress bars")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    # The order here is the order `capture2face --help` lists the commands in.
+    _add_avatar_parser(sub, common)
+    _add_synth_parser(sub, common)
+    _add_track_parser(sub, common)
+    _add_run_parser(sub, common)
+    _add_eval_parser(sub, common)
+    _add_batch_parser(sub, common)
+    _add_bench_parser(sub, common)
     return parser
 
 

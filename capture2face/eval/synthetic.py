@@ -227,36 +227,90 @@ def score(track, animation, truth, source, target) -> dict:
     use = np.asarray(track.presence, bool) & np.asarray(truth.face_visible, bool)
     if not use.any():
         raise ValueError("no frame has both a tracked and a visible face")
+    true_bones = truth_on_target(truth.bone_positions, source, target)
+    bones = _face_bones(target)
+    bone_figures, bone_baselines = _bone_figures(animation, true_bones, target, bones, use)
+    w_true = truth.blend_weights[use].astype(np.float64)
+    w_pred = animation.blend_weights[use].astype(np.float64)
+    # Fidelity measures of the source deformed by the truth and of the target by the solve.
+    measures_true = character_measures(source, truth.bone_positions[use], truth.blend_weights[use])
+    measures_solved = character_measures(target, animation.bone_positions[use], animation.blend_weights[use])
+    wrinkle_figures, wrinkle_baselines = _wrinkle_figures(animation, true_bones, target, use)
+    neutral = track.neutral_frame
+    result = {
+        "frames": int(track.n_frames),
+        "frames_scored": int(use.sum()),
+        **_landmark_figures(track, truth, use),
+        **bone_figures,
+        "blendweight_mae": float(np.abs(w_pred - w_true).mean()),
+        **_shared_blendshape_figures(track, target, w_true, w_pred, use),
+        **_active_morph_figures(target, w_true, w_pred),
+        **_mouth_figures(measures_true, measures_solved),
+        **gaze_errors(animation, truth, use),
+        **wrinkle_figures,
+        # Trivial predictors, for scale: rest bones, zero weights, zero influences.
+        **bone_baselines,
+        "baseline_zero_blendweight_mae": float(np.abs(w_true).mean()),
+        **wrinkle_baselines,
+        "measures": measure_chain(measures_true, source_measures(track)[use], measures_solved),
+        "neutral_frame": int(neutral),
+        "neutral_bone_offset_cm": float(np.abs(animation.bone_positions[neutral] - target.bone_rest).max()),
+        "target": target.name,
+    }
+    if target is not source:
+        result.update(_cross_character_figures(animation, truth, source, target, bones, use))
+    return add_ratios(result)
 
-    # Tracker: landmark pixels against the projected truth, per frame / inter-ocular px.
+
+def _landmark_figures(track, truth, use: np.ndarray) -> dict:
+    """The tracker: landmark pixels against the projected truth, per frame / inter-ocular px."""
     lm_true = truth.landmarks_px[use, :468].astype(np.float64)
     lm_pred = track.landmarks_px[use, :468].astype(np.float64)
     iod_px = np.linalg.norm(lm_true[:, 263] - lm_true[:, 33], axis=1)
     lm_err = np.nanmean(np.linalg.norm(lm_pred - lm_true, axis=2), axis=1) / iod_px
+    return {"landmark_nme_iod": float(np.mean(lm_err))}
 
-    # Bones, in head coordinates, on the target.
-    true_bones = truth_on_target(truth.bone_positions, source, target)
-    bones = _face_bones(target)
+
+def _bone_figures(animation, true_bones: np.ndarray, target, bones: np.ndarray,
+                  use: np.ndarray) -> tuple[dict, dict]:
+    """Bones, in head coordinates, on the target: the solve's errors, and (the baseline)
+    those of the rest pose."""
     err = np.linalg.norm(animation.bone_positions[use][:, bones] - true_bones[use][:, bones], axis=2)
     err_iod = err / target.interocular()
+    rest_err = np.linalg.norm(true_bones[use][:, bones] - target.bone_rest[bones], axis=2) / target.interocular()
+    figures = {
+        "bone_error_iod_median": float(np.median(err_iod)),
+        "bone_error_iod_p95": float(np.percentile(err_iod, 95)),
+        "bone_error_iod_mean": float(np.mean(err_iod)),
+    }
+    baselines = {
+        "baseline_rest_bone_error_iod_median": float(np.median(rest_err)),
+        "baseline_rest_bone_error_iod_p95": float(np.percentile(rest_err, 95)),
+        "baseline_rest_bone_error_iod_mean": float(np.mean(rest_err)),
+    }
+    return figures, baselines
 
-    # Morph weights; MediaPipe's scores on the morphs that share a name.
-    w_true = truth.blend_weights[use].astype(np.float64)
-    w_pred = animation.blend_weights[use].astype(np.float64)
+
+def _shared_blendshape_figures(track, target, w_true: np.ndarray, w_pred: np.ndarray, use: np.ndarray) -> dict:
+    """MediaPipe's scores on the morphs that share a name (and ours on that subset); empty
+    when no morph does."""
     shared = shared_blendshapes(target.morph_names, track.blendshape_names)
-    result_mp = {}
-    if shared:
-        ms, ss = np.array(shared).T
-        result_mp = {
-            "mediapipe_blendshape_mae": float(np.abs(track.blendshapes[use][:, ss] - w_true[:, ms]).mean()),
-            "blendweight_mae_shared": float(np.abs(w_pred[:, ms] - w_true[:, ms]).mean()),
-            "baseline_zero_blendweight_mae_shared": float(np.abs(w_true[:, ms]).mean()),
-            "shared_morphs": len(shared),
-        }
-    # Morphs active in the clip: does the solve follow them (r), and by how much (MAE)?
+    if not shared:
+        return {}
+    ms, ss = np.array(shared).T
+    return {
+        "mediapipe_blendshape_mae": float(np.abs(track.blendshapes[use][:, ss] - w_true[:, ms]).mean()),
+        "blendweight_mae_shared": float(np.abs(w_pred[:, ms] - w_true[:, ms]).mean()),
+        "baseline_zero_blendweight_mae_shared": float(np.abs(w_true[:, ms]).mean()),
+        "shared_morphs": len(shared),
+    }
+
+
+def _active_morph_figures(target, w_true: np.ndarray, w_pred: np.ndarray) -> dict:
+    """Morphs active in the clip: does the solve follow them (r), and by how much (MAE)?"""
     active = np.flatnonzero(w_true.std(0) > ACTIVE_STD)
     per_morph = {str(target.morph_names[m]): pearson(w_pred[:, m], w_true[:, m]) for m in active}
-    result_active = {
+    return {
         "blendweight_active_morphs": int(len(active)),
         "blendweight_active_r": float(np.mean(list(per_morph.values()))) if len(active) else float("nan"),
         "blendweight_active_r_per_morph": per_morph,
@@ -264,19 +318,22 @@ def score(track, animation, truth, source, target) -> dict:
         "baseline_zero_blendweight_active_mae": float(np.abs(w_true[:, active]).mean()) if len(active) else float("nan"),
     }
 
-    # Fidelity measures of the source deformed by the truth and of the target by the solve;
-    # the mouth opening among them.
-    measures_true = character_measures(source, truth.bone_positions[use], truth.blend_weights[use])
-    measures_solved = character_measures(target, animation.bone_positions[use], animation.blend_weights[use])
+
+def _mouth_figures(measures_true: np.ndarray, measures_solved: np.ndarray) -> dict:
+    """The mouth opening among the fidelity measures: the solve's gain and r against the truth."""
     mouth = list(MEASURES).index("mouth_open")
     mouth_true, mouth_pred = measures_true[:, mouth], measures_solved[:, mouth]
     s_true = float(np.std(mouth_true))
-    result_mouth = {
+    return {
         "mouth_open_gain": float(np.std(mouth_pred) / s_true) if s_true > 1e-12 else float("nan"),
         "mouth_open_r": pearson(mouth_pred, mouth_true),
         "mouth_open_true_std_iod": s_true,
     }
 
+
+def _wrinkle_figures(animation, true_bones: np.ndarray, target, use: np.ndarray) -> tuple[dict, dict]:
+    """Wrinkle influence errors per vertex, per bone and per region, and (the baselines)
+    those of zero influences."""
     # Per-bone influences, bones that move in some reference pose.
     # Recomputed (not the truth file's copy) so truth and prediction share the rig's
     # current bone groups.
@@ -289,49 +346,32 @@ def score(track, animation, truth, source, target) -> dict:
     skin = skin[skin[:, moving].sum(1) > 1e-3]
     vertex_err = np.abs(vertex_influences(animation.influences[use] - inf_true[use], skin))
     region_true = region_influence(inf_true, target)
-
-    result_gaze = gaze_errors(animation, truth, use)
-    neutral = track.neutral_frame
-    rest_err = np.linalg.norm(true_bones[use][:, bones] - target.bone_rest[bones], axis=2) / target.interocular()
-    result = {
-        "frames": int(track.n_frames),
-        "frames_scored": int(use.sum()),
-        "landmark_nme_iod": float(np.mean(lm_err)),
-        "bone_error_iod_median": float(np.median(err_iod)),
-        "bone_error_iod_p95": float(np.percentile(err_iod, 95)),
-        "bone_error_iod_mean": float(np.mean(err_iod)),
-        "blendweight_mae": float(np.abs(w_pred - w_true).mean()),
-        **result_mp,
-        **result_active,
-        **result_mouth,
-        **result_gaze,
+    figures = {
         # Per vertex: what the renderer shows (a bone skinning a large patch of
         # forehead matters more than a lid bone skinning a sliver); per bone alongside.
         "wrinkle_influence_mae": float(vertex_err.mean()),
         "wrinkle_influence_mae_bone": float(inf_err.mean()),
         "wrinkle_influence_mae_vertex": float(vertex_err.mean()),
         "region_influence_mae": float(np.abs(animation.region_influence[use] - region_true[use]).mean()),
-        # Trivial predictors, for scale: rest bones, zero weights, zero influences.
-        "baseline_rest_bone_error_iod_median": float(np.median(rest_err)),
-        "baseline_rest_bone_error_iod_p95": float(np.percentile(rest_err, 95)),
-        "baseline_rest_bone_error_iod_mean": float(np.mean(rest_err)),
-        "baseline_zero_blendweight_mae": float(np.abs(w_true).mean()),
+    }
+    baselines = {
         "baseline_zero_influence_mae": float(np.abs(vertex_influences(inf_true[use], skin)).mean()),
         "baseline_zero_influence_mae_bone": float(np.abs(inf_true[use][:, :, moving]).mean()),
         "baseline_zero_region_influence_mae": float(np.abs(region_true[use]).mean()),
-        "measures": measure_chain(measures_true, source_measures(track)[use], measures_solved),
-        "neutral_frame": int(neutral),
-        "neutral_bone_offset_cm": float(np.abs(animation.bone_positions[neutral] - target.bone_rest).max()),
-        "target": target.name,
     }
-    if target is not source:
-        # Motion should scale with the target's face: ratio of mean bone displacements.
-        moved_pred = np.linalg.norm(animation.bone_positions[use][:, bones] - target.bone_rest[bones], axis=2)
-        moved_src = np.linalg.norm(truth.bone_positions[use][:, bones] - source.bone_rest[bones], axis=2)
-        result["motion_scale_ratio"] = float(moved_pred.mean() / moved_src.mean())
-        result["face_size_ratio"] = float(target.face_size() / source.face_size())
-        result["interocular_ratio"] = float(target.interocular() / source.interocular())
-    return add_ratios(result)
+    return figures, baselines
+
+
+def _cross_character_figures(animation, truth, source, target, bones: np.ndarray, use: np.ndarray) -> dict:
+    """Onto another character: how the motion and the face sizes compare."""
+    # Motion should scale with the target's face: ratio of mean bone displacements.
+    moved_pred = np.linalg.norm(animation.bone_positions[use][:, bones] - target.bone_rest[bones], axis=2)
+    moved_src = np.linalg.norm(truth.bone_positions[use][:, bones] - source.bone_rest[bones], axis=2)
+    return {
+        "motion_scale_ratio": float(moved_pred.mean() / moved_src.mean()),
+        "face_size_ratio": float(target.face_size() / source.face_size()),
+        "interocular_ratio": float(target.interocular() / source.interocular()),
+    }
 
 
 def gaze_errors(animation, truth, use: np.ndarray) -> dict:

@@ -19,6 +19,7 @@ decoding the poster frames); :func:`write_report_html` writes it atomically.
 from __future__ import annotations
 
 import base64
+import dataclasses
 import html
 import math
 import os
@@ -96,6 +97,27 @@ def _decimate(x: np.ndarray, y: np.ndarray, max_points: int) -> tuple[np.ndarray
     return np.asarray(xs), np.asarray(ys)
 
 
+@dataclasses.dataclass(frozen=True)
+class _PlotArea:
+    """The data rectangle of an :func:`svg_plot` (px) and the value ranges it spans."""
+
+    left: int
+    top: int
+    pw: int
+    ph: int
+    x_lo: float
+    x_hi: float
+    lo: float
+    hi: float
+
+    def sx(self, v):
+        return self.left + (np.asarray(v, np.float64) - self.x_lo) / (self.x_hi - self.x_lo) * self.pw
+
+    def sy(self, v):
+        clipped = np.clip(np.asarray(v, np.float64), self.lo, self.hi)
+        return self.top + self.ph - (clipped - self.lo) / (self.hi - self.lo) * self.ph
+
+
 def svg_plot(times: Sequence[float], series: Sequence[tuple[str, Sequence[float], str]], title: str = "",
              y_range: tuple[float, float] | None = None, width: int = 560, height: int = 170,
              markers: Sequence[float] = (), y_label: str = "") -> str:
@@ -115,18 +137,41 @@ def svg_plot(times: Sequence[float], series: Sequence[tuple[str, Sequence[float]
     """
     x = np.asarray(times, np.float64).reshape(-1)
     left, right, bottom = 46, 10, 22
-    # Legend entries under the title, wrapped to the plot's width (text width estimated).
-    legend, lx, row = [], left, 0
-    for label, _, colour in series:
-        w = 22 + 6.3 * len(label)
-        if lx + w > width - right and lx > left:
-            lx, row = left, row + 1
-        legend.append((lx, 30 + 14 * row, label, colour))
-        lx += w
+    legend, row = _legend_layout(series, left, width - right)
     top = (36 + 14 * row + 6) if legend else 24
     height = max(height, top + bottom + 80)
     pw, ph = width - left - right, height - top - bottom
     data = [np.asarray(v, np.float64).reshape(-1) for _, v, _ in series]
+    lo, hi = _y_limits(data, y_range)
+    x_lo, x_hi = _x_limits(x)
+    area = _PlotArea(left, top, pw, ph, x_lo, x_hi, lo, hi)
+    esc = html.escape
+    out = [f'<svg class="plot" viewBox="0 0 {width} {height}" width="{width}" height="{height}" '
+           f'role="img" aria-label="{esc(title, quote=True)}">',
+           f'<rect x="{left}" y="{top}" width="{pw}" height="{ph}" fill="#fff" stroke="#bbb"/>']
+    out += _svg_grid(area, height)
+    out += _svg_markers(area, markers)
+    out += _svg_lines(area, x, series, data)
+    out += _svg_labels(area, title, legend, y_label)
+    out.append("</svg>")
+    return "".join(out)
+
+
+def _legend_layout(series, left: int, right_edge: int) -> tuple[list[tuple], int]:
+    """(x, y, label, colour) per legend entry and the last row's number."""
+    # Legend entries under the title, wrapped to the plot's width (text width estimated).
+    legend, lx, row = [], left, 0
+    for label, _, colour in series:
+        w = 22 + 6.3 * len(label)
+        if lx + w > right_edge and lx > left:
+            lx, row = left, row + 1
+        legend.append((lx, 30 + 14 * row, label, colour))
+        lx += w
+    return legend, row
+
+
+def _y_limits(data: list[np.ndarray], y_range: tuple[float, float] | None) -> tuple[float, float]:
+    """``y_range``, else the finite values' range padded by 5 %; never empty."""
     finite = [d[np.isfinite(d)] for d in data]
     if y_range is not None:
         lo, hi = float(y_range[0]), float(y_range[1])
@@ -137,35 +182,48 @@ def svg_plot(times: Sequence[float], series: Sequence[tuple[str, Sequence[float]
         lo, hi = lo - pad, hi + pad
     if hi <= lo:
         hi = lo + 1.0
+    return lo, hi
+
+
+def _x_limits(x: np.ndarray) -> tuple[float, float]:
     x_lo, x_hi = (float(x.min()), float(x.max())) if x.size else (0.0, 1.0)
     if x_hi <= x_lo:
         x_hi = x_lo + 1.0
+    return x_lo, x_hi
 
-    def sx(v):
-        return left + (np.asarray(v, np.float64) - x_lo) / (x_hi - x_lo) * pw
 
-    def sy(v):
-        return top + ph - (np.clip(np.asarray(v, np.float64), lo, hi) - lo) / (hi - lo) * ph
-
-    esc = html.escape
-    out = [f'<svg class="plot" viewBox="0 0 {width} {height}" width="{width}" height="{height}" '
-           f'role="img" aria-label="{esc(title, quote=True)}">',
-           f'<rect x="{left}" y="{top}" width="{pw}" height="{ph}" fill="#fff" stroke="#bbb"/>']
-    for t in _nice_ticks(lo, hi, 4):
-        y = float(sy(t))
+def _svg_grid(area: _PlotArea, height: int) -> list[str]:
+    """Horizontal and vertical grid lines with their tick labels, and the x unit."""
+    left, top, pw, ph = area.left, area.top, area.pw, area.ph
+    out = []
+    for t in _nice_ticks(area.lo, area.hi, 4):
+        y = float(area.sy(t))
         out.append(f'<line x1="{left}" x2="{left + pw}" y1="{y:.1f}" y2="{y:.1f}" stroke="#eee"/>'
                    f'<text x="{left - 4}" y="{y + 3.5:.1f}" text-anchor="end" class="tick">{_fmt(t)}</text>')
-    for t in _nice_ticks(x_lo, x_hi, 8):
-        xp = float(sx(t))
+    for t in _nice_ticks(area.x_lo, area.x_hi, 8):
+        xp = float(area.sx(t))
         out.append(f'<line x1="{xp:.1f}" x2="{xp:.1f}" y1="{top}" y2="{top + ph}" stroke="#f2f2f2"/>'
                    f'<text x="{xp:.1f}" y="{top + ph + 14}" text-anchor="middle" class="tick">{_fmt(t)}</text>')
     out.append(f'<text x="{left + pw}" y="{height - 2}" text-anchor="end" class="tick">s</text>')
+    return out
+
+
+def _svg_markers(area: _PlotArea, markers: Sequence[float]) -> list[str]:
+    """The markers inside the x range as dashed vertical lines."""
+    out = []
     for m in markers:
-        if x_lo <= m <= x_hi:
-            xp = float(sx(m))
-            out.append(f'<line x1="{xp:.1f}" x2="{xp:.1f}" y1="{top}" y2="{top + ph}" stroke="#999" '
-                       'stroke-dasharray="3 3"/>')
-    max_points = 2 * pw
+        if area.x_lo <= m <= area.x_hi:
+            xp = float(area.sx(m))
+            out.append(f'<line x1="{xp:.1f}" x2="{xp:.1f}" y1="{area.top}" y2="{area.top + area.ph}" '
+                       'stroke="#999" stroke-dasharray="3 3"/>')
+    return out
+
+
+def _svg_lines(area: _PlotArea, x: np.ndarray, series, data: list[np.ndarray]) -> list[str]:
+    """Each series as polylines (a lone finite value as a dot), decimated to the plot's width."""
+    esc = html.escape
+    out = []
+    max_points = 2 * area.pw
     for (label, _, colour), y in zip(series, data):
         n = min(len(x), len(y))
         ok = np.isfinite(y[:n])
@@ -176,21 +234,26 @@ def svg_plot(times: Sequence[float], series: Sequence[tuple[str, Sequence[float]
         breaks = np.flatnonzero(np.diff(idx) > 1) + 1
         for run in np.split(idx, breaks):
             xs, ys = _decimate(x[run], y[run], max_points)
-            px, py = sx(xs), sy(ys)
+            px, py = area.sx(xs), area.sy(ys)
             if len(px) == 1:
                 out.append(f'<circle cx="{px[0]:.1f}" cy="{py[0]:.1f}" r="1.5" fill="{esc(colour, quote=True)}"/>')
                 continue
             pts = " ".join(f"{a:.1f},{b:.1f}" for a, b in zip(px.tolist(), py.tolist()))
             out.append(f'<polyline points="{pts}" fill="none" stroke="{esc(colour, quote=True)}" '
                        'stroke-width="1.3" stroke-linejoin="round"/>')
-    out.append(f'<text x="{left}" y="15" class="ptitle">{esc(title)}</text>')
+    return out
+
+
+def _svg_labels(area: _PlotArea, title: str, legend: list[tuple], y_label: str) -> list[str]:
+    """The title, the legend entries and the y unit."""
+    esc = html.escape
+    out = [f'<text x="{area.left}" y="15" class="ptitle">{esc(title)}</text>']
     for lx, ly, label, colour in legend:
         out.append(f'<rect x="{lx:.0f}" y="{ly - 5}" width="12" height="3" fill="{esc(colour, quote=True)}"/>'
                    f'<text x="{lx + 15:.0f}" y="{ly}" class="legend">{esc(label)}</text>')
     if y_label:
-        out.append(f'<text x="{left + pw}" y="15" text-anchor="end" class="tick">{esc(y_label)}</text>')
-    out.append("</svg>")
-    return "".join(out)
+        out.append(f'<text x="{area.left + area.pw}" y="15" text-anchor="end" class="tick">{esc(y_label)}</text>')
+    return out
 
 
 # ---- poster frames ----------------------------------------------------------------------
@@ -447,61 +510,13 @@ def render_report_html(report: dict, track, animation, video: str | os.PathLike 
     times = np.asarray(animation.times, np.float64)
     presence = np.asarray(animation.presence, bool)
     curves, names, curve_source = report_curves(animation, track)
-    index = _curve_index(names)
     title = Path(str(report.get("clip", "clip"))).name
-
     posters = poster_frames(animation, report.get("neutral_frame"))
     marker_times = [float(times[i]) for i, _ in posters if i < len(times)]
-    poster_html = '<p class="note">No video to take frames from.</p>'
-    images = {i: _shrink(frames[i]) for i, _ in posters if frames and i in frames}
-    missing = [i for i, _ in posters if i not in images]
-    if video is not None and missing and Path(video).is_file():
-        images.update(decode_poster_frames(video, missing))
-    if images:
-        figs = []
-        for i, why in posters:
-            if i not in images:
-                continue
-            t = float(times[i]) if i < len(times) else 0.0
-            figs.append(f'<figure><img alt="frame {i}" src="{jpeg_data_uri(images[i])}">'
-                        f"<figcaption>frame {i} · {t:.2f} s · {_e(why)}</figcaption></figure>")
-        what = Path(video).name if video is not None else "the run's video"
-        first = next(iter(images.values()))
-        wide = first.shape[1] >= 2 * first.shape[0]  # compare.mp4: three panels side by side
-        panels = " (source | character | wrinkle influence)" if wide else ""
-        poster_html = (f'<p class="note">Frames of {_e(what)}{panels} where the expression is strongest; '
-                       "dashed lines in the plots below.</p>"
-                       f'<div class="posters{"" if wide else " square"}">{"".join(figs)}</div>')
-
-    arkit_plots = []
-    for group, wanted in ARKIT_GROUPS:
-        series = [(n, _masked(curves[:, index[n.lower()]], presence), PALETTE[k % len(PALETTE)])
-                  for k, n in enumerate(wanted) if n.lower() in index]
-        if series:
-            arkit_plots.append(svg_plot(times, series, title=group, y_range=(0.0, 1.0), markers=marker_times))
-
-    region = np.asarray(animation.region_influence, np.float64)
-    influence_plots = []
-    for p, pose in enumerate(animation.pose_names):
-        series = [(r, _masked(region[:, k, p], presence), PALETTE[k % len(PALETTE)])
-                  for k, r in enumerate(animation.region_names)]
-        hi = max(0.05, float(np.nanmax(region[:, :, p])) * 1.05) if region.size else 1.0
-        influence_plots.append(svg_plot(times, series, title=f"{pose} influence per region", y_range=(0.0, hi),
-                                        width=1120, height=190, markers=marker_times))
-
-    fig = report.get("fidelity")
-    if fig is None and fidelity is not None:
-        fig = fidelity.figures()
-    if fig:
-        fidelity_html = _fidelity_tables(fig)
-        if fidelity is not None:
-            fidelity_html += ('<p class="note">Measures over the tracked frames, inter-ocular units (eyes: '
-                              "relative to their neutral opening): the actor's landmarks (source), the "
-                              "character's deformed mesh, and the rig driven directly by the tracker's "
-                              "scores.</p>" + _fidelity_plots(fidelity, fig))
-    else:
-        fidelity_html = f'<p class="note">{_e(report.get("fidelity_error", "No fidelity figures."))}</p>'
-
+    poster_html = _poster_section(posters, times, video, frames)
+    arkit_plots = _arkit_plots(times, presence, curves, names, marker_times)
+    influence_plots = _influence_plots(animation, times, presence, marker_times)
+    fidelity_html = _fidelity_section(report, fidelity)
     outputs = ", ".join(_e(o) for o in report.get("outputs", []))
     parts = [
         "<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
@@ -526,6 +541,77 @@ def render_report_html(report: dict, track, animation, video: str | os.PathLike 
         "</main></body></html>",
     ]
     return "\n".join(parts) + "\n"
+
+
+def _poster_section(posters: list[tuple[int, str]], times: np.ndarray, video: str | os.PathLike | None,
+                    frames: dict[int, np.ndarray] | None) -> str:
+    """The poster frames as JPEG figures (those in ``frames``, the rest decoded from
+    ``video``), or a note that there are none."""
+    poster_html = '<p class="note">No video to take frames from.</p>'
+    images = {i: _shrink(frames[i]) for i, _ in posters if frames and i in frames}
+    missing = [i for i, _ in posters if i not in images]
+    if video is not None and missing and Path(video).is_file():
+        images.update(decode_poster_frames(video, missing))
+    if images:
+        figs = []
+        for i, why in posters:
+            if i not in images:
+                continue
+            t = float(times[i]) if i < len(times) else 0.0
+            figs.append(f'<figure><img alt="frame {i}" src="{jpeg_data_uri(images[i])}">'
+                        f"<figcaption>frame {i} · {t:.2f} s · {_e(why)}</figcaption></figure>")
+        what = Path(video).name if video is not None else "the run's video"
+        first = next(iter(images.values()))
+        wide = first.shape[1] >= 2 * first.shape[0]  # compare.mp4: three panels side by side
+        panels = " (source | character | wrinkle influence)" if wide else ""
+        poster_html = (f'<p class="note">Frames of {_e(what)}{panels} where the expression is strongest; '
+                       "dashed lines in the plots below.</p>"
+                       f'<div class="posters{"" if wide else " square"}">{"".join(figs)}</div>')
+    return poster_html
+
+
+def _arkit_plots(times: np.ndarray, presence: np.ndarray, curves: np.ndarray, names: Sequence[str],
+                 marker_times: list[float]) -> list[str]:
+    """One plot per :data:`ARKIT_GROUPS` group that has curves (gaps where no face was seen)."""
+    index = _curve_index(names)
+    arkit_plots = []
+    for group, wanted in ARKIT_GROUPS:
+        series = [(n, _masked(curves[:, index[n.lower()]], presence), PALETTE[k % len(PALETTE)])
+                  for k, n in enumerate(wanted) if n.lower() in index]
+        if series:
+            arkit_plots.append(svg_plot(times, series, title=group, y_range=(0.0, 1.0), markers=marker_times))
+    return arkit_plots
+
+
+def _influence_plots(animation, times: np.ndarray, presence: np.ndarray, marker_times: list[float]) -> list[str]:
+    """One wide plot per reference pose: its influence per region over time."""
+    region = np.asarray(animation.region_influence, np.float64)
+    influence_plots = []
+    for p, pose in enumerate(animation.pose_names):
+        series = [(r, _masked(region[:, k, p], presence), PALETTE[k % len(PALETTE)])
+                  for k, r in enumerate(animation.region_names)]
+        hi = max(0.05, float(np.nanmax(region[:, :, p])) * 1.05) if region.size else 1.0
+        influence_plots.append(svg_plot(times, series, title=f"{pose} influence per region", y_range=(0.0, hi),
+                                        width=1120, height=190, markers=marker_times))
+    return influence_plots
+
+
+def _fidelity_section(report: dict, fidelity) -> str:
+    """The fidelity tables (report.json's figures, else ``fidelity.figures()``) and, with
+    ``fidelity``, its measures over time; else the reason there are none."""
+    fig = report.get("fidelity")
+    if fig is None and fidelity is not None:
+        fig = fidelity.figures()
+    if fig:
+        fidelity_html = _fidelity_tables(fig)
+        if fidelity is not None:
+            fidelity_html += ('<p class="note">Measures over the tracked frames, inter-ocular units (eyes: '
+                              "relative to their neutral opening): the actor's landmarks (source), the "
+                              "character's deformed mesh, and the rig driven directly by the tracker's "
+                              "scores.</p>" + _fidelity_plots(fidelity, fig))
+    else:
+        fidelity_html = f'<p class="note">{_e(report.get("fidelity_error", "No fidelity figures."))}</p>'
+    return fidelity_html
 
 
 def write_report_html(path: str | os.PathLike, report: dict, track, animation,
