@@ -35,6 +35,7 @@ What an exported .glb holds (it passes the Khronos glTF validator without errors
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -104,14 +105,29 @@ def _joint_order_check(rig: FaceRig) -> None:
                 raise CaptureError(f"rig '{rig.name}': bone_parents has a cycle through bone {i}")
 
 
-def build_rig_gltf(rig: FaceRig) -> tuple[GlbBuilder, dict]:
-    """The glTF document of ``rig`` (no animation). Returns the builder and the node
-    indices ``{"mesh": i, "root": j, "joints": [k0, k1, ...]}`` an animation targets."""
-    _joint_order_check(rig)
-    b = GlbBuilder()
-    V = rig.n_vertices
+@dataclass
+class _Geometry:
+    """The accessors of the mesh's one primitive."""
 
-    # ---- geometry -----------------------------------------------------------------------
+    attributes: dict
+    indices: int
+    targets: list
+    n_region_chunks: int  # _REGIONS_0 .. _REGIONS_{n-1}
+
+
+@dataclass
+class _Textures:
+    """The skin material and the images the extras point at."""
+
+    material: int
+    wrinkle_images: list
+    zone_images: list
+
+
+def _vertex_attributes(b: GlbBuilder, rig: FaceRig) -> tuple[dict, int]:
+    """The primitive's vertex attributes; returns them and the number of ``_REGIONS_``
+    chunks."""
+    V = rig.n_vertices
     tangents = rig.tangents.astype(np.float32).copy()
     tangents[:, :3] = _unit(tangents[:, :3])
     tangents[:, 3] = np.where(tangents[:, 3] < 0, -1.0, 1.0)
@@ -140,7 +156,13 @@ def build_rig_gltf(rig: FaceRig) -> tuple[GlbBuilder, dict]:
     padded[: len(regions)] = regions
     for c in range(n_chunks):
         attributes[f"_REGIONS_{c}"] = b.accessor(np.ascontiguousarray(padded[4 * c: 4 * c + 4].T), ARRAY_BUFFER)
-    indices_dtype = np.uint16 if V <= 65535 else np.uint32
+    return attributes, n_chunks
+
+
+def _add_geometry(b: GlbBuilder, rig: FaceRig) -> _Geometry:
+    """Vertex attributes, triangle indices and morph targets."""
+    attributes, n_chunks = _vertex_attributes(b, rig)
+    indices_dtype = np.uint16 if rig.n_vertices <= 65535 else np.uint32
     indices = b.accessor(rig.triangles.astype(indices_dtype).ravel(), ELEMENT_ARRAY_BUFFER)
 
     targets = []
@@ -150,8 +172,12 @@ def build_rig_gltf(rig: FaceRig) -> tuple[GlbBuilder, dict]:
                                    ARRAY_BUFFER, minmax=True),
             "NORMAL": b.accessor(rig.morph_normals[m].astype(np.float32), ARRAY_BUFFER),
         })
+    return _Geometry(attributes, indices, targets, n_chunks)
 
-    # ---- textures -----------------------------------------------------------------------
+
+def _add_textures(b: GlbBuilder, rig: FaceRig) -> _Textures:
+    """The albedo and normal map in the skin material; wrinkle maps and zone masks as
+    further images."""
     sampler = b.add("samplers", dict(SAMPLER_LINEAR_CLAMP))
     albedo_img = b.image_png(rig.albedo, "albedo")
     normal_img = b.image_png(rig.normal_map, "normal_map")
@@ -171,16 +197,23 @@ def build_rig_gltf(rig: FaceRig) -> tuple[GlbBuilder, dict]:
                       for k, name in enumerate(rig.wrinkle_map_names)]
     zone_images = [b.image_png(np.ascontiguousarray(rig.zone_masks[:, :, 4 * i: 4 * i + 4]), f"zone_mask_{i}")
                    for i in range(rig.zone_masks.shape[2] // 4)]
+    return _Textures(material, wrinkle_images, zone_images)
 
-    primitive = {"attributes": attributes, "indices": indices, "material": material, "mode": 4}
+
+def _add_mesh(b: GlbBuilder, rig: FaceRig, geometry: _Geometry, material: int) -> int:
+    """The mesh of one primitive; returns its index."""
+    primitive = {"attributes": geometry.attributes, "indices": geometry.indices, "material": material, "mode": 4}
     mesh_obj = {"name": rig.name or "face", "primitives": [primitive]}
-    if targets:
-        primitive["targets"] = targets
+    if geometry.targets:
+        primitive["targets"] = geometry.targets
         mesh_obj["weights"] = [0.0] * rig.n_morphs
         mesh_obj["extras"] = {"targetNames": list(rig.morph_names)}
-    mesh = b.add("meshes", mesh_obj)
+    return b.add("meshes", mesh_obj)
 
-    # ---- skeleton -----------------------------------------------------------------------
+
+def _add_skeleton(b: GlbBuilder, rig: FaceRig, mesh: int) -> dict:
+    """The mesh node, the root node, one joint node per bone (and the eye joints), the
+    skin and the scene. Returns the node indices an animation targets."""
     rest = rig.bone_rest.astype(np.float64)
     parents = rig.bone_parents.astype(np.int64)
     mesh_node = b.add("nodes", {"name": rig.name or "face", "mesh": mesh})
@@ -214,8 +247,12 @@ def build_rig_gltf(rig: FaceRig) -> tuple[GlbBuilder, dict]:
     b.gltf["nodes"][mesh_node]["skin"] = skin
     b.gltf["scenes"] = [{"name": rig.name or "face", "nodes": [mesh_node, root_node]}]
     b.gltf["scene"] = 0
+    return {"mesh": mesh_node, "root": root_node, "joints": joint_nodes, "eyes": eye_nodes}
 
-    b.gltf["extras"] = {EXTRAS_KEY: {
+
+def _rig_extras(rig: FaceRig, textures: _Textures, n_region_chunks: int) -> dict:
+    """``extras.capture2face``: the rest of the FaceRig, as JSON."""
+    extras = {
         "format": EXTRAS_FORMAT,
         "name": rig.name,
         "cm_per_unit": CM_PER_METRE,
@@ -229,16 +266,30 @@ def build_rig_gltf(rig: FaceRig) -> tuple[GlbBuilder, dict]:
         "pose_bones_cm": _tolist(rig.pose_bones),
         "pose_morph_weights": _tolist(rig.pose_morph_weights),
         "pose_maps": _tolist(rig.pose_maps),
-        "wrinkle_maps": [{"name": n, "image": i} for n, i in zip(rig.wrinkle_map_names, wrinkle_images)],
+        "wrinkle_maps": [{"name": n, "image": i} for n, i in zip(rig.wrinkle_map_names, textures.wrinkle_images)],
         "zone_names": list(rig.zone_names),
-        "zone_mask_images": zone_images,
+        "zone_mask_images": textures.zone_images,
         "zone_table": _tolist(rig.zone_table),
         "region_names": list(rig.region_names),
-        "region_attributes": [f"_REGIONS_{c}" for c in range(n_chunks)],
-    }}
+        "region_attributes": [f"_REGIONS_{c}" for c in range(n_region_chunks)],
+    }
     if rig.has_eyes:
-        b.gltf["extras"][EXTRAS_KEY].update(eye_joints=list(EYE_JOINT_NAMES), eye_centres_cm=_tolist(rig.eye_centres))
-    return b, {"mesh": mesh_node, "root": root_node, "joints": joint_nodes, "eyes": eye_nodes}
+        extras.update(eye_joints=list(EYE_JOINT_NAMES), eye_centres_cm=_tolist(rig.eye_centres))
+    return extras
+
+
+def build_rig_gltf(rig: FaceRig) -> tuple[GlbBuilder, dict]:
+    """The glTF document of ``rig`` (no animation). Returns the builder and the node
+    indices ``{"mesh": i, "root": j, "joints": [k0, k1, ...]}`` an animation targets."""
+    _joint_order_check(rig)
+    b = GlbBuilder()
+    # The order of these steps is the order of the buffers, images and nodes in the file.
+    geometry = _add_geometry(b, rig)
+    textures = _add_textures(b, rig)
+    mesh = _add_mesh(b, rig, geometry, textures.material)
+    nodes = _add_skeleton(b, rig, mesh)
+    b.gltf["extras"] = {EXTRAS_KEY: _rig_extras(rig, textures, geometry.n_region_chunks)}
+    return b, nodes
 
 
 def export_glb(rig: FaceRig, path: str | os.PathLike, animation=None, fps: float | None = None) -> None:

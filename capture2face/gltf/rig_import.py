@@ -247,9 +247,11 @@ def _target_names(mesh: dict, n_targets: int) -> list[str]:
     return out + [f"target_{i}" for i in range(len(out), n_targets)]
 
 
-def _gather(r: GlbReader, mesh: dict, mapping: dict) -> dict:
-    """Merge one mesh's primitives (in the mesh's own space): primitives that share their
-    POSITION accessor share vertices; every other primitive appends its own."""
+def _primitive_blocks(r: GlbReader, mesh: dict, mapping: dict) -> tuple[dict[int, dict], list[int], int | None]:
+    """The mesh's triangle primitives grouped by their POSITION accessor: per accessor its
+    first primitive, vertex count, triangles, per-vertex material codes and glTF
+    materials, and triangle count. Returns the blocks, their accessors in first-seen
+    order, and the number of morph targets (the same on every primitive)."""
     g = r.gltf
     blocks: dict[int, dict] = {}
     order: list[int] = []
@@ -279,49 +281,56 @@ def _gather(r: GlbReader, mesh: dict, mapping: dict) -> dict:
         n_targets = nt
     if not order:
         raise CaptureError(f"{r.path}: the mesh has no triangle primitives")
+    return blocks, order, n_targets
 
-    def attr(prim, name, as_float=True):
-        if name in prim.get("attributes", {}):
-            return _counted(r, r.accessor(prim["attributes"][name], as_float=as_float), len(
-                r.accessor(prim["attributes"]["POSITION"])), name)
-        return None
 
-    out = {k: [] for k in ("pos", "nrm", "uv", "tan", "joints", "weights", "tris", "material",
-                           "posid", "regions", "mpos", "mnrm", "gltf_material")}
-    offset = 0
-    for key in order:
-        blk = blocks[key]
-        prim, n = blk["prim"], blk["n"]
-        out["pos"].append(r.accessor(key).astype(np.float64))
-        out["nrm"].append(attr(prim, "NORMAL"))
-        out["uv"].append(attr(prim, "TEXCOORD_0"))
-        out["tan"].append(attr(prim, "TANGENT"))
-        j = [attr(prim, f"JOINTS_{s}", as_float=False) for s in range(2)]
-        w = [attr(prim, f"WEIGHTS_{s}") for s in range(2)]
-        pairs = [(jj, ww) for jj, ww in zip(j, w) if jj is not None and ww is not None]
-        out["joints"].append(np.concatenate([p[0] for p in pairs], 1).astype(np.int64) if pairs else None)
-        out["weights"].append(np.concatenate([p[1] for p in pairs], 1).astype(np.float32) if pairs else None)
-        out["tris"].append(np.concatenate(blk["tris"]) + offset)
-        mat = attr(prim, "_MATERIAL")
-        out["material"].append(np.rint(mat[:, 0]).astype(np.uint8) if mat is not None else blk["material"])
-        out["gltf_material"].append(blk["gltf_material"])
-        pid = attr(prim, "_POSITION_ID")
-        out["posid"].append(None if pid is None else np.rint(pid[:, 0]).astype(np.int64))
-        chunks = []
-        c = 0
-        while f"_REGIONS_{c}" in prim.get("attributes", {}):
-            chunks.append(attr(prim, f"_REGIONS_{c}"))
-            c += 1
-        out["regions"].append(np.concatenate(chunks, 1) if chunks else None)
-        targets = prim.get("targets", [])
-        out["mpos"].append(np.stack([_counted(r, r.accessor(t["POSITION"]), n, "a morph target").astype(np.float64)
-                                     if "POSITION" in t
-                                     else np.zeros((n, 3)) for t in targets]) if targets else np.zeros((0, n, 3)))
-        out["mnrm"].append(np.stack([_counted(r, r.accessor(t["NORMAL"]), n, "a morph target").astype(np.float64)
-                                     if "NORMAL" in t
-                                     else np.full((n, 3), np.nan) for t in targets]) if targets else np.zeros((0, n, 3)))
-        offset += n
-    sizes = [blocks[k]["n"] for k in order]
+def _attribute(r: GlbReader, prim: dict, name: str, as_float: bool = True) -> np.ndarray | None:
+    """A vertex attribute of ``prim`` (one row per vertex), or None when it has none."""
+    if name in prim.get("attributes", {}):
+        return _counted(r, r.accessor(prim["attributes"][name], as_float=as_float), len(
+            r.accessor(prim["attributes"]["POSITION"])), name)
+    return None
+
+
+def _block_arrays(r: GlbReader, key: int, blk: dict, offset: int) -> dict:
+    """One block's vertex arrays (None where its primitive lacks the attribute), its
+    triangles shifted by ``offset``, and its morph target deltas."""
+    prim, n = blk["prim"], blk["n"]
+    out = {"pos": r.accessor(key).astype(np.float64)}
+    out["nrm"] = _attribute(r, prim, "NORMAL")
+    out["uv"] = _attribute(r, prim, "TEXCOORD_0")
+    out["tan"] = _attribute(r, prim, "TANGENT")
+    j = [_attribute(r, prim, f"JOINTS_{s}", as_float=False) for s in range(2)]
+    w = [_attribute(r, prim, f"WEIGHTS_{s}") for s in range(2)]
+    pairs = [(jj, ww) for jj, ww in zip(j, w) if jj is not None and ww is not None]
+    out["joints"] = np.concatenate([p[0] for p in pairs], 1).astype(np.int64) if pairs else None
+    out["weights"] = np.concatenate([p[1] for p in pairs], 1).astype(np.float32) if pairs else None
+    out["tris"] = np.concatenate(blk["tris"]) + offset
+    mat = _attribute(r, prim, "_MATERIAL")
+    out["material"] = np.rint(mat[:, 0]).astype(np.uint8) if mat is not None else blk["material"]
+    out["gltf_material"] = blk["gltf_material"]
+    pid = _attribute(r, prim, "_POSITION_ID")
+    out["posid"] = None if pid is None else np.rint(pid[:, 0]).astype(np.int64)
+    chunks = []
+    c = 0
+    while f"_REGIONS_{c}" in prim.get("attributes", {}):
+        chunks.append(_attribute(r, prim, f"_REGIONS_{c}"))
+        c += 1
+    out["regions"] = np.concatenate(chunks, 1) if chunks else None
+    targets = prim.get("targets", [])
+    out["mpos"] = np.stack([_counted(r, r.accessor(t["POSITION"]), n, "a morph target").astype(np.float64)
+                            if "POSITION" in t
+                            else np.zeros((n, 3)) for t in targets]) if targets else np.zeros((0, n, 3))
+    out["mnrm"] = np.stack([_counted(r, r.accessor(t["NORMAL"]), n, "a morph target").astype(np.float64)
+                            if "NORMAL" in t
+                            else np.full((n, 3), np.nan) for t in targets]) if targets else np.zeros((0, n, 3))
+    return out
+
+
+def _merge_blocks(out: dict[str, list], sizes: list[int], blocks: list[dict], mesh: dict, n_targets: int | None) -> dict:
+    """The blocks' arrays concatenated into one vertex array; an attribute some blocks
+    lack is filled (NaN normals and tangents, zero UVs, joints and weights), one that
+    none has is None."""
 
     def cat(name, width, fill):
         parts = out[name]
@@ -337,8 +346,8 @@ def _gather(r: GlbReader, mesh: dict, mapping: dict) -> dict:
         "mpos": np.concatenate(out["mpos"], axis=1),
         "mnrm": np.concatenate(out["mnrm"], axis=1),
         "nrm": cat("nrm", 3, np.nan), "uv": cat("uv", 2, 0.0), "tan": cat("tan", 4, np.nan),
-        "largest_material": max((blocks[k] for k in order), key=lambda b: b["tri_count"])["prim"].get("material"),
-        "tri_count": sum(blocks[k]["tri_count"] for k in order),
+        "largest_material": max(blocks, key=lambda b: b["tri_count"])["prim"].get("material"),
+        "tri_count": sum(b["tri_count"] for b in blocks),
         "target_names": _target_names(mesh, n_targets or 0),
     }
     widths = [p.shape[1] for p in out["joints"] if p is not None]
@@ -354,6 +363,20 @@ def _gather(r: GlbReader, mesh: dict, mapping: dict) -> dict:
     merged["regions"] = None if any(p is None for p in out["regions"]) else np.concatenate(out["regions"])
     merged["n_vertices"] = len(merged["pos"])
     return merged
+
+
+def _gather(r: GlbReader, mesh: dict, mapping: dict) -> dict:
+    """Merge one mesh's primitives (in the mesh's own space): primitives that share their
+    POSITION accessor share vertices; every other primitive appends its own."""
+    blocks, order, n_targets = _primitive_blocks(r, mesh, mapping)
+    out = {k: [] for k in ("pos", "nrm", "uv", "tan", "joints", "weights", "tris", "material",
+                           "posid", "regions", "mpos", "mnrm", "gltf_material")}
+    offset = 0
+    for key in order:
+        for name, value in _block_arrays(r, key, blocks[key], offset).items():
+            out[name].append(value)
+        offset += blocks[key]["n"]
+    return _merge_blocks(out, [blocks[k]["n"] for k in order], [blocks[k] for k in order], mesh, n_targets)
 
 
 # ---- the import -----------------------------------------------------------------------

@@ -185,14 +185,28 @@ class Renderer:
         return obj
 
     def _setup(self) -> None:
-        rig, opts, ctx = self.rig, self.options, self.ctx
+        """Everything a frame needs, built once: the wrinkle driver, the programs, the
+        mesh's buffers, the textures and the framebuffers."""
+        rig, opts = self.rig, self.options
+        shade_wrinkles = opts.wrinkles != "off"
+        self._setup_driver()
+        self._setup_programs(shade_wrinkles)
+        self._setup_mesh()
+        self._setup_textures(shade_wrinkles)
+        self._setup_targets()
+        self._face_size = rig.face_size()
+        self._face_centre = camera.face_centre_and_height(rig)[0]
+
+    def _setup_driver(self) -> None:
+        """The wrinkle driver (``_driver``), the influence view's map colours and the
+        driver's per-map slot and pose tables."""
+        rig, opts = self.rig, self.options
         # Influence-view colour of each wrinkle map (by name, else by slot); uploaded per
         # frame because renderers of other rigs may share the compiled program.
         self._map_colors = np.array(SLOT_COLORS, np.float32)
         for k, name in enumerate(rig.wrinkle_map_names[:MAX_MAPS]):
             self._map_colors[k] = MAP_COLORS.get(name, SLOT_COLORS[k])
         n_maps = len(rig.wrinkle_map_names)
-        shade_wrinkles = opts.wrinkles != "off"
         self._influence_output = bool(opts.influence_output) and opts.view == "shaded"
         # The driver that computes the per-pixel map weights: "off" still has the auto
         # weights when they are shown in the influence output.
@@ -213,8 +227,11 @@ class Renderer:
         if driver == "auto" and len(rig.pose_names):
             self._pose_to_map[np.arange(len(rig.pose_names)), rig.pose_maps] = 1.0
 
+    def _setup_programs(self, shade_wrinkles: bool) -> None:
+        opts, driver = self.options, self._driver
         face_defines = (
-            (f"DRIVER_{driver.upper()}", 1), ("N_MAPS", n_maps), ("SHADE_WRINKLES", int(shade_wrinkles)),
+            (f"DRIVER_{driver.upper()}", 1), ("N_MAPS", len(self.rig.wrinkle_map_names)),
+            ("SHADE_WRINKLES", int(shade_wrinkles)),
             (f"BLEND_{opts.normal_blend.upper()}", 1), (f"VIEW_{opts.view.upper()}", 1),
         ) + ((("INFLUENCE_OUTPUT", 1),) if self._influence_output else ())
         # Two programs: the face skin's with its normal and wrinkle maps, and one without
@@ -222,10 +239,12 @@ class Renderer:
         self._programs = tuple(program("face.vert", "face.frag", face_defines + (("FACE_SKIN", skin),))
                                for skin in (1, 0))
 
+    def _setup_mesh(self) -> None:
+        rig, ctx = self.rig, self.ctx
         # Mesh: the deformed positions, normals and (auto, dynamic) per-vertex map weights
         # in one buffer written per frame; the rest uploaded once.
         self._deformer = Deformer(rig)
-        self._vertex_weights = driver in ("auto", "dynamic")
+        self._vertex_weights = self._driver in ("auto", "dynamic")
         self._frame_vertices = np.zeros((rig.n_vertices, 10 if self._vertex_weights else 6), np.float32)
         self._frame_buffer = self._keep(ctx.buffer(reserve=self._frame_vertices.nbytes))
         layout = "3f 3f 4f" if self._vertex_weights else "3f 3f"
@@ -250,24 +269,22 @@ class Renderer:
                        for prog, (first, count) in zip(self._programs, runs) if count]
         self._positions = None  # this frame's deformed positions, for the FXAA scissor box
 
+    def _setup_textures(self, shade_wrinkles: bool) -> None:
+        rig, ctx = self.rig, self.ctx
         # Colour and normal maps (row 0 = top = v 0, the glTF convention, uploaded as is).
         self._textures = [
             (self._image_texture(rig.albedo, internal_format=_GL_SRGB8_ALPHA8), _UNIT_ALBEDO),
             (self._image_texture(rig.normal_map), _UNIT_NORMAL),
         ]
-        if shade_wrinkles and n_maps:
+        if shade_wrinkles and len(rig.wrinkle_map_names):
             layers = wrinkle_pd_layers(rig.wrinkle_maps)
             k, h, w, _ = layers.shape
             tex = self._keep(ctx.texture_array((w, h, k), 4, layers.tobytes(), dtype="f2"))
             self._mipmapped(tex)
             self._textures.append((tex, _UNIT_WRINKLE))
-        if driver == "zones":
+        if self._driver == "zones":
             self._textures.append((self._image_texture(rig.zone_masks[..., :4]), _UNIT_MASK0))
             self._textures.append((self._image_texture(rig.zone_masks[..., 4:8]), _UNIT_MASK1))
-
-        self._setup_targets()
-        self._face_size = rig.face_size()
-        self._face_centre = camera.face_centre_and_height(rig)[0]
 
     def _setup_targets(self) -> None:
         """Framebuffers. ``_target`` is drawn into (multisampled when ``samples`` > 1, then

@@ -118,6 +118,170 @@ def _mixture(rng: np.random.Generator) -> tuple[float, float]:
     return (major, minor) if rng.random() < 0.5 else (minor, major)
 
 
+@dataclass
+class _PoseSpace:
+    """The rig's rest bones and how far its reference poses move them."""
+
+    rest: np.ndarray  # (B, 3) float64 cm
+    travel: np.ndarray  # (P, B, 3) float64 cm, each reference pose's bones minus rest
+    scale: float  # cm: the largest bone travel, else a tenth of the interocular distance
+    si: int  # index of the "stretch" pose
+    ci: int  # index of the "compress" pose
+
+
+@dataclass
+class _KeyDraws:
+    """The random draws at K keys."""
+
+    ab: np.ndarray  # (K, 2) amounts of the stretch and compress poses
+    offsets: np.ndarray  # (K, B, 3) per-bone offsets (cm)
+    morphs: np.ndarray  # (K, M) sparse morph weights
+    angles: np.ndarray  # (K, 3) yaw, pitch, roll (degrees)
+    offset: np.ndarray  # (K, 3) head translation (cm, camera axes)
+    light: np.ndarray  # (K, 3) unit light directions
+    gaze: np.ndarray  # (K, 2, 2) eye yaw, pitch (degrees)
+
+
+@dataclass
+class _Keys:
+    """The performance at its keys: frame indices, values and ``key_pose`` labels."""
+
+    keys: np.ndarray  # (K,) frame indices
+    bones: np.ndarray
+    weights: np.ndarray
+    angles: np.ndarray
+    offset: np.ndarray
+    light: np.ndarray
+    gaze: np.ndarray
+    label: np.ndarray  # (K,) KEY_FREE, KEY_NEUTRAL or KEY_POSE0 + p
+
+
+@dataclass
+class _Curves:
+    """The performance interpolated at every frame (float64)."""
+
+    bones: np.ndarray
+    weights: np.ndarray
+    angles: np.ndarray
+    offset: np.ndarray
+    light: np.ndarray
+    gaze: np.ndarray
+
+
+def _pose_space(rig: FaceRig) -> _PoseSpace:
+    rest = rig.bone_rest.astype(np.float64)
+    travel = rig.pose_bones.astype(np.float64) - rest  # (P, B, 3)
+    scale = float(np.linalg.norm(travel, axis=-1).max()) or 0.1 * rig.interocular()
+    return _PoseSpace(rest, travel, scale, rig.pose_index("stretch"), rig.pose_index("compress"))
+
+
+def _random_draws(rig: FaceRig, rng: np.random.Generator, seed: int, K: int, scale: float) -> _KeyDraws:
+    """Random state at every key: pose mixture, per-bone offsets, sparse morphs, head, light.
+    The draws' order is the performance's: changing it changes every seed's clip."""
+    B, M = rig.n_bones, rig.n_morphs
+    ab = np.array([_mixture(rng) for _ in range(K)])  # (K, 2)
+    offsets = rng.normal(0.0, 0.06 * scale, (K, B, 3))
+    offsets[:, 0] = 0.0  # the root never moves in head coordinates
+    morphs = np.zeros((K, M))
+    for k in range(K):
+        chosen = rng.choice(M, size=min(M, rng.integers(0, 4)), replace=False)
+        morphs[k, chosen] = rng.uniform(0.1, 0.7, len(chosen))
+    angles = rng.uniform(-1.0, 1.0, (K, 3)) * [YAW_LIMIT, PITCH_LIMIT, ROLL_LIMIT]
+    _, height = face_centre_and_height(rig)
+    offset = rng.uniform(-1.0, 1.0, (K, 3)) * TRANSLATION_LIMIT * height
+    light = _random_lights(rng, K)
+    gaze = _random_gaze(np.random.default_rng([seed, 14]), K)  # own stream: the rest stays as it was
+    return _KeyDraws(ab, offsets, morphs, angles, offset, light, gaze)
+
+
+def _key_values(rig: FaceRig, keys: np.ndarray, d: _KeyDraws, space: _PoseSpace, head_motion: bool) -> _Keys:
+    """Bones and morph weights from each key's pose mixture plus its draws; every key free."""
+    ab, travel, si, ci = d.ab, space.travel, space.si, space.ci
+    bones = space.rest + ab[:, :1, None] * travel[si] + ab[:, 1:, None] * travel[ci] + d.offsets
+    weights = np.clip(d.morphs + ab[:, :1] * rig.pose_morph_weights[si] + ab[:, 1:] * rig.pose_morph_weights[ci], 0, 1)
+    label = np.full(len(keys), KEY_FREE)
+    angles, offset = d.angles, d.offset
+    if not head_motion:
+        angles[:] = 0.0
+        offset[:] = 0.0
+    angles[0] *= 0.3  # start near frontal so the tracker locks on at once
+    return _Keys(keys, bones, weights, angles, offset, d.light, d.gaze, label)
+
+
+def _hold_one_expression(rig: FaceRig, k: _Keys, d: _KeyDraws, space: _PoseSpace) -> None:
+    """One mild expression, held throughout (``expression=False``)."""
+    K, travel, si, ci = len(k.keys), space.travel, space.si, space.ci
+    k.bones[:] = space.rest + 0.35 * travel[si] + 0.15 * travel[ci] + 0.5 * d.offsets[K // 2]
+    k.weights[:] = np.clip(0.35 * rig.pose_morph_weights[si] + 0.15 * rig.pose_morph_weights[ci]
+                           + 0.5 * d.morphs[K // 2], 0, 1)
+
+
+def _place_reference_poses(rig: FaceRig, k: _Keys, rest: np.ndarray) -> None:
+    """Neutral on key 0, the reference poses on the free keys nearest evenly spread
+    fractions of the clip (clear of the face-exit window in the middle)."""
+    keys, n_poses = k.keys, len(rig.pose_names)
+    fractions = np.linspace(0.2, 0.85, n_poses) if n_poses > 1 else np.array([0.3])
+    slots = [0]
+    for fr in fractions:  # interior keys only; there are at least n_poses + 1
+        order = np.argsort(np.abs(keys[1:-1] - fr * keys[-1])) + 1
+        slots.append(int(next(i for i in order if i not in slots)))
+    for p, i in enumerate(slots):
+        if p == 0:
+            k.bones[i], k.weights[i], k.label[i] = rest, 0.0, KEY_NEUTRAL
+            k.gaze[i] = 0.0
+        else:
+            k.bones[i] = rig.pose_bones[p - 1]
+            k.weights[i] = rig.pose_morph_weights[p - 1]
+            k.label[i] = KEY_POSE0 + p - 1
+
+
+def _hold_labelled_keys(k: _Keys, hold: int, frames: int) -> _Keys:
+    """Hold each labelled key: duplicate it ``hold - 1`` frames later and shift the rest."""
+    label = k.label
+    dup = np.where(label != KEY_FREE, hold - 1, 0)
+    keys = k.keys + np.concatenate([[0], np.cumsum(dup)[:-1]])
+    rep = np.where(label != KEY_FREE, 2, 1)
+    end_keys = keys + dup
+    keys = np.stack([keys, end_keys], 1)[np.arange(2)[None] < rep[:, None]]
+    bones, weights = (np.repeat(x, rep, 0) for x in (k.bones, k.weights))
+    angles, offset, light, label, gaze = (np.repeat(x, rep, 0) for x in (k.angles, k.offset, k.light, label, k.gaze))
+    keys[-1] = frames - 1  # absorb rounding
+    return _Keys(keys, bones, weights, angles, offset, light, gaze, label)
+
+
+def _interpolate(k: _Keys, f: np.ndarray) -> _Curves:
+    """Monotone cubic (PCHIP) through the keys at frames ``f``; weights clipped to [0, 1],
+    light directions normalized."""
+    frames = len(f)
+
+    def interp(values: np.ndarray) -> np.ndarray:
+        flat = values.reshape(len(values), -1)
+        return PchipInterpolator(k.keys, flat, axis=0)(f).reshape((frames,) + values.shape[1:])
+
+    bone_f = interp(k.bones)
+    weight_f = np.clip(interp(k.weights), 0.0, 1.0)
+    angle_f = interp(k.angles)
+    offset_f = interp(k.offset)
+    light_f = interp(k.light)
+    gaze_f = interp(k.gaze)
+    light_f /= np.linalg.norm(light_f, axis=1, keepdims=True)
+    return _Curves(bone_f, weight_f, angle_f, offset_f, light_f, gaze_f)
+
+
+def _exact_holds(k: _Keys, c: _Curves, frames: int) -> np.ndarray:
+    """Exact values on held frames (interpolation is exact there up to rounding); returns
+    the (F,) ``key_pose`` labels."""
+    key_pose = np.full(frames, KEY_FREE, np.int8)
+    keys, label = k.keys, k.label
+    for i in range(0, len(keys) - 1):
+        if label[i] != KEY_FREE and label[i + 1] == label[i]:
+            span = slice(keys[i], keys[i + 1] + 1)
+            key_pose[span] = label[i]
+            c.bones[span], c.weights[span] = k.bones[i], k.weights[i]
+            c.gaze[span] = k.gaze[i]
+    return key_pose
+
+
 def random_performance(
     rig: FaceRig,
     frames: int,
@@ -143,106 +307,37 @@ def random_performance(
         raise CaptureError(
             f"{frames} frames are too few to pass through neutral and {n_poses} reference poses"
         )
-
-    B, M = rig.n_bones, rig.n_morphs
-    rest = rig.bone_rest.astype(np.float64)
-    travel = rig.pose_bones.astype(np.float64) - rest  # (P, B, 3)
-    scale = float(np.linalg.norm(travel, axis=-1).max()) or 0.1 * rig.interocular()
-    si, ci = rig.pose_index("stretch"), rig.pose_index("compress")
+    space = _pose_space(rig)
 
     keys = _key_frames(frames, fps, rng, hold, n_poses + 1 if expression else 0)
-    K = len(keys)
-    # Random state at every key: pose mixture, per-bone offsets, sparse morphs, head, light.
-    ab = np.array([_mixture(rng) for _ in range(K)])  # (K, 2)
-    offsets = rng.normal(0.0, 0.06 * scale, (K, B, 3))
-    offsets[:, 0] = 0.0  # the root never moves in head coordinates
-    morphs = np.zeros((K, M))
-    for k in range(K):
-        chosen = rng.choice(M, size=min(M, rng.integers(0, 4)), replace=False)
-        morphs[k, chosen] = rng.uniform(0.1, 0.7, len(chosen))
-    angles = rng.uniform(-1.0, 1.0, (K, 3)) * [YAW_LIMIT, PITCH_LIMIT, ROLL_LIMIT]
-    _, height = face_centre_and_height(rig)
-    offset = rng.uniform(-1.0, 1.0, (K, 3)) * TRANSLATION_LIMIT * height
-    light = _random_lights(rng, K)
-    gaze = _random_gaze(np.random.default_rng([seed, 14]), K)  # own stream: the rest stays as it was
-
-    bones = rest + ab[:, :1, None] * travel[si] + ab[:, 1:, None] * travel[ci] + offsets
-    weights = np.clip(morphs + ab[:, :1] * rig.pose_morph_weights[si] + ab[:, 1:] * rig.pose_morph_weights[ci], 0, 1)
-    label = np.full(K, KEY_FREE)
-    if not head_motion:
-        angles[:] = 0.0
-        offset[:] = 0.0
-    angles[0] *= 0.3  # start near frontal so the tracker locks on at once
-
-    if not expression:  # one mild expression, held throughout
-        bones[:] = rest + 0.35 * travel[si] + 0.15 * travel[ci] + 0.5 * offsets[K // 2]
-        weights[:] = np.clip(0.35 * rig.pose_morph_weights[si] + 0.15 * rig.pose_morph_weights[ci]
-                             + 0.5 * morphs[K // 2], 0, 1)
+    draws = _random_draws(rig, rng, seed, len(keys), space.scale)
+    k = _key_values(rig, keys, draws, space, head_motion)
+    if not expression:
+        _hold_one_expression(rig, k, draws, space)
     else:
-        # Neutral on key 0, the reference poses on the free keys nearest evenly spread
-        # fractions of the clip (clear of the face-exit window in the middle).
-        fractions = np.linspace(0.2, 0.85, n_poses) if n_poses > 1 else np.array([0.3])
-        slots = [0]
-        for fr in fractions:  # interior keys only; there are at least n_poses + 1
-            order = np.argsort(np.abs(keys[1:-1] - fr * keys[-1])) + 1
-            slots.append(int(next(i for i in order if i not in slots)))
-        for p, k in enumerate(slots):
-            if p == 0:
-                bones[k], weights[k], label[k] = rest, 0.0, KEY_NEUTRAL
-                gaze[k] = 0.0
-            else:
-                bones[k] = rig.pose_bones[p - 1]
-                weights[k] = rig.pose_morph_weights[p - 1]
-                label[k] = KEY_POSE0 + p - 1
-        # Hold each of these keys: duplicate it ``hold - 1`` frames later and shift the rest.
-        dup = np.where(label != KEY_FREE, hold - 1, 0)
-        keys = keys + np.concatenate([[0], np.cumsum(dup)[:-1]])
-        rep = np.where(label != KEY_FREE, 2, 1)
-        end_keys = keys + dup
-        keys = np.stack([keys, end_keys], 1)[np.arange(2)[None] < rep[:, None]]
-        bones, weights = (np.repeat(x, rep, 0) for x in (bones, weights))
-        angles, offset, light, label, gaze = (np.repeat(x, rep, 0) for x in (angles, offset, light, label, gaze))
-        keys[-1] = frames - 1  # absorb rounding
+        _place_reference_poses(rig, k, space.rest)
+        k = _hold_labelled_keys(k, hold, frames)
 
     f = np.arange(frames, dtype=np.float64)
+    c = _interpolate(k, f)
+    key_pose = _exact_holds(k, c, frames)
 
-    def interp(values: np.ndarray) -> np.ndarray:
-        flat = values.reshape(len(values), -1)
-        return PchipInterpolator(keys, flat, axis=0)(f).reshape((frames,) + values.shape[1:])
-
-    bone_f = interp(bones)
-    weight_f = np.clip(interp(weights), 0.0, 1.0)
-    angle_f = interp(angles)
-    offset_f = interp(offset)
-    light_f = interp(light)
-    gaze_f = interp(gaze)
-    light_f /= np.linalg.norm(light_f, axis=1, keepdims=True)
-
-    # Exact values on held frames (interpolation is exact there up to rounding).
-    key_pose = np.full(frames, KEY_FREE, np.int8)
-    for i in range(0, len(keys) - 1):
-        if label[i] != KEY_FREE and label[i + 1] == label[i]:
-            span = slice(keys[i], keys[i + 1] + 1)
-            key_pose[span] = label[i]
-            bone_f[span], weight_f[span] = bones[i], weights[i]
-            gaze_f[span] = gaze[i]
-
-    exiting = np.zeros(frames, bool)
+    offset_f, exiting = c.offset, np.zeros(frames, bool)
     if face_exit:
         offset_f, exiting = _face_exit(rig, offset_f, fps, fov_y)
     return Performance(
         times=f / fps,
         fps=float(fps),
         fov_y=float(fov_y),
-        bone_positions=bone_f.astype(np.float32),
-        blend_weights=weight_f.astype(np.float32),
-        head_angles=angle_f.astype(np.float32),
+        bone_positions=c.bones.astype(np.float32),
+        blend_weights=c.weights.astype(np.float32),
+        head_angles=c.angles.astype(np.float32),
         head_offset=offset_f.astype(np.float32),
-        head_pose=head_poses(rig, angle_f, offset_f, fov_y),
-        light_direction=light_f.astype(np.float32),
+        head_pose=head_poses(rig, c.angles, offset_f, fov_y),
+        light_direction=c.light.astype(np.float32),
         key_pose=key_pose,
         exiting=exiting,
-        eye_rotation=gaze_f.astype(np.float32),
+        eye_rotation=c.gaze.astype(np.float32),
     )
 
 
