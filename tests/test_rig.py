@@ -7,6 +7,7 @@ import pytest
 
 from capture2face.rig.influences import rig_influences
 from capture2face.rig import avatar as avatar_mod
+from capture2face.rig import avatar_parts
 from capture2face.rig import maps as maps_mod
 from capture2face.rig import mesh_ops
 from capture2face.rig.avatar import BONES, default_avatar
@@ -170,22 +171,22 @@ def test_avatar_mesh_helpers_make_closed_outward_spheres_and_grids():
     """The sphere triangulation shared by the eyeballs, the tongue and the ears is closed
     (every edge once each way), in either order; the grid has 2 triangles per quad; and
     _face_outwards turns an inward sphere out."""
-    tris = avatar_mod._sphere_triangles(5, 8)
-    rings = avatar_mod._sphere_triangles(5, 8, ring_by_ring=True)
+    tris = avatar_parts._sphere_triangles(5, 8)
+    rings = avatar_parts._sphere_triangles(5, 8, ring_by_ring=True)
     assert len(tris) == 2 * 8 + 2 * 8 * 4 and tris.dtype == np.int32
     assert sorted(map(tuple, tris)) == sorted(map(tuple, rings))
     edges = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
     assert len({tuple(e) for e in edges}) == len(edges)  # each directed edge once
     assert {tuple(e) for e in edges} == {tuple(e) for e in edges[:, ::-1]}  # and its reverse
-    dirs, _, _, sphere = avatar_mod._uv_sphere(6, 10)
-    out = avatar_mod._face_outwards(dirs, sphere, np.zeros(3))
-    inward = avatar_mod._face_outwards(dirs, out[:, ::-1], np.zeros(3))
+    dirs, _, _, sphere = avatar_parts._uv_sphere(6, 10)
+    out = avatar_parts._face_outwards(dirs, sphere, np.zeros(3))
+    inward = avatar_parts._face_outwards(dirs, out[:, ::-1], np.zeros(3))
     assert np.array_equal(inward, out)
     p = dirs[out]
     assert (np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), p.mean(1)) > 0).all()
-    grid = avatar_mod._grid_triangles_by_half(4, 5)
+    grid = avatar_parts._grid_triangles_by_half(4, 5)
     assert grid.shape == (2 * 3 * 4, 3) and grid.max() == 19
-    assert avatar_mod._grid_triangles(4, 5, closed=True).shape == (3, 5, 2, 3)
+    assert avatar_parts._grid_triangles(4, 5, closed=True).shape == (3, 5, 2, 3)
 
 
 def _component(rig, vertex):

@@ -28,36 +28,59 @@ from __future__ import annotations
 import functools
 import hashlib
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from scipy.sparse.csgraph import dijkstra
-from scipy.spatial import cKDTree
 
 from capture2face.errors import CaptureError
-from capture2face.rig import canonical, features, maps, mesh_ops
+from capture2face.rig import (
+    avatar_landmarks,
+    avatar_morphs,
+    avatar_parts,
+    canonical,
+    features,
+    maps,
+    mesh_ops,
+)
+from capture2face.rig.avatar_landmarks import (  # noqa: F401 (also re-exported)
+    BROW_INNER_R,
+    BROW_OUTER_R,
+    BROW_R,
+    EYE_RINGS,
+    LIP_INNER_CORNERS,
+    LIP_LOWER_LINES,
+    LIP_UPPER_LINES,
+)
+from capture2face.rig.avatar_morphs import (  # noqa: F401 (also re-exported)
+    JAW_OPEN_RAD,
+    JAW_PIVOT,
+    MorphBuilder,
+    build_morphs,
+    jaw_morphs,
+    mirror_map,
+)
+from capture2face.rig.avatar_parts import (  # noqa: F401 (also re-exported)
+    FACE_BLEND_RINGS,
+    HEAD_POLE,
+    HEAD_RINGS,
+    IRIS_RADIUS_CM,
+    NECK_BOTTOM_Y,
+    TEETH,
+    TEETH_BEHIND_LIPS_CM,
+    TOOTH_THICKNESS,
+    ear,
+    eyeball,
+    hair_grid,
+    head_shell,
+    jaw_shadow_grid,
+    mouth_interior,
+    teeth_and_tongue,
+)
 from capture2face.rig.face_rig import REGION_NAMES, ZONE_NAMES, FaceRig
 
 VARIANTS = ("default", "wide")
-
-# Eye and lip contours of the canonical mesh (MediaPipe landmark ids).
-EYE_RINGS = {  # side: (outer corner, inner corner, upper-lid landmark)
-    "R": (33, 133, 159),
-    "L": (263, 362, 386),
-}
-LIP_INNER_CORNERS = (78, 308)
-LIP_UPPER_LINES = [61, 185, 40, 39, 37, 0, 267, 269, 270, 409, 291,
-                   76, 184, 74, 73, 72, 11, 302, 303, 304, 408, 306,
-                   62, 183, 42, 41, 38, 12, 268, 271, 272, 407, 292,
-                   191, 80, 81, 82, 13, 312, 311, 310, 415]
-LIP_LOWER_LINES = [146, 91, 181, 84, 17, 314, 405, 321, 375,
-                   77, 90, 180, 85, 16, 315, 404, 320, 307,
-                   96, 89, 179, 86, 15, 316, 403, 319, 325,
-                   95, 88, 178, 87, 14, 317, 402, 318, 324]
-BROW_R = [70, 63, 105, 66, 107, 46, 53, 52, 65, 55]
-BROW_INNER_R = [107, 66, 55, 65]
-BROW_OUTER_R = [70, 63, 46, 53]
 
 
 @dataclass(frozen=True)
@@ -158,8 +181,6 @@ _ZONE_TABLE = {
     "cheekPuff": {"nasolabial_left": -0.6, "nasolabial_right": -0.6, "chin": -0.2},
 }
 
-IRIS_RADIUS_CM = 0.58
-
 
 def cache_dir() -> Path:
     return Path(os.environ.get("CAPTURE2FACE_CACHE") or Path.home() / ".cache" / "capture2face")
@@ -169,7 +190,8 @@ def cache_dir() -> Path:
 def _source_hash() -> str:
     """Hash of the builder's source files: a code change gives a new cache file."""
     h = hashlib.sha256()
-    for module in (canonical, features, mesh_ops, maps, __import__(__name__, fromlist=["x"])):
+    for module in (canonical, features, mesh_ops, maps, avatar_landmarks, avatar_parts, avatar_morphs,
+                   __import__(__name__, fromlist=["x"])):
         h.update(Path(module.__file__).read_bytes())
     h.update(Path(__file__).with_name("face_rig.py").read_bytes())
     return h.hexdigest()[:16]
@@ -293,337 +315,6 @@ def _split_loop(loop: np.ndarray, a: int, b: int, through: int) -> tuple[np.ndar
     return (first, second) if through in first else (second, first)
 
 
-def _grid_triangles(rows: int, cols: int, closed: bool = False) -> np.ndarray:
-    """Triangles of a grid of ``rows`` x ``cols`` vertices numbered row by row (vertex
-    ``r * cols + j``): (rows - 1, Q, 2, 3), per quad (r, j) the triangles
-    ((r, j), (r+1, j), (r+1, j+1)) and ((r, j), (r+1, j+1), (r, j+1)). ``closed``: each
-    row is a ring (Q = cols quads, the last joins column 0), else Q = cols - 1."""
-    r = np.arange(rows - 1)[:, None]
-    j = np.arange(cols if closed else cols - 1)[None, :]
-    j1 = (j + 1) % cols
-    a, b, c, d = r * cols + j, (r + 1) * cols + j, (r + 1) * cols + j1, r * cols + j1
-    return np.stack([np.stack([a, b, c], -1), np.stack([a, c, d], -1)], 2)
-
-
-def _grid_triangles_by_half(rows: int, cols: int) -> np.ndarray:
-    """(T, 3) int32 :func:`_grid_triangles` of an open grid, every quad's first triangle
-    (row by row) before every second one: the order the teeth and the head shell were
-    built in (the avatar's cached figures depend on the order)."""
-    return _grid_triangles(rows, cols).transpose(2, 0, 1, 3).reshape(-1, 3).astype(np.int32)
-
-
-def _sphere_triangles(n_rings: int, n_around: int, ring_by_ring: bool = False) -> np.ndarray:
-    """(T, 3) int32 triangles of a closed sheet with a sphere's topology: vertex 0 a pole,
-    then ``n_rings`` rings of ``n_around`` vertices (ring i, vertex j: ``1 + i * n_around
-    + j``), then the other pole. Column after column (its first pole's triangle, its quads,
-    its last pole's triangle; :func:`_uv_sphere`), or ``ring_by_ring`` (the first pole's
-    fan, the quads ring after ring, the last pole's fan; :func:`_ear`)."""
-    j = np.arange(n_around)
-    j1 = (j + 1) % n_around
-    last_ring = 1 + (n_rings - 1) * n_around
-    first = np.stack([np.zeros_like(j), 1 + j, 1 + j1], -1)  # (n_around, 3)
-    last = np.stack([last_ring + j, np.full_like(j, last_ring + n_around), last_ring + j1], -1)
-    quads = 1 + _grid_triangles(n_rings, n_around, closed=True)  # (n_rings - 1, n_around, 2, 3)
-    if ring_by_ring:
-        return np.concatenate([first, quads.reshape(-1, 3), last]).astype(np.int32)
-    columns = quads.transpose(1, 0, 2, 3).reshape(n_around, -1, 3)
-    return np.concatenate([first[:, None], columns, last[:, None]], 1).reshape(-1, 3).astype(np.int32)
-
-
-def _face_outwards(verts: np.ndarray, tris: np.ndarray, inside: np.ndarray) -> np.ndarray:
-    """``tris`` (T, 3), reversed if most of them face towards ``inside`` (a point (3,) or
-    one per triangle (T, 3)): a closed surface or one strip has one orientation, so the
-    majority decides it for all (a few sliver triangles may point either way)."""
-    c = verts[tris].mean(1)
-    nrm = np.cross(verts[tris[:, 1]] - verts[tris[:, 0]], verts[tris[:, 2]] - verts[tris[:, 0]])
-    if ((nrm * (c - inside)).sum(1) < 0).mean() > 0.5:
-        return tris[:, ::-1].copy()
-    return tris
-
-
-def _uv_sphere(n_theta: int, n_phi: int):
-    """Unit sphere around +z: returns (dirs (N, 3), theta, phi, triangles) with vertex 0
-    at the front pole. Ring i has polar angle theta_i; the back pole is the last vertex."""
-    thetas = np.linspace(0.0, np.pi, n_theta + 1)[1:-1]
-    phis = np.arange(n_phi) * 2 * np.pi / n_phi
-    th, ph = np.meshgrid(thetas, phis, indexing="ij")
-    theta = np.concatenate([[0.0], th.ravel(), [np.pi]])
-    phi = np.concatenate([[0.0], ph.ravel(), [0.0]])
-    dirs = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], 1)
-    return dirs, theta, phi, _sphere_triangles(len(thetas), n_phi)
-
-
-def _eyeball(ring_pos: np.ndarray, side: str):
-    """A sphere behind an eye opening whose front silhouette covers the opening and which
-    stays behind every lid vertex. Returns (vertices, uvs, triangles, iris vertex ids
-    (5,): centre then 4 rim points at phi = 0, 90, 180, 270 degrees, the iris rim's polar
-    angle, the sphere's centre (3,): the eye's rotation centre)."""
-    centre_xy = 0.5 * (ring_pos[:, :2].max(0) + ring_pos[:, :2].min(0))
-    reach = np.linalg.norm(ring_pos[:, :2] - centre_xy, axis=1)
-    radius = reach.max() + 0.2
-    middle = np.abs(ring_pos[:, 0] - centre_xy[0]) < 0.6
-    z_front = ring_pos[middle, 2].min() - 0.12
-    cz = z_front - radius
-    # Push the sphere back until every contour vertex is at least 0.06 cm in front of it.
-    depth_at = lambda c: c + np.sqrt(np.maximum(radius**2 - reach**2, 0.0))
-    cz -= max(0.0, float((depth_at(cz) - ring_pos[:, 2] + 0.06).max()))
-    centre = np.array([centre_xy[0], centre_xy[1], cz])
-    n_phi = 24
-    dirs, theta, phi, tris = _uv_sphere(14, n_phi)
-    # Put the iris rim on a latitude ring so the iris landmarks sit on vertices.
-    iris_theta = np.arcsin(IRIS_RADIUS_CM / radius)
-    ring_thetas = np.unique(theta)
-    k = int(np.argmin(np.abs(ring_thetas[1:-1] - iris_theta))) + 1
-    theta = np.where(np.isclose(theta, ring_thetas[k]), iris_theta, theta)
-    dirs = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], 1)
-    verts = centre + radius * dirs
-
-    cu, cv = maps.EYE_TEXTURE_CENTRES[side]
-    r_uv = maps.eye_uv_radius(theta)
-    uvs = np.stack([cu + r_uv * np.cos(phi), cv - r_uv * np.sin(phi)], 1)
-    rim = 1 + (k - 1) * n_phi + np.array([0, 6, 12, 18])
-    return verts, uvs, tris, np.concatenate([[0], rim]), iris_theta, centre
-
-
-def _mouth_interior(lip_loop: np.ndarray, pos: np.ndarray, upper: np.ndarray):
-    """A dark cavity hanging back from the inner lip contour: the contour copied, three
-    rings shrinking backwards, and a cap. Returns (vertices, source (N,) contour vertex
-    each new vertex copies its skinning from (-1 = cap), depth (N,) in [0, 1], triangles
-    local to the new vertices). ``upper``: (N,) +1 on the upper lip, -1 on the lower,
-    0 at the corners: the bag bulges up behind the upper lip and down behind the lower
-    one, so it has volume even with the lips closed."""
-    ring = pos[lip_loop]
-    c = ring.mean(0)
-    half_width = np.abs(ring[:, 0] - c[0]).max()
-    across = np.clip(1.0 - ((ring[:, 0] - c[0]) / half_width) ** 2, 0.0, 1.0) ** 0.5
-    steps = [(1.0, 1.0, 0.0, 0.0), (0.92, 0.9, 0.5, 0.35), (0.75, 0.8, 1.3, 0.7), (0.45, 0.55, 2.1, 0.6)]
-    verts, source, depth = [], [], []
-    for sx, sy, dz, bulge in steps:
-        y = c[1] + sy * (ring[:, 1] - c[1]) + bulge * upper * across
-        verts.append(np.stack([c[0] + sx * (ring[:, 0] - c[0]), y, ring[:, 2] - dz], 1))
-        source.append(lip_loop)
-        depth.append(np.full(len(lip_loop), dz / 2.5))
-    cap = np.array([[c[0], c[1], ring[:, 2].min() - 2.5]])
-    verts = np.vstack(verts + [cap])
-    source = np.concatenate(source + [[-1]])
-    depth = np.concatenate(depth + [[1.0]])
-    n = len(lip_loop)
-    cap_id = len(verts) - 1
-    last = (len(steps) - 1) * n
-    cap = [(last + j, cap_id, last + (j + 1) % n) for j in range(n)]
-    tris = np.vstack([_grid_triangles(len(steps), n, closed=True).reshape(-1, 3), cap]).astype(np.int32)
-    # Face the cavity walls towards a point in front of the mouth (what the camera sees).
-    p = verts[tris]
-    normal = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    look = c + np.array([0.0, 0.0, 2.0]) - p.mean(1)
-    flip = (normal * look).sum(1) < 0
-    tris[flip] = tris[flip][:, ::-1]
-    return verts, source, depth, tris
-
-
-# Upper teeth overlap the lower ones in front (overbite) and stand a little further
-# forward (overjet); their widths are maps.TOOTH_WIDTHS.
-TEETH = {  # row: (edge y offset from the lip line, height up (+) or down (-), z back from the upper row)
-    "upper": (-0.22, 1.1, 0.0),
-    "lower": (-0.1, -0.9, 0.14),
-}
-TEETH_BEHIND_LIPS_CM = 0.42  # the upper incisors' front behind the inner lip contour
-TOOTH_THICKNESS = 0.28
-
-
-def _teeth_row(front: np.ndarray, edge_y: float, height: float, back_dir: np.ndarray):
-    """One row of teeth as a strip folded over the biting edge: the front face (root,
-    middle, edge), then the back face (edge, middle, root). ``front`` (N, 3) points along
-    the arch on the front face, ``back_dir`` (N, 3) unit vectors into the mouth.
-    Returns (vertices (6N, 3), row fraction (6N,) from 0 at the front root to 1 at the back
-    root, triangles (local), core (6N, 3): the middle of the tooth behind each vertex, for
-    facing the triangles outwards)."""
-    n = len(front)
-    rows = []
-    for up, back in ((1.0, 0.0), (0.5, 0.0), (0.0, 0.0), (0.0, 1.0), (0.5, 1.0), (1.0, 1.0)):
-        p = front + back * TOOTH_THICKNESS * back_dir
-        p[:, 1] = edge_y + up * height
-        rows.append(p)
-    core = front + 0.5 * TOOTH_THICKNESS * back_dir
-    core[:, 1] = edge_y + 0.5 * height
-    tris = _grid_triangles_by_half(6, n)
-    return np.concatenate(rows), np.repeat(np.arange(6) / 5.0, n), tris, np.tile(core, (6, 1))
-
-
-def _teeth_and_tongue(ring: np.ndarray):
-    """Upper and lower teeth along a dental arch behind the inner lip contour ``ring``
-    (N, 3), and a tongue on the floor of the mouth behind the lower teeth.
-
-    Returns (vertices (K, 3), uvs (K, 2), triangles (local), part (K,): 0 upper teeth,
-    1 lower teeth, 2 tongue)."""
-    lip_y = float(ring[np.argmax(ring[:, 2]), 1])  # the lips meet here on the midline
-    z_front = float(ring[:, 2].max()) - TEETH_BEHIND_LIPS_CM
-    half = float(np.abs(ring[:, 0]).max())
-    # The arch: a parabola from the front teeth to just inside the lip corners, 1.3 cm
-    # further back at the corners than at the front (what a dental arch does).
-    ends = sum(maps.TOOTH_WIDTHS)
-    xs = np.linspace(-1.0, 1.0, 41)
-    curve = lambda x, dz: np.stack([x * (half - 0.15), np.zeros_like(x), z_front - dz - 1.3 * x**2], 1)
-    verts, uvs, tris, part = [], [], [], []
-    offset = 0
-    for k, (row, (edge_dy, height, back)) in enumerate(TEETH.items()):
-        front = curve(xs, back)
-        # Arc length from the midline, for the texture's tooth boundaries.
-        seg = np.linalg.norm(np.diff(front, axis=0), axis=1)
-        arc = np.concatenate([[0.0], np.cumsum(seg)])
-        arc -= arc[len(xs) // 2]
-        tangent = np.gradient(front, axis=0)
-        back_dir = np.cross(tangent, [0.0, 1.0, 0.0])
-        back_dir /= np.linalg.norm(back_dir, axis=1, keepdims=True)
-        back_dir *= -np.sign(back_dir[len(xs) // 2, 2])  # into the mouth (-z at the front)
-        v, frac, t, core = _teeth_row(front, lip_y + edge_dy, height, back_dir)
-        t = _face_outwards(v, t, core[t[:, 0]])  # away from the tooth's core
-        u = maps.TEETH_U[0] + (maps.TEETH_U[1] - maps.TEETH_U[0]) * (0.5 + 0.5 * np.tile(arc, 6) / ends)
-        v0, v1 = maps.TEETH_V[row]
-        uvs.append(np.stack([u, v0 + (v1 - v0) * frac], 1))
-        verts.append(v)
-        tris.append(t + offset)
-        part.append(np.full(len(v), k))
-        offset += len(v)
-    # Tongue: the upper half of a flattened ellipsoid resting behind the lower teeth.
-    dirs, _, _, ttri = _uv_sphere(8, 20)
-    radii = np.array([half - 0.55, 0.5, 1.5])
-    centre = np.array([0.0, lip_y - 0.75, z_front - 0.14 - TOOTH_THICKNESS - 0.1 - radii[2]])
-    # The sphere is around +z; turn it so its poles point along y (up).
-    d = np.stack([dirs[:, 0], dirs[:, 2], -dirs[:, 1]], 1)
-    tv = centre + radii * d
-    tv[:, 1] = np.maximum(tv[:, 1], centre[1] - 0.1)  # flat underside
-    tu = maps.TONGUE_UV[0] + (maps.TONGUE_UV[1] - maps.TONGUE_UV[0]) * (0.5 + 0.5 * d[:, 0])
-    tvv = maps.TONGUE_UV[2] + (maps.TONGUE_UV[3] - maps.TONGUE_UV[2]) * (0.5 - 0.5 * d[:, 2])
-    ttri = _face_outwards(tv, ttri, centre)
-    verts.append(tv)
-    uvs.append(np.stack([tu, tvv], 1))
-    tris.append(ttri + offset)
-    part.append(np.full(len(tv), 2))
-    return np.vstack(verts), np.vstack(uvs), np.vstack(tris).astype(np.int32), np.concatenate(part)
-
-
-# Head: the scalp, the back of the head and the neck grow from the face mask's outer
-# edge in HEAD_RINGS rings towards a pole behind and below the head; ears sit on the sides.
-# 14 rings (9.4k triangles in all, 4.8k vertices) instead of 28 (11.4k, 5.8k): the head's
-# smooth curvature shows no facets at run's framing, and a frame costs 2-4% less CPU on
-# llvmpipe (its per-pixel work is most of a frame; the NumPy deformation is per vertex).
-HEAD_RINGS = 14
-HEAD_POLE = np.array([0.0, -0.35, -1.0]) / np.hypot(0.35, 1.0)
-FACE_BLEND_RINGS = 3  # rings over which the face edge's own shape, skinning and morphs fade out
-# The neck ends here (cm): out of a synthetic clip's frame below the chin even with the
-# head tipped back, and within 32 cm of the origin (a glTF's float32 metres give the
-# centimetres back within 2e-6 there).
-NECK_BOTTOM_Y = -27.0
-
-
-def _ellipsoid_exit(origin: np.ndarray, d: np.ndarray, centre: np.ndarray, radii: np.ndarray) -> np.ndarray:
-    """(N,) distance along unit rays ``d`` (N, 3) from ``origin`` (inside) to an ellipsoid."""
-    o, dd = (origin - centre) / radii, d / radii
-    a, b, c = (dd * dd).sum(1), 2 * (o * dd).sum(1), (o * o).sum() - 1.0
-    return (-b + np.sqrt(np.maximum(b * b - 4 * a * c, 0.0))) / (2 * a)
-
-
-def _neck_exit(origin: np.ndarray, d: np.ndarray, axis_xz: np.ndarray, radii_xz: np.ndarray, bottom: float,
-               top: float) -> np.ndarray:
-    """(N,) distance along rays ``d`` from ``origin`` (inside) to a vertical elliptic
-    cylinder (axis through ``axis_xz``, radii ``radii_xz``) cut at y = ``bottom`` and ``top``."""
-    o = (origin[[0, 2]] - axis_xz) / radii_xz
-    dd = d[:, [0, 2]] / radii_xz
-    a, b, c = (dd * dd).sum(1), 2 * (dd @ o), (o * o).sum() - 1.0
-    side = (-b + np.sqrt(np.maximum(b * b - 4 * a * c, 0.0))) / np.maximum(2 * a, 1e-12)
-    side = np.where(a > 1e-12, side, np.inf)
-    cap = np.where(d[:, 1] < -1e-9, (bottom - origin[1]) / np.minimum(d[:, 1], -1e-9),
-                   np.where(d[:, 1] > 1e-9, (top - origin[1]) / np.maximum(d[:, 1], 1e-9), np.inf))
-    return np.minimum(side, cap)
-
-
-def _head_shell(edge: np.ndarray, chin: np.ndarray):
-    """The head beyond the face: rings grown from the face's outer edge loop ``edge``
-    (N, 3) towards :data:`HEAD_POLE`, on the smooth union of a skull ellipsoid and a neck
-    cylinder sized from the face, bent at the edge to meet the face exactly.
-
-    Returns (vertices (HEAD_RINGS * (N + 1) + 1, 3) ring by ring, the first ring the edge
-    itself, each ring closed by a copy of its first vertex, then the pole; ring index (per
-    vertex, HEAD_RINGS for the pole); column index (0..N, N = the copy of 0); triangles
-    (local))."""
-    n = len(edge)
-    half_width = float(np.abs(edge[:, 0]).max())
-    centre = np.array([0.0, 0.25 * half_width, edge[:, 2].min() - 0.1 * half_width])
-    radii = np.array([1.03, 1.38, 1.35]) * half_width
-    neck_axis = np.array([0.0, centre[2] - 0.18 * half_width])
-    neck_radii = np.array([0.64, 0.58]) * half_width  # the throat ~5 cm behind the chin
-    origin = centre + np.array([0.0, -0.2 * half_width, 0.0])
-    bottom = min(NECK_BOTTOM_Y, float(chin[1]) - 4.0)
-
-    def radius(d):
-        a = _ellipsoid_exit(origin, d, centre, radii)
-        b = _neck_exit(origin, d, neck_axis, neck_radii, bottom, float(centre[1]))
-        k = 0.12 * half_width  # a soft fillet where the neck meets the skull
-        return 0.5 * (a + b + np.sqrt((a - b) ** 2 + k * k))
-
-    rel = edge - origin
-    rho = np.linalg.norm(rel, axis=1)
-    d0 = rel / rho[:, None]
-    gap = rho - radius(d0)  # the face's edge against the smooth head: bent away over the first rings
-    rings, ring_ids, cols = [], [], []
-    for k in range(HEAD_RINGS):
-        t = k / HEAD_RINGS
-        # Slerp from the edge direction to the pole (never through the face).
-        omega = np.arccos(np.clip(d0 @ HEAD_POLE, -1.0, 1.0))[:, None]
-        so = np.maximum(np.sin(omega), 1e-9)
-        d = (np.sin((1 - t) * omega) * d0 + np.sin(t * omega) * HEAD_POLE) / so
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
-        fade = 1.0 - features.smoothstep(np.full(1, k / FACE_BLEND_RINGS))[0]
-        p = origin + d * (radius(d) + gap * fade)[:, None]
-        if k == 0:
-            p = edge.copy()
-        rings.append(np.vstack([p, p[:1]]))
-        ring_ids.append(np.full(n + 1, k))
-        cols.append(np.arange(n + 1))
-    pole = origin + HEAD_POLE * radius(HEAD_POLE[None])[0]  # the rings close on one vertex
-    verts = np.vstack(rings + [pole[None]])
-    last, pole_id = (HEAD_RINGS - 1) * (n + 1), len(verts) - 1
-    cap = [(last + j, pole_id, last + j + 1) for j in range(n)]
-    tris = np.vstack([_grid_triangles_by_half(HEAD_RINGS, n + 1), np.array(cap, np.int32)])
-    tris = _face_outwards(verts, tris, origin)  # away from the head's inside
-    return verts, np.concatenate(ring_ids + [[HEAD_RINGS]]), np.concatenate(cols + [[n // 2]]), tris
-
-
-def _ear(centre: np.ndarray, side: float, height: float, width: float):
-    """An ear: a thin shell (outer face with a raised rim and a hollow concha, folded at
-    the rim onto its back) centred at ``centre``, facing outwards (``side`` = +1: +x) and
-    a little forwards. Returns (vertices, (radius, angle) per vertex in [0, 1] x [0, 1)
-    for the texture, front (bool per vertex), triangles (local))."""
-    n_r, n_a = 7, 24
-    rs = np.linspace(0.0, 1.0, n_r)[1:]  # the centre is one vertex per face
-    angles = np.arange(n_a) * 2 * np.pi / n_a
-    out = np.array([side * np.cos(0.35), 0.0, np.sin(0.35)])  # outward, turned 20 degrees forwards
-    up = np.array([0.0, 1.0, 0.0])
-    along = np.cross(up, out) * side  # towards the back of the head
-    depth = lambda r: 0.45 * np.exp(-((r - 0.88) / 0.1) ** 2) - 0.35 * np.exp(-((r - 0.35) / 0.2) ** 2)
-    thick = 0.45
-    verts, coords, front = [centre + out * depth(0.0)], [(0.0, 0.0)], [True]
-    for face in (0, 1):
-        for r in (rs if face == 0 else rs[::-1]):
-            for a in angles:
-                w = width * (1.0 + 0.15 * np.sin(a))  # a slightly pear-shaped outline: wider at the top
-                p = centre + r * (0.5 * w * np.cos(a) * along + 0.5 * height * np.sin(a) * up)
-                verts.append(p + out * (depth(r) if face == 0 else -thick * (1.0 - r**4)))
-                coords.append((r, a / (2 * np.pi)))
-                front.append(face == 0)
-    verts.append(centre - out * thick)
-    coords.append((0.0, 0.0))
-    front.append(False)
-    verts, coords, front = np.array(verts), np.array(coords), np.array(front)
-    tris = _sphere_triangles(2 * len(rs), n_a, ring_by_ring=True)  # a sphere folded flat
-    nrm = np.cross(verts[tris[:, 1]] - verts[tris[:, 0]], verts[tris[:, 2]] - verts[tris[:, 0]])
-    is_front = front[tris].all(1)
-    if ((nrm[is_front] @ out) < 0).mean() > 0.5:  # one folded sheet: the front faces out
-        tris = tris[:, ::-1].copy()
-    return verts, coords, front, tris
-
-
 # ---------------------------------------------------------------------------------------
 # Skinning
 
@@ -683,172 +374,151 @@ def _top4(dense: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 # ---------------------------------------------------------------------------------------
-# Morph targets
+# The builder: the face's skin, then the parts after it, then skinning, morphs, bones and
+# maps over all vertices
 
 
-class _MorphBuilder:
-    """Procedural displacement fields on the skin: prescribed displacements at handle
-    vertices, extended biharmonically over the surface within a geodesic radius."""
+@dataclass
+class _FaceMesh:
+    """The face's skin: the canonical mesh with its eyes and mouth opened, subdivided once
+    (n_skin vertices: the canonical ones keep their ids, edge midpoints follow)."""
 
-    def __init__(self, pos: np.ndarray, tris: np.ndarray, normals: np.ndarray):
-        self.pos, self.tris, self.normals = pos, tris, normals
-        self.n = len(pos)
-        self.lap = mesh_ops.uniform_laplacian(self.n, tris)
-        self.graph = mesh_ops.edge_graph(pos, tris)
-
-    def distance_to(self, vertices) -> np.ndarray:
-        return dijkstra(self.graph, indices=np.asarray(vertices), directed=False, min_only=True)
-
-    def extend(self, handles: dict, radius: float, pinned=()) -> np.ndarray:
-        """handles: {vertex id array: (n, 3) or (3,) displacement}; vertices farther
-        than ``radius`` from every handle, and ``pinned`` ones, stay still."""
-        fixed = np.zeros(self.n, bool)
-        values = np.zeros((self.n, 3))
-        ids = []
-        for idx, disp in handles:
-            idx = np.atleast_1d(np.asarray(idx))
-            values[idx] = disp
-            fixed[idx] = True
-            ids.append(idx)
-        pinned = np.asarray(list(pinned), dtype=np.int64)
-        pinned = pinned[~fixed[pinned]] if len(pinned) else pinned
-        fixed[pinned] = True
-        values[pinned] = 0.0
-        sources = np.concatenate(ids)
-        far = (self.distance_to(sources) > radius) & ~np.isin(np.arange(self.n), sources)
-        fixed |= far
-        values[far] = 0.0
-        return mesh_ops.smooth_extension(self.lap, fixed, values, order=2)
-
-    def harmonic(self, fixed: np.ndarray, values: np.ndarray) -> np.ndarray:
-        return mesh_ops.smooth_extension(self.lap, fixed, values[:, None], order=1)[:, 0]
+    canonical_uvs: np.ndarray  # (468, 2) the canonical mesh's UVs (the feature layout's space)
+    mirror: np.ndarray  # (468,) each canonical landmark's mirror image
+    n_base: int  # canonical vertices; the midpoint of edges[e] is vertex n_base + e
+    pos: np.ndarray  # (n_skin, 3)
+    tris: np.ndarray  # (T, 3)
+    edges: np.ndarray  # (E, 2) the edges that were split
+    uvs: np.ndarray  # (n_skin, 2)
+    normals: np.ndarray  # (n_skin, 3)
+    loops: list  # the skin's boundary loops: eyes, mouth, outer edge
 
 
-def _mirror_map(v: np.ndarray) -> np.ndarray:
-    """(468,) landmark index of each canonical landmark's mirror image (x -> -x)."""
-    _, idx = cKDTree(v).query(v * np.array([-1.0, 1.0, 1.0]))
-    return idx
+@dataclass
+class _Parts:
+    """The avatar's vertices part after part: positions, UVs, triangles (numbered over
+    the whole avatar as they are added) and a material per vertex."""
+
+    positions: list = field(default_factory=list)
+    uvs: list = field(default_factory=list)
+    triangles: list = field(default_factory=list)
+    material: list = field(default_factory=list)
+    size: int = 0  # vertices so far
+
+    def add(self, verts: np.ndarray, uvs: np.ndarray, tris: np.ndarray, material: int) -> int:
+        """Append a part, its ``tris`` numbered over its own vertices; returns its first
+        vertex."""
+        start = self.size
+        self.positions.append(verts)
+        self.uvs.append(uvs)
+        self.triangles.append(tris + start)
+        self.material.append(np.full(len(verts), material, np.uint8))
+        self.size += len(verts)
+        return start
+
+    def stack(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(positions (V, 3), uvs (V, 2), triangles (T, 3) int32, material (V,) uint8)."""
+        return (np.vstack(self.positions), np.vstack(self.uvs), np.vstack(self.triangles).astype(np.int32),
+                np.concatenate(self.material))
 
 
-JAW_PIVOT = np.array([0.0, 0.3, -3.0])  # the jaw joints' axis (x) passes through here
-JAW_OPEN_RAD = 0.2
+@dataclass
+class _Eyes:
+    """The eyeballs' place among the avatar's vertices and what the rig keeps of them."""
+
+    landmark_vertices: np.ndarray  # (478,) the vertex each tracker landmark sits on
+    iris_theta: dict  # side -> the iris rim's polar angle on the eyeball
+    centres: list  # [(3,), (3,)] right and left rotation centres
+    side: np.ndarray  # (n eye vertices,) int8 0 right, 1 left
+    start: int
 
 
-def _jaw_morphs(points: np.ndarray, amount: np.ndarray) -> dict[str, np.ndarray]:
-    """jawOpen (a turn of ``amount`` (N,) x JAW_OPEN_RAD about the jaw axis), jawLeft and
-    jawRight deltas (N, 3) of ``points`` (N, 3) that follow the jaw by ``amount``."""
-    r = points - JAW_PIVOT
-    ang = JAW_OPEN_RAD * amount
-    cos, sin = np.cos(ang), np.sin(ang)
-    rotated = np.stack([r[:, 0], r[:, 1] * cos - r[:, 2] * sin, r[:, 1] * sin + r[:, 2] * cos], 1)
-    return {"jawOpen": rotated - r,
-            "jawLeft": amount[:, None] * np.array([0.5, 0.0, 0.0]),
-            "jawRight": amount[:, None] * np.array([-0.5, 0.0, 0.0])}
+@dataclass
+class _Mouth:
+    """The mouth interior's place among the avatar's vertices and where it hangs from."""
+
+    source: np.ndarray  # (N,) contour vertex each mouth vertex copies from (-1 = cap)
+    depth: np.ndarray  # (N,) in [0, 1]
+    src: np.ndarray  # (N,) source with the cap's -1 as 0
+    last_ring: np.ndarray  # contour vertices of the ring before the cap
+    start: int
+    end: int
 
 
-def _build_morphs(mb: _MorphBuilder, sets: dict, mirror: np.ndarray) -> dict[str, np.ndarray]:
-    """All morph targets as (n_skin, 3) displacement fields (cm)."""
-    pos = mb.pos
-    out: dict[str, np.ndarray] = {}
+@dataclass
+class _Teeth:
+    """The teeth and tongue's place among the avatar's vertices."""
 
-    def sided(name: str, make):
-        """make(side_sign, m) -> field for the subject's left (+1) or right (-1); m maps a
-        left landmark id to the side's id."""
-        out[name + "Left"] = make(1.0, lambda i: np.asarray(i))
-        out[name + "Right"] = make(-1.0, lambda i: mirror[np.asarray(i)])
-
-    eye = sets["eye"]  # side -> dict(upper, lower, ring)
-    # Eyelids: close the upper lid onto the lower one (meeting 20% above the lower lid).
-    def lid_targets(s):
-        e = eye[s]
-        lo = e["lower_full"]
-        order = np.argsort(pos[lo, 0])
-        at_x = lambda x: np.stack([np.interp(x, pos[lo[order], 0], pos[lo[order], c]) for c in range(3)], 1)
-        up = e["upper"]
-        lower_under_upper = at_x(pos[up, 0])
-        meet = lower_under_upper + 0.2 * (pos[up] - lower_under_upper)
-        up_order = np.argsort(pos[e["upper_full"], 0])
-        uf = e["upper_full"][up_order]
-        upper_over_lower = np.stack([np.interp(pos[e["lower"], 0], pos[uf, 0], pos[uf, c]) for c in range(3)], 1)
-        lower_rise = 0.2 * (upper_over_lower - pos[e["lower"]])
-        return meet - pos[up], lower_rise
-
-    for s, name in (("L", "Left"), ("R", "Right")):
-        e = eye[s]
-        d_up, d_lo = lid_targets(s)
-        out["eyeBlink" + name] = mb.extend([(e["upper"], d_up), (e["lower"], d_lo), (e["corners"], 0.0)], 2.2)
-        out["eyeWide" + name] = mb.extend(
-            [(e["upper"], np.array([0.0, 0.28, 0.04]) * e["upper_profile"][:, None]), (e["lower"], 0.0), (e["corners"], 0.0)], 2.2)
-        below = e["below"]
-        out["eyeSquint" + name] = mb.extend(
-            [(e["lower"], np.array([0.0, 0.17, 0.04]) * e["lower_profile"][:, None]),
-             (e["upper"], np.array([0.0, -0.08, 0.0]) * e["upper_profile"][:, None]),
-             (below, np.array([0.0, 0.2, 0.08]))], 2.5)
-
-    # Brows. Left landmark lists come from mirroring the right ones.
-    brow_l = mirror[BROW_R]
-    inner_l, outer_l = mirror[BROW_INNER_R], mirror[BROW_OUTER_R]
-    eye_rings = np.concatenate([eye["L"]["ring"], eye["R"]["ring"]])
-    out["browInnerUp"] = mb.extend([(np.concatenate([BROW_INNER_R, inner_l]), np.array([0.0, 0.7, 0.05])),
-                                    (9, np.array([0.0, 0.3, 0.0]))], 3.0, pinned=eye_rings)
-    sided("browDown", lambda sg, m: mb.extend(
-        [(m(brow_l), np.array([0.0, -0.45, 0.05])), (m(inner_l), np.array([-0.25 * sg, -0.45, 0.12]))], 2.5,
-        pinned=eye_rings))
-    sided("browOuterUp", lambda sg, m: mb.extend([(m(outer_l), np.array([0.0, 0.6, 0.0]))], 2.5, pinned=eye_rings))
-
-    # Mouth.
-    corner_l = np.array([291, 308])
-    cheek_l = 425
-    sided("mouthSmile", lambda sg, m: mb.extend(
-        [(m(corner_l), np.array([0.55 * sg, 0.45, -0.25])), (m(cheek_l), np.array([0.1 * sg, 0.35, 0.15]))],
-        3.5, pinned=eye_rings))
-    sided("mouthFrown", lambda sg, m: mb.extend([(m(corner_l), np.array([0.05 * sg, -0.45, -0.05]))], 3.0))
-    upper_l = np.array([267, 269, 270, 312, 311, 310, 302])  # left half of the upper lip
-    lower_l = np.array([314, 405, 321, 317, 402, 318])
-    sided("mouthUpperUp", lambda sg, m: mb.extend([(m(upper_l), np.array([0.0, 0.3, 0.05]))], 2.0,
-                                                  pinned=sets["lip_lower"]))
-    sided("mouthLowerDown", lambda sg, m: mb.extend([(m(lower_l), np.array([0.0, -0.3, 0.0]))], 2.0,
-                                                    pinned=sets["lip_upper"]))
-    lips = np.concatenate([sets["lip_upper"], sets["lip_lower"]])
-    x = pos[lips, 0]
-    half = np.abs(pos[[61, 291], 0]).mean()
-    centre_weight = np.clip(1.0 - (x / half) ** 2, 0.0, 1.0)
-    is_upper = np.isin(lips, sets["lip_upper"])
-    press = np.where(is_upper, -0.05, 0.05)
-    pucker = np.stack([-0.28 * x, press, 0.1 + 0.45 * centre_weight], 1)
-    out["mouthPucker"] = mb.extend([(lips, pucker)], 3.0)
-    inner_upper, inner_lower = sets["lip_inner_upper"], sets["lip_inner_lower"]
-    funnel = np.stack([-0.16 * x, np.zeros_like(x), 0.1 + 0.35 * centre_weight], 1)
-    gap = np.where(np.isin(lips, inner_upper), 0.25, np.where(np.isin(lips, inner_lower), -0.25, 0.0))
-    gap = gap * centre_weight
-    funnel[:, 1] += gap + np.where(is_upper, 0.1, -0.1) * centre_weight
-    out["mouthFunnel"] = mb.extend([(lips, funnel)], 3.0)
-
-    # Jaw: the lower face rotates about an axis through the jaw joints.
-    s = sets["lowerness"]
-    out.update(_jaw_morphs(pos, s))
-
-    # Cheeks puff out along the normal.
-    bump = np.zeros(len(pos))
-    for cheek in (205, 425):
-        centre = pos[cheek] + np.array([0.4 * np.sign(pos[cheek, 0]), -1.6, 0.0])
-        d = np.linalg.norm(pos - centre, axis=1)
-        bump += np.clip(1 - (d / 3.2) ** 2, 0, 1) ** 2
-    out["cheekPuff"] = 0.7 * bump[:, None] * mb.normals + 0.1 * out["mouthPucker"]
-    sided("noseSneer", lambda sg, m: mb.extend([(m([358, 294, 278]), np.array([0.05 * sg, 0.25, 0.05]))], 2.0,
-                                               pinned=np.concatenate([sets["lip_upper"], eye_rings])))
-    return out
+    verts: np.ndarray  # (K, 3)
+    part: np.ndarray  # (K,) 0 upper teeth, 1 lower teeth, 2 tongue
+    start: int
+    end: int
 
 
-# ---------------------------------------------------------------------------------------
-# The builder
+@dataclass
+class _Head:
+    """The head shell's place among the avatar's vertices and how it meets the face."""
+
+    verts: np.ndarray  # (H, 3) the head shell
+    ring: np.ndarray  # (H,) ring index
+    col: np.ndarray  # (H,) column index, n_edge = the copy of column 0
+    edge: np.ndarray  # (n_edge,) the face's outer edge loop
+    src: np.ndarray  # (H,) the edge vertex each shell vertex follows
+    follow: np.ndarray  # (H, 1) how much of that edge vertex's skinning and morphs it takes
+    start: int
+    end: int
+
+    @property
+    def n_edge(self) -> int:
+        return len(self.edge)
 
 
 def build_avatar(variant: str = "default") -> FaceRig:
     """Build the avatar from scratch (no cache). See :func:`default_avatar`."""
+    face = _face_mesh(variant)
+    mb = MorphBuilder(face.pos, face.tris, face.normals)
+    sets = _vertex_sets(face, mb)
+    joints, weights = _skin_weights(face.pos, mb.graph, face.loops, sets["lowerness"])
+    skin_morphs = build_morphs(mb, sets, face.mirror)
+
+    parts = _Parts()
+    parts.add(face.pos, face.uvs, face.tris, 0)
+    eyes = _add_eyes(parts, face.pos, sets["eye"])
+    mouth = _add_mouth_interior(parts, face.pos, sets)
+    teeth = _add_teeth(parts, face.pos, sets["lip_loop"])
+    head = _add_head_shell(parts, face.pos, face.loops)
+    ears_start = _add_ears(parts, face.pos, head)
+    all_pos, all_uv, all_tri, material = parts.stack()
+    V = len(all_pos)
+    eye_vertex_side = np.full(V, -1, np.int8)
+    eye_vertex_side[eyes.start:eyes.start + len(eyes.side)] = eyes.side
+
+    all_joints, all_weights = _part_skinning(joints, weights, mouth, teeth, head, V - ears_start)
+    position_ids = _position_ids(V, head)
+    morph_names, mp = _all_morphs(skin_morphs, V, mouth, teeth, head)
+    rest_normals = _welded_normals(all_pos, all_tri, position_ids)
+    morphed_normals = _welded_normals(all_pos[None] + mp, all_tri, position_ids)
+    mn = morphed_normals - rest_normals[None]
+
+    return FaceRig(
+        name="default" if variant == "default" else f"default_{variant}",
+        vertices=_f32(all_pos), normals=_f32(rest_normals), uvs=_f32(all_uv),
+        triangles=all_tri, position_ids=position_ids, material=material,
+        landmark_vertices=eyes.landmark_vertices,
+        skin_joints=all_joints, skin_weights=all_weights,
+        morph_names=morph_names, morph_positions=_f32(mp), morph_normals=_f32(mn),
+        **_bone_fields(all_pos, morph_names),
+        **_map_fields(face, all_pos, all_uv, all_tri, material, rest_normals, eyes.iris_theta, head, morph_names),
+        eye_centres=_f32(eyes.centres), eye_vertex_side=eye_vertex_side, double_sided=False,
+    )
+
+
+def _face_mesh(variant: str) -> _FaceMesh:
+    """The face's skin of ``variant``: the canonical mesh with its lips closed, reshaped,
+    its eyes and mouth opened, subdivided once."""
     mesh = canonical.load_canonical_mesh()
     base = _variant_shape(close_lips(mesh.vertices.astype(np.float64)), variant)
-    mirror = _mirror_map(mesh.vertices.astype(np.float64))
+    mirror = mirror_map(mesh.vertices.astype(np.float64))
 
     # Open the eyes and the mouth, then subdivide once (original vertices keep their ids).
     eye_contours = [[33, 246, 161, 160, 159, 158, 157, 173, 133, 155, 154, 153, 145, 144, 163, 7]]
@@ -858,12 +528,27 @@ def build_avatar(variant: str = "default") -> FaceRig:
     n0 = mesh_ops.vertex_normals(base, tris0)
     pos, tris, edges = mesh_ops.midpoint_subdivide(base, tris0, n0)
     uvs = np.vstack([mesh.uvs, 0.5 * (mesh.uvs[edges[:, 0]] + mesh.uvs[edges[:, 1]])]).astype(np.float64)
-    n_skin = len(pos)
     normals = mesh_ops.vertex_normals(pos, tris)
+    return _FaceMesh(canonical_uvs=mesh.uvs, mirror=mirror, n_base=len(base), pos=pos, tris=tris, edges=edges,
+                     uvs=uvs, normals=normals, loops=mesh_ops.boundary_loops(tris))
 
-    # Vertex sets: contours (with their new edge vertices), lips, lowerness.
-    loops = mesh_ops.boundary_loops(tris)
-    sets: dict = {"eye": {}}
+
+def _vertex_sets(face: _FaceMesh, mb: MorphBuilder) -> dict:
+    """Vertex sets: contours (with their new edge vertices), lips, lowerness.
+
+    Keys: "eye" (side -> its contour's parts, :func:`_eye_sets`), "lip_loop" (the inner
+    lip contour), "lip_upper", "lip_lower" (each lip's vertices), "lip_inner_upper",
+    "lip_inner_lower" (the contour's halves), "lowerness" (n_skin,)."""
+    sets: dict = {"eye": _eye_sets(face.pos, face.loops)}
+    sets.update(_lip_sets(face))
+    sets["lowerness"] = _lowerness(mb, sets)
+    return sets
+
+
+def _eye_sets(pos: np.ndarray, loops: list[np.ndarray]) -> dict:
+    """side -> dict(upper, lower, corners, ring, upper_full, lower_full, upper_profile,
+    lower_profile, below): each eye's contour split into its lids."""
+    eye = {}
     for side, (outer, inner, upper_mark) in EYE_RINGS.items():
         loop = _contour_loop(loops, upper_mark)
         upper, lower = _split_loop(loop, outer, inner, upper_mark)
@@ -872,26 +557,36 @@ def build_avatar(variant: str = "default") -> FaceRig:
         # Skin just below the lower lid, raised by a squint.
         below_c = pos[lower].mean(0) + np.array([0.0, -0.9, 0.0])
         below = np.argsort(np.linalg.norm(pos - below_c, axis=1))[:3]
-        sets["eye"][side] = dict(upper=upper, lower=lower, corners=corners, ring=loop,
-                                 upper_full=np.concatenate([upper, corners]),
-                                 lower_full=np.concatenate([lower, corners]),
-                                 upper_profile=prof(upper), lower_profile=prof(lower), below=below)
-    lip_loop = _contour_loop(loops, 13)
+        eye[side] = dict(upper=upper, lower=lower, corners=corners, ring=loop,
+                         upper_full=np.concatenate([upper, corners]),
+                         lower_full=np.concatenate([lower, corners]),
+                         upper_profile=prof(upper), lower_profile=prof(lower), below=below)
+    return eye
+
+
+def _lip_sets(face: _FaceMesh) -> dict:
+    """The inner lip contour ("lip_loop"), its halves and each lip's vertices."""
+    lip_loop = _contour_loop(face.loops, 13)
     inner_upper, inner_lower = _split_loop(lip_loop, *LIP_INNER_CORNERS, 13)
-    edge_mid = {tuple(e): len(base) + i for i, e in enumerate(edges.tolist())}
+    edge_mid = {tuple(e): face.n_base + i for i, e in enumerate(face.edges.tolist())}
 
     def with_midpoints(ids):
         ids = set(int(i) for i in ids)
         mids = [m for (a, b), m in edge_mid.items() if a in ids and b in ids]
         return np.array(sorted(ids | set(mids)))
 
-    sets["lip_upper"] = with_midpoints(LIP_UPPER_LINES + list(inner_upper[inner_upper < len(base)]))
-    sets["lip_lower"] = with_midpoints(LIP_LOWER_LINES + list(inner_lower[inner_lower < len(base)]))
+    sets = {"lip_loop": lip_loop}
+    sets["lip_upper"] = with_midpoints(LIP_UPPER_LINES + list(inner_upper[inner_upper < face.n_base]))
+    sets["lip_lower"] = with_midpoints(LIP_LOWER_LINES + list(inner_lower[inner_lower < face.n_base]))
     sets["lip_upper"] = np.union1d(sets["lip_upper"], inner_upper)
     sets["lip_lower"] = np.union1d(sets["lip_lower"], inner_lower)
     sets["lip_inner_upper"], sets["lip_inner_lower"] = inner_upper, inner_lower
+    return sets
 
-    mb = _MorphBuilder(pos, tris, normals)
+
+def _lowerness(mb: MorphBuilder, sets: dict) -> np.ndarray:
+    """(n_skin,) how much each skin vertex goes with the jaw."""
+    pos, n_skin = mb.pos, mb.n
     # Lowerness: 1 on the lower lip and jaw, 0 on the upper lip and above, harmonic between
     # (the surface path goes around the mouth, so the lips separate cleanly).
     fixed = np.zeros(n_skin, bool)
@@ -901,143 +596,164 @@ def build_avatar(variant: str = "default") -> FaceRig:
     for ids, value in ((top, 0.0), (sets["lip_upper"], 0.0), (bottom, 1.0), (sets["lip_lower"], 1.0)):
         fixed[ids] = True
         val[ids] = value
-    sets["lowerness"] = np.clip(mb.harmonic(fixed, val), 0.0, 1.0)
+    return np.clip(mb.harmonic(fixed, val), 0.0, 1.0)
 
-    joints, weights = _skin_weights(pos, mb.graph, loops, sets["lowerness"])
-    skin_morphs = _build_morphs(mb, sets, mirror)
 
-    # Eyes and mouth interior.
-    parts_pos, parts_uv, parts_tri, parts_mat = [pos], [uvs], [tris], [np.zeros(n_skin, np.uint8)]
+def _add_eyes(parts: _Parts, pos: np.ndarray, eye_sets: dict) -> _Eyes:
+    """The eyeballs (material 1), right then left, behind the skin's eye openings; the
+    iris landmarks (468-477) sit on their vertices."""
     landmark_vertices = np.full(478, -1, np.int32)
     landmark_vertices[:468] = np.arange(468)
-    offset = n_skin
+    start = parts.size
     iris_theta = {}
     eye_centres, eye_side = [], []
     for k, (side, first_landmark) in enumerate((("R", 468), ("L", 473))):
-        ring = sets["eye"][side]["ring"]
-        ev, euv, etri, iris, iris_theta[side], centre = _eyeball(pos[ring], side)
+        ring = eye_sets[side]["ring"]
+        ev, euv, etri, iris, iris_theta[side], centre = eyeball(pos[ring], side)
         eye_centres.append(centre)
         eye_side.append(np.full(len(ev), k, np.int8))
-        parts_pos.append(ev)
-        parts_uv.append(euv)
-        parts_tri.append(etri + offset)
-        parts_mat.append(np.ones(len(ev), np.uint8))
+        offset = parts.add(ev, euv, etri, 1)
         landmark_vertices[first_landmark:first_landmark + 5] = offset + iris
-        offset += len(ev)
+    return _Eyes(landmark_vertices, iris_theta, eye_centres, np.concatenate(eye_side), start)
+
+
+def _add_mouth_interior(parts: _Parts, pos: np.ndarray, sets: dict) -> _Mouth:
+    """The mouth interior (material 2) hanging back from the inner lip contour."""
+    lip_loop, inner_upper, inner_lower = sets["lip_loop"], sets["lip_inner_upper"], sets["lip_inner_lower"]
     upperness = np.where(np.isin(lip_loop, inner_upper), 1.0, np.where(np.isin(lip_loop, inner_lower), -1.0, 0.0))
-    mv, msource, mdepth, mtri = _mouth_interior(lip_loop, pos, upperness)
-    mouth_start = offset
-    parts_pos.append(mv)
+    mv, msource, mdepth, mtri = mouth_interior(lip_loop, pos, upperness)
     # Mouth UVs: angle around the mouth -> angle in the disc, depth -> radius.
     angle = np.arctan2(*(mv[:, :2] - mv[:-1, :2].mean(0)).T[::-1])
     radius = maps.MOUTH_TEXTURE_RADIUS * (0.25 + 0.75 * mdepth)
     mouth_uv = np.array(maps.MOUTH_TEXTURE_CENTRE) + radius[:, None] * np.stack([np.cos(angle), np.sin(angle)], 1)
-    parts_uv.append(mouth_uv)
     # Both windings: an opening jaw turns some walls away from the camera, and back faces
     # are culled (FaceRig.double_sided False); the bag is dark either way.
-    parts_tri.append(np.vstack([mtri, mtri[:, ::-1]]) + offset)
-    parts_mat.append(np.full(len(mv), 2, np.uint8))
-    mouth_end = mouth_start + len(mv)
+    start = parts.add(mv, mouth_uv, np.vstack([mtri, mtri[:, ::-1]]), 2)
+    # The cap has no contour vertex of its own: it takes the mean of the last ring's.
+    src = np.where(msource >= 0, msource, 0)
+    last_ring = msource[-1 - len(lip_loop):-1]
+    return _Mouth(msource, mdepth, src, last_ring, start, start + len(mv))
+
+
+def _add_teeth(parts: _Parts, pos: np.ndarray, lip_loop: np.ndarray) -> _Teeth:
+    """Teeth and tongue (material 3) behind the inner lip contour."""
     # Teeth and tongue: the upper teeth ride the head, the lower ones and the tongue the jaw.
-    tv, tuv, ttri, tpart = _teeth_and_tongue(pos[lip_loop])
-    parts_pos.append(tv)
-    parts_uv.append(tuv)
-    parts_tri.append(ttri + mouth_end)
-    parts_mat.append(np.full(len(tv), 3, np.uint8))
+    tv, tuv, ttri, tpart = teeth_and_tongue(pos[lip_loop])
+    start = parts.add(tv, tuv, ttri, 3)
+    return _Teeth(tv, tpart, start, start + len(tv))
+
+
+def _add_head_shell(parts: _Parts, pos: np.ndarray, loops: list[np.ndarray]) -> _Head:
+    """The head beyond the face (material 4) without the ears."""
     # The head beyond the face (material 4): scalp, back of the head and neck grown from
     # the face's outer edge (its first ring shares the edge's positions), then the ears.
-    head_start = mouth_end + len(tv)
     edge = max(loops, key=len)
-    hv, hring, hcol, htri = _head_shell(pos[edge], pos[152])
+    hv, hring, hcol, htri = head_shell(pos[edge], pos[152])
     n_edge = len(edge)
-    parts_pos.append(hv)
-    parts_uv.append(np.stack([maps.HEAD_U[0] + (maps.HEAD_U[1] - maps.HEAD_U[0]) * hcol / n_edge,
-                              maps.HEAD_V[0] + (maps.HEAD_V[1] - maps.HEAD_V[0]) * hring / HEAD_RINGS], 1))
-    parts_tri.append(htri + head_start)
-    parts_mat.append(np.full(len(hv), 4, np.uint8))
-    ears_start = head_start + len(hv)
-    ear_parts = []
+    huv = np.stack([maps.HEAD_U[0] + (maps.HEAD_U[1] - maps.HEAD_U[0]) * hcol / n_edge,
+                    maps.HEAD_V[0] + (maps.HEAD_V[1] - maps.HEAD_V[0]) * hring / HEAD_RINGS], 1)
+    start = parts.add(hv, huv, htri, 4)
+    # The head's first rings take the face edge's skinning and morphs, fading to the head bone.
+    head_src = edge[hcol % n_edge]
+    follow = (1.0 - features.smoothstep(hring / FACE_BLEND_RINGS))[:, None]
+    return _Head(hv, hring, hcol, edge, head_src, follow, start, start + len(hv))
+
+
+def _add_ears(parts: _Parts, pos: np.ndarray, head: _Head) -> int:
+    """The ears (material 4) on the head shell's sides, right then left; returns the
+    first ear vertex."""
+    start = parts.size
+    hv, edge = head.verts, head.edge
     ear_y = 0.5 * (pos[[33, 263], 1].mean() + pos[2, 1])  # between eye and nose base levels
     ear_z = float(pos[edge, 2].min()) - 2.2
     for side, (u0, u1) in ((-1.0, maps.EAR_U["R"]), (1.0, maps.EAR_U["L"])):
         near = (np.abs(hv[:, 1] - ear_y) < 1.0) & (np.abs(hv[:, 2] - ear_z) < 1.0) & (hv[:, 0] * side > 0)
         x = float(np.abs(hv[near, 0]).max()) if near.any() else float(np.abs(pos[edge, 0]).max())
-        ev, ecoord, efront, etri = _ear(np.array([side * (x + 0.35), ear_y, ear_z]), side, 6.0, 3.3)
+        ev, ecoord, efront, etri = ear(np.array([side * (x + 0.35), ear_y, ear_z]), side, 6.0, 3.3)
         r_uv = np.where(efront, 0.5 * ecoord[:, 0], 1.0 - 0.5 * ecoord[:, 0]) * 0.5 * (maps.EAR_V[1] - maps.EAR_V[0])
         a = 2 * np.pi * ecoord[:, 1]
         c = np.array([0.5 * (u0 + u1), 0.5 * (maps.EAR_V[0] + maps.EAR_V[1])])
-        ear_parts.append((ev, c + r_uv[:, None] * np.stack([np.cos(a), np.sin(a)], 1), etri))
-    offset_e = ears_start
-    for ev, euv, etri in ear_parts:
-        parts_pos.append(ev)
-        parts_uv.append(euv)
-        parts_tri.append(etri + offset_e)
-        parts_mat.append(np.full(len(ev), 4, np.uint8))
-        offset_e += len(ev)
-    n_ears = offset_e - ears_start
+        parts.add(ev, c + r_uv[:, None] * np.stack([np.cos(a), np.sin(a)], 1), etri, 4)
+    return start
 
-    all_pos = np.vstack(parts_pos)
-    all_uv = np.vstack(parts_uv)
-    all_tri = np.vstack(parts_tri).astype(np.int32)
-    material = np.concatenate(parts_mat)
-    V = len(all_pos)
-    eye_vertex_side = np.full(V, -1, np.int8)
-    eye_vertex_side[n_skin:n_skin + sum(map(len, eye_side))] = np.concatenate(eye_side)
-    n_eye = mouth_start - n_skin
 
-    # Skinning of the extra parts: eyes ride the head; the mouth interior copies the
-    # contour vertex it hangs from (the cap takes the mean of the last ring).
-    src = np.where(msource >= 0, msource, 0)
-    m_joints, m_weights = joints[src].copy(), weights[src].copy()
+def _part_skinning(joints: np.ndarray, weights: np.ndarray, mouth: _Mouth, teeth: _Teeth, head: _Head,
+                   n_ears: int) -> tuple[np.ndarray, np.ndarray]:
+    """(joints (V, 4) int32, weights (V, 4) float32) of every vertex from the skin's
+    ``joints`` and ``weights`` (n_skin, 4).
+
+    Skinning of the extra parts: eyes ride the head; the mouth interior copies the
+    contour vertex it hangs from (the cap takes the mean of the last ring)."""
+    n_eye = mouth.start - len(joints)
+    m_joints, m_weights = joints[mouth.src].copy(), weights[mouth.src].copy()
     cap_dense = np.zeros((1, len(BONES)))
-    last_ring = msource[-1 - len(lip_loop):-1]
+    last_ring = mouth.last_ring
     np.add.at(cap_dense[0], joints[last_ring].ravel(), weights[last_ring].ravel() / len(last_ring))
     cj, cw = _top4(cap_dense)
-    m_joints[msource < 0], m_weights[msource < 0] = cj, cw
+    m_joints[mouth.source < 0], m_weights[mouth.source < 0] = cj, cw
+    # The upper teeth ride the head, the lower ones and the tongue the jaw.
     jaw = [b.name for b in BONES].index("jaw")
-    t_joints = np.zeros((len(tv), 4), np.int32)
-    t_joints[tpart > 0, 0] = jaw
+    n_teeth = len(teeth.verts)
+    t_joints = np.zeros((n_teeth, 4), np.int32)
+    t_joints[teeth.part > 0, 0] = jaw
+    h_joints, h_weights = _head_skinning(joints, weights, head)
+    all_joints = np.vstack([joints, np.zeros((n_eye, 4), np.int32), m_joints, t_joints, h_joints,
+                            np.zeros((n_ears, 4), np.int32)]).astype(np.int32)
+    eye_w = np.zeros((n_eye + n_teeth + n_ears, 4), np.float32)
+    eye_w[:, 0] = 1.0
+    all_weights = np.vstack([weights, eye_w[:n_eye], m_weights, eye_w[n_eye:n_eye + n_teeth], h_weights,
+                             eye_w[n_eye + n_teeth:]]).astype(np.float32)
+    return all_joints, all_weights
+
+
+def _head_skinning(joints: np.ndarray, weights: np.ndarray, head: _Head) -> tuple[np.ndarray, np.ndarray]:
+    """(joints, weights) (H, 4) of the head shell."""
+    hv, head_src, follow = head.verts, head.src, head.follow
     # The head's first rings take the face edge's skinning, fading to the head bone.
-    head_src = edge[hcol % n_edge]
-    follow = (1.0 - features.smoothstep(hring / FACE_BLEND_RINGS))[:, None]
     h_dense = np.zeros((len(hv), len(BONES)))
     np.add.at(h_dense, (np.repeat(np.arange(len(hv)), 4), joints[head_src].ravel()),
               (follow * weights[head_src]).ravel())
     h_dense[:, 0] += 1.0 - follow[:, 0]
-    h_joints, h_weights = _top4(h_dense)
-    all_joints = np.vstack([joints, np.zeros((n_eye, 4), np.int32), m_joints, t_joints, h_joints,
-                            np.zeros((n_ears, 4), np.int32)]).astype(np.int32)
-    eye_w = np.zeros((n_eye + len(tv) + n_ears, 4), np.float32)
-    eye_w[:, 0] = 1.0
-    all_weights = np.vstack([weights, eye_w[:n_eye], m_weights, eye_w[n_eye:n_eye + len(tv)], h_weights,
-                             eye_w[n_eye + len(tv):]]).astype(np.float32)
+    return _top4(h_dense)
+
+
+def _position_ids(V: int, head: _Head) -> np.ndarray:
+    """(V,) int32 :attr:`FaceRig.position_ids`."""
     # Vertices that share a position: the head's first ring and the face's edge, and each
     # ring's closing copy of its first vertex (UV seams without a shading seam).
     position_ids = np.arange(V, dtype=np.int32)
-    head_ids = head_start + np.arange(len(hv))
+    n_edge, hring, hcol = head.n_edge, head.ring, head.col
+    head_ids = head.start + np.arange(len(head.verts))
     position_ids[head_ids[hcol == n_edge]] = head_ids[hcol == 0]
-    position_ids[head_ids[hring == 0]] = edge[hcol[hring == 0] % n_edge]
+    position_ids[head_ids[hring == 0]] = head.edge[hcol[hring == 0] % n_edge]
+    return position_ids
 
+
+def _all_morphs(skin_morphs: dict[str, np.ndarray], V: int, mouth: _Mouth, teeth: _Teeth, head: _Head
+                ) -> tuple[list[str], np.ndarray]:
+    """(morph names, position deltas (M, V, 3)) over all vertices from the skin's
+    ``skin_morphs`` (name -> (n_skin, 3))."""
     # Morphs over all vertices: eyes still; mouth interior follows its contour vertex,
     # less so deeper in.
     morph_names = list(skin_morphs)
-    attenuation = (1.0 - 0.5 * mdepth)[:, None]
-    rest_normals = _welded_normals(all_pos, all_tri, position_ids)
+    attenuation = (1.0 - 0.5 * mouth.depth)[:, None]
     mp = np.zeros((len(morph_names), V, 3))
     for i, name in enumerate(morph_names):
         d = skin_morphs[name]
-        inner = d[src] * attenuation
-        inner[msource < 0] = d[last_ring].mean(0) * attenuation[-1]
-        mp[i, :n_skin] = d
-        mp[i, mouth_start:mouth_end] = inner
-    jaw_follow = _jaw_morphs(tv, (tpart > 0).astype(np.float64))
+        inner = d[mouth.src] * attenuation
+        inner[mouth.source < 0] = d[mouth.last_ring].mean(0) * attenuation[-1]
+        mp[i, :len(d)] = d
+        mp[i, mouth.start:mouth.end] = inner
+    jaw_follow = jaw_morphs(teeth.verts, (teeth.part > 0).astype(np.float64))
     for name, d in jaw_follow.items():
         if name in morph_names:
-            mp[morph_names.index(name), mouth_end:head_start] = d
-    mp[:, head_start:ears_start] = mp[:, head_src] * follow[None]
-    morphed_normals = _welded_normals(all_pos[None] + mp, all_tri, position_ids)
-    mn = morphed_normals - rest_normals[None]
+            mp[morph_names.index(name), teeth.start:teeth.end] = d
+    mp[:, head.start:head.end] = mp[:, head.src] * head.follow[None]
+    return morph_names, mp
 
+
+def _bone_fields(all_pos: np.ndarray, morph_names: list[str]) -> dict:
+    """The FaceRig's bone and reference-pose fields."""
     # Bones.
     bone_names = [b.name for b in BONES]
     bone_landmarks = np.array([b.landmark for b in BONES], np.int32)
@@ -1052,74 +768,43 @@ def build_avatar(variant: str = "default") -> FaceRig:
     for p, pname in enumerate(pose_names):
         for mname, w in _POSE_MORPHS[pname].items():
             pose_morph_weights[p, morph_names.index(mname)] = w
+    return {"bone_names": bone_names, "bone_rest": _f32(bone_rest),
+            "bone_parents": np.array([-1] + [0] * (len(BONES) - 1), np.int32),
+            "bone_landmarks": bone_landmarks, "bone_groups": bone_groups,
+            "pose_names": pose_names, "pose_bones": _f32(pose_bones), "pose_morph_weights": _f32(pose_morph_weights),
+            "pose_maps": np.array([0, 1], np.int32), "wrinkle_map_names": ["stretch", "compress"]}
 
+
+def _map_fields(face: _FaceMesh, all_pos: np.ndarray, all_uv: np.ndarray, all_tri: np.ndarray,
+                material: np.ndarray, rest_normals: np.ndarray, iris_theta: dict, head: _Head,
+                morph_names: list[str]) -> dict:
+    """The FaceRig's tangents, textures, zones and regions."""
     # Regions and zones from one UV layout.
-    layout = features.feature_layout(mesh.uvs)
+    layout = features.feature_layout(face.canonical_uvs)
     region_weights = features.region_fields(all_uv[:, 0], all_uv[:, 1], layout) * (material == 0)
     zone_table = _zone_table(morph_names)
 
     tangents = mesh_ops.uv_tangents(all_pos, rest_normals, all_uv, all_tri)
-    textures = maps.build_maps(mesh.uvs, all_uv, all_tri, material, iris_theta,
-                               head_hair=_hair_grid(hv, n_edge),
-                               head_shadow=_jaw_shadow_grid(hv, n_edge, float(pos[[61, 291], 1].mean())),
+    hv, edge, n_edge, pos = head.verts, head.edge, head.n_edge, face.pos
+    textures = maps.build_maps(face.canonical_uvs, all_uv, all_tri, material, iris_theta,
+                               head_hair=hair_grid(hv, n_edge),
+                               head_shadow=jaw_shadow_grid(hv, n_edge, float(pos[[61, 291], 1].mean())),
                                head_edge_uvs=all_uv[edge[np.arange(n_edge + 1) % n_edge]])
+    return {"tangents": _f32(tangents), "albedo": textures["albedo"], "normal_map": textures["normal"],
+            "wrinkle_maps": np.stack([textures["stretch"], textures["compress"]]),
+            "zone_names": list(ZONE_NAMES), "zone_masks": textures["zones"], "zone_table": _f32(zone_table),
+            "region_names": list(REGION_NAMES), "region_weights": _f32(region_weights)}
 
-    f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)
-    return FaceRig(
-        name="default" if variant == "default" else f"default_{variant}",
-        vertices=f32(all_pos), normals=f32(rest_normals), uvs=f32(all_uv), tangents=f32(tangents),
-        triangles=all_tri, position_ids=position_ids, material=material,
-        landmark_vertices=landmark_vertices,
-        bone_names=bone_names, bone_rest=f32(bone_rest),
-        bone_parents=np.array([-1] + [0] * (len(BONES) - 1), np.int32),
-        bone_landmarks=bone_landmarks, bone_groups=bone_groups,
-        skin_joints=all_joints, skin_weights=all_weights,
-        morph_names=morph_names, morph_positions=f32(mp), morph_normals=f32(mn),
-        pose_names=pose_names, pose_bones=f32(pose_bones), pose_morph_weights=f32(pose_morph_weights),
-        pose_maps=np.array([0, 1], np.int32), wrinkle_map_names=["stretch", "compress"],
-        albedo=textures["albedo"], normal_map=textures["normal"],
-        wrinkle_maps=np.stack([textures["stretch"], textures["compress"]]),
-        zone_names=list(ZONE_NAMES), zone_masks=textures["zones"], zone_table=f32(zone_table),
-        region_names=list(REGION_NAMES), region_weights=f32(region_weights),
-        eye_centres=f32(eye_centres), eye_vertex_side=eye_vertex_side, double_sided=False,
-    )
+
+def _f32(a) -> np.ndarray:
+    """``a`` as a contiguous float32 array (what FaceRig stores)."""
+    return np.ascontiguousarray(a, dtype=np.float32)
 
 
 def _welded_normals(positions: np.ndarray, triangles: np.ndarray, position_ids: np.ndarray) -> np.ndarray:
     """Vertex normals (..., V, 3) computed over positions, not vertices: copies of one
     position (a UV seam) share one normal, so no shading seam shows."""
     return mesh_ops.vertex_normals(positions, position_ids[triangles])[..., position_ids, :]
-
-
-def _head_grid(hv: np.ndarray, n_edge: int) -> np.ndarray:
-    """(HEAD_RINGS + 1, n_edge + 1, 3) the head shell's vertices as a grid (the pole's row
-    repeated)."""
-    return np.concatenate([hv[:-1].reshape(HEAD_RINGS, n_edge + 1, 3), np.repeat(hv[-1:], n_edge + 1, 0)[None]])
-
-
-def _jaw_shadow_grid(hv: np.ndarray, n_edge: int, mouth_y: float) -> np.ndarray:
-    """(HEAD_RINGS + 1, n_edge + 1) how much darker the neck's skin is painted just under
-    the jaw (the jaw's shadow: on people it draws the jaw line a tracker follows; on a
-    uniformly lit neck the chin melts into it). 0 on the face's edge itself."""
-    p = _head_grid(hv, n_edge)
-    below = p[0, :, 1][None] - p[..., 1]  # cm under the jaw's edge, per column
-    lower = features.smoothstep((mouth_y - p[0, :, 1]) / 2.0)[None]  # columns along the jaw
-    along = np.vstack([np.zeros((1, n_edge + 1)), np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=-1), axis=0)])
-    near = 1.0 - features.smoothstep((along - 3.0) / 2.0)  # the jaw's underside, not the nape
-    return (0.45 * lower * near * features.smoothstep(below / 1.2)
-            * (1.0 - features.smoothstep((below - 2.0) / 3.0))).astype(np.float32)
-
-
-def _hair_grid(hv: np.ndarray, n_edge: int) -> np.ndarray:
-    """(HEAD_RINGS + 1, n_edge + 1) hair coverage in [0, 1] at the head shell's vertices:
-    above a hairline that runs from the forehead's edge over the ears to the nape, and
-    at least a centimetre from the face's edge (skin meets skin there)."""
-    p = _head_grid(hv, n_edge)
-    step = np.linalg.norm(np.diff(p, axis=0), axis=-1)
-    from_edge = np.vstack([np.zeros((1, n_edge + 1)), np.cumsum(step, axis=0)])
-    z_front = float(p[0, :, 2].max())
-    hairline = np.interp(p[..., 2] - z_front, [-19.0, -13.0, -8.5, -4.5], [-3.5, 0.5, 4.2, 7.5])
-    return (features.smoothstep((from_edge - 0.1) / 0.7) * features.smoothstep((p[..., 1] - hairline) / 1.2)).astype(np.float32)
 
 
 def _pose_displacements(pose: str) -> np.ndarray:
