@@ -8,7 +8,7 @@ package is exported (``git archive``) into a temporary folder as ``capture2face_
 both packages draw their own default avatar with ``run``'s render options (wrinkles
 ``auto``, the influence view from the same draw, one sample + FXAA on a software GL) in
 their own GL contexts, and the two alternate round by round, the first one swapping each
-round. Each round renders the same head sweep (``render.benchmark.sweep_states``).
+round. Each round renders the same head sweep (``eval.render_speed.sweep_states``).
 
 Prints one JSON object: per version the median wall and processor milliseconds a frame,
 and the medians of the per-round ratios ``rate_ratio`` (this tree's frames per second over
@@ -52,7 +52,10 @@ def renderer(package: str, size: int, frames: int):
     import importlib
 
     render = importlib.import_module(f"{package}.render")
-    benchmark = importlib.import_module(f"{package}.render.benchmark")
+    try:  # the render-speed module's home since the layered package (issue 23)
+        benchmark = importlib.import_module(f"{package}.eval.render_speed")
+    except ModuleNotFoundError:
+        benchmark = importlib.import_module(f"{package}.render.benchmark")
     pipeline = importlib.import_module(f"{package}.pipeline")
     avatar = importlib.import_module(f"{package}.rig.avatar")
     rig = avatar.default_avatar()

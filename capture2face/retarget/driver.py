@@ -307,7 +307,7 @@ def _retarget_arkit(track, rig, options: RetargetOptions) -> Animation:
     curves = arkit_curves(track)
     weights = arkit_weights(list(track.blendshape_names), curves, rig.morph_names)
     bones = np.repeat(rig.bone_rest[None].astype(np.float32), track.n_frames, 0)
-    # Automatic feature points (rig.auto_wrinkles) measure the influences where the
+    # Automatic feature points (character.auto_wrinkles) measure the influences where the
     # morphs carry them; as bones they stay at rest (the morphs deform the face).
     return _animation(track, rig, bones, weights, curves, options,
                       influence_bones=_per_frame(lambda w: feature_positions(rig, w), weights))

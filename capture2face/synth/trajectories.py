@@ -80,7 +80,7 @@ class Performance:
 # ---- head pose ------------------------------------------------------------------------
 
 def head_poses(rig: FaceRig, angles_deg: np.ndarray, offset: np.ndarray, fov_y: float = DEFAULT_FOV_Y) -> np.ndarray:
-    """``render.camera.framing_pose`` for each frame's angles, translated by ``offset``.
+    """``camera.framing_pose`` for each frame's angles, translated by ``offset``.
 
     Args:
         angles_deg: (F, 3) yaw, pitch, roll.

@@ -45,12 +45,12 @@ class SyntheticTruth:
             landmark (morphs then skinning), head coordinates; NaN where the rig has no
             vertex for the landmark (``rig.landmark_vertices == -1``).
         landmarks_px: (F, L, 2) float32 their projection into the image (x right, y down,
-            pixel centres at +0.5), ``render.camera.project``; NaN where landmarks_head is.
+            pixel centres at +0.5), ``camera.project``; NaN where landmarks_head is.
         face_visible: (F,) bool, at least half the canonical 468 landmarks project inside
             the image in front of the camera.
         pose_names: P reference-pose names.
         influences: (F, P, B) float32 grouped per-bone pose influences of the true bones
-            (``retarget.influences.rig_influences``, Dutreve §5.1).
+            (``rig.influences.rig_influences``, Dutreve §5.1).
         region_names: R region names.
         region_influence: (F, R, P) float32 mean per-vertex influence over each region.
         zone_names: the 8 zone names.
