@@ -5,7 +5,6 @@ import sys
 
 import capture2face
 
-
 # Each top-level name -> the stage (sub)package that owns it, by its stable path.
 API = {
     "CaptureError": "capture2face.errors",

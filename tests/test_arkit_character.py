@@ -15,11 +15,11 @@ import pytest
 from test_arkit import NAMES, synthetic_track
 
 from capture2face.errors import CaptureError
+from capture2face.gltf import import_glb
 from capture2face.gltf.arkit_export import export_arkit_character, part_order
+from capture2face.gltf.container import ARRAY_BUFFER, GlbBuilder, GlbReader
 from capture2face.rig.arkit_names import arkit_morphs, canonical_arkit, drive_mode
 from capture2face.rig.avatar import default_avatar
-from capture2face.gltf.container import ARRAY_BUFFER, GlbBuilder, GlbReader
-from capture2face.gltf import import_glb
 
 
 @pytest.fixture(scope="module")
@@ -252,9 +252,9 @@ def _accessor(gltf, binary: bytes, index: int) -> np.ndarray:
 def test_animation_glb_of_the_users_character(tmp_path, avatar, skeleton):
     import pygltflib
 
+    from capture2face.camera import face_centre_and_height, rotation_ypr
     from capture2face.gltf.animation_export import head_rotations
     from capture2face.gltf.character import export_character_animation
-    from capture2face.camera import face_centre_and_height, rotation_ypr
     from capture2face.retarget import retarget
 
     src = tmp_path / "char.glb"

@@ -130,8 +130,8 @@ def test_track_option_bounds_are_one_set_for_run_track_and_the_landmarker(flag, 
 
 
 def test_neutral_frame_check_allows_for_estimated_frame_counts():
-    from capture2face.pipeline.preflight import check_neutral_frame
     from capture2face.io.video_input import open_video
+    from capture2face.pipeline.preflight import check_neutral_frame
 
     info = open_video(SAMPLE)
     assert info.n_frames == 120 and info.n_frames_exact

@@ -8,14 +8,14 @@ import re
 
 import numpy as np
 import pytest
+from gltf_validator import problems, validate
 
 from capture2face.errors import CaptureError
-from capture2face.gltf.animation_export import head_rotations, read_animation_keyframe_count, read_glb_animation
 from capture2face.export.livelink import HEADER, head_angles, timecodes, write_livelink_csv
+from capture2face.gltf import export_glb, import_glb
+from capture2face.gltf.animation_export import head_rotations, read_animation_keyframe_count, read_glb_animation
 from capture2face.retarget.animation import Animation
 from capture2face.rig.face_rig import REGION_NAMES, ZONE_NAMES
-from capture2face.gltf import export_glb, import_glb
-from gltf_validator import problems, validate
 
 # Copied character for character from issue 6.
 ISSUE_HEADER = "Timecode,BlendShapeCount,EyeBlinkLeft,EyeLookDownLeft,EyeLookInLeft,EyeLookOutLeft,EyeLookUpLeft,EyeSquintLeft,EyeWideLeft,EyeBlinkRight,EyeLookDownRight,EyeLookInRight,EyeLookOutRight,EyeLookUpRight,EyeSquintRight,EyeWideRight,JawForward,JawRight,JawLeft,JawOpen,MouthClose,MouthFunnel,MouthPucker,MouthRight,MouthLeft,MouthSmileLeft,MouthSmileRight,MouthFrownLeft,MouthFrownRight,MouthDimpleLeft,MouthDimpleRight,MouthStretchLeft,MouthStretchRight,MouthRollLower,MouthRollUpper,MouthShrugLower,MouthShrugUpper,MouthPressLeft,MouthPressRight,MouthLowerDownLeft,MouthLowerDownRight,MouthUpperUpLeft,MouthUpperUpRight,BrowDownLeft,BrowDownRight,BrowInnerUp,BrowOuterUpLeft,BrowOuterUpRight,CheekPuff,CheekSquintLeft,CheekSquintRight,NoseSneerLeft,NoseSneerRight,TongueOut,HeadYaw,HeadPitch,HeadRoll,LeftEyeYaw,LeftEyePitch,LeftEyeRoll,RightEyeYaw,RightEyePitch,RightEyeRoll"

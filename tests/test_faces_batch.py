@@ -9,13 +9,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import shared_clip
 
 from capture2face.batch import _failure_line, resume_check, run_batch
 from capture2face.errors import CaptureError
 from capture2face.pipeline import OUTPUT_FILES, RunOptions, options_json
 from capture2face.tracking import TrackOptions, track_clip
-
-from conftest import shared_clip
 
 CHEAP = dict(size=64, compare=False)
 
@@ -28,8 +27,8 @@ def two_faces(tmp_path_factory) -> Path:
     (face 0) and a smaller one on the right (face 1)."""
     import cv2
 
-    from capture2face.io.video_output import VideoWriter
     from capture2face.io.video_input import iter_frames
+    from capture2face.io.video_output import VideoWriter
 
     src = shared_clip("d3.mp4")
     path = tmp_path_factory.mktemp("faces") / "two.mp4"

@@ -11,7 +11,13 @@ import numpy as np
 import pytest
 
 from capture2face.measures import (
-    MEASURES, ClipFidelity, character_measures, compare, direct_weights, faithful, lowpass,
+    MEASURES,
+    ClipFidelity,
+    character_measures,
+    compare,
+    direct_weights,
+    faithful,
+    lowpass,
     measures_from_points,
 )
 from capture2face.rig.avatar import default_avatar

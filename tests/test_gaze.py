@@ -89,9 +89,9 @@ def test_animation_glb_turns_the_eye_joints(avatar, tmp_path):
     sys.path.insert(0, str(Path(__file__).parent))
     from gltf_validator import validate
 
+    from capture2face.gltf import export_glb, import_glb
     from capture2face.gltf.animation_export import read_glb_animation
     from capture2face.rig.face_rig import eye_rotation_matrices
-    from capture2face.gltf import export_glb, import_glb
     from tests.test_export import make_animation
 
     truth, _, _ = _gaze_clip(avatar, frames=20)

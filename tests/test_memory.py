@@ -12,6 +12,7 @@ import pytest
 import capture2face.retarget.driver as retarget_mod
 import capture2face.tracking.tracker as tracking_mod
 from capture2face.io.framestore import FrameArray, take_points
+from capture2face.io.video_input import VideoInfo
 from capture2face.retarget import RetargetOptions, retarget
 from capture2face.retarget.windows import SpilledMedian, frame_windows
 from capture2face.rig.avatar import default_avatar
@@ -20,7 +21,6 @@ from capture2face.tracking import Track, TrackOptions, build_track
 from capture2face.tracking.filtering import CausalOneEuro, OneEuro, one_euro
 from capture2face.tracking.head_pose import canonical_mesh
 from capture2face.tracking.landmarker import BLENDSHAPE_NAMES, N_LANDMARKS, FaceObservation
-from capture2face.io.video_input import VideoInfo
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_retarget import perfect_track  # noqa: E402

@@ -11,7 +11,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from conftest import shared_clip
 
 LIVELINK_HEADER = (
@@ -42,9 +41,9 @@ def video_stats(path: Path) -> tuple[int, float, int, int]:
 
 def check_outputs(folder: Path, clip: Path) -> dict:
     """Every check of issue 6 on one run's output folder; returns its report."""
+    from capture2face.gltf import import_glb
     from capture2face.gltf.animation_export import read_animation_keyframe_count, read_glb_animation
     from capture2face.retarget.animation import Animation
-    from capture2face.gltf import import_glb
     from capture2face.tracking.track import Track
 
     assert sorted(p.name for p in folder.iterdir()) == sorted(OUTPUTS)
@@ -249,9 +248,9 @@ def test_compare_frame_puts_landmarks_on_the_source_pixels():
 
 
 def test_characters_load_from_npz_glb_and_builtin_names(tmp_path):
+    from capture2face.gltf import export_glb
     from capture2face.pipeline import load_character
     from capture2face.rig.avatar import default_avatar
-    from capture2face.gltf import export_glb
 
     wide = default_avatar(variant="wide")
     wide.save(tmp_path / "wide.npz")
@@ -266,10 +265,10 @@ def test_characters_load_from_npz_glb_and_builtin_names(tmp_path):
 
 @pytest.mark.slow
 def test_run_with_a_glb_character(sample_clip, tmp_path):
+    from capture2face.gltf import export_glb
     from capture2face.pipeline import RunOptions, run
     from capture2face.retarget.animation import Animation
     from capture2face.rig.avatar import default_avatar
-    from capture2face.gltf import export_glb
 
     wide = default_avatar(variant="wide")
     export_glb(wide, tmp_path / "hero.glb")
@@ -307,8 +306,8 @@ def test_a_face_that_leaves_the_frame_keeps_every_frame(tmp_path):
 
 
 def test_avatar_follows_the_tracked_head_rotation_centred():
-    from capture2face.pipeline import avatar_head_poses, load_character
     from capture2face.camera import framing_pose, rotation_matrix
+    from capture2face.pipeline import avatar_head_poses, load_character
 
     rig = load_character(None)
     tracked = np.tile(np.eye(4), (3, 1, 1))
@@ -331,8 +330,7 @@ def test_encoders_get_threads_only_where_cores_are_free():
 
 @pytest.mark.slow
 def test_exports_written_beside_the_render_where_cores_are_free(sample_run, sample_clip, tmp_path, monkeypatch):
-    from capture2face.pipeline import RunOptions, run
-    from capture2face.pipeline import runner
+    from capture2face.pipeline import RunOptions, run, runner
 
     monkeypatch.setattr(runner, "free_cores", lambda: 8)  # the exports go in a thread beside the render
     report = run(sample_clip, tmp_path, RunOptions(size=SIZE), progress=False)

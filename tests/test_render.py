@@ -167,8 +167,8 @@ RIGS = ["rig", "avatar"]  # the test patch (UV seam, known layout) and the defau
 # ---------------------------------------------------------------------------------------
 # Helpers
 
-from capture2face.render import FrameState, Renderer, RenderOptions, heatmap  # noqa: E402
 from capture2face.camera import framing_pose, project  # noqa: E402
+from capture2face.render import FrameState, Renderer, RenderOptions, heatmap  # noqa: E402
 from capture2face.render.dynamic import dynamic_wrinkle_weights  # noqa: E402
 from capture2face.render.normal_blend import oat_blend, pd_decode, pd_encode  # noqa: E402
 

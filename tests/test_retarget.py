@@ -14,16 +14,15 @@ import pytest
 from scipy.optimize import minimize
 
 from capture2face.retarget import RetargetOptions, retarget, retarget_ms_per_frame
-from capture2face.rig import influences as inf
 from capture2face.retarget.animation import Animation
 from capture2face.retarget.rbf import fit_feature_map
 from capture2face.retarget.solve import LinearRigModel, LinearSolver
+from capture2face.rig import influences as inf
 from capture2face.rig.avatar import default_avatar
 from capture2face.rig.deform import deform
 from capture2face.synth.trajectories import random_performance
 from capture2face.tracking.landmarker import BLENDSHAPE_NAMES
 from capture2face.tracking.track import Track
-
 
 # The defaults carry strong morph priors and half-trust the tracker's depth motion, tuned
 # for a real tracker's noise; a noise-free track is recovered exactly with weak priors and

@@ -5,15 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from capture2face.rig.influences import rig_influences
 from capture2face.rig import avatar as avatar_mod
-from capture2face.rig import avatar_parts
+from capture2face.rig import avatar_parts, mesh_ops
 from capture2face.rig import maps as maps_mod
-from capture2face.rig import mesh_ops
 from capture2face.rig.avatar import BONES, default_avatar
 from capture2face.rig.canonical import load_canonical_mesh
 from capture2face.rig.deform import deform
 from capture2face.rig.face_rig import REGION_NAMES, ZONE_NAMES, FaceRig
+from capture2face.rig.influences import rig_influences
 
 REQUIRED_MORPHS = ["jawOpen", "eyeBlinkLeft", "eyeBlinkRight", "mouthSmileLeft", "mouthSmileRight",
                    "mouthFunnel", "mouthPucker", "browInnerUp", "browDownLeft", "browDownRight", "cheekPuff"]
@@ -150,8 +149,8 @@ def test_rotation_conventions_shared_by_camera_and_eyes():
     """One rotation_ypr (no GL import) for the camera and the eyes: its axes, and the eyes'
     Ry(yaw) Rx(pitch) with the pitch tipping the gaze down."""
     from capture2face import camera
-    from capture2face.rig.face_rig import eye_rotation_matrices
     from capture2face.maths.rotations import rotation_ypr
+    from capture2face.rig.face_rig import eye_rotation_matrices
 
     assert camera.rotation_ypr is rotation_ypr  # the old import path still works
     z, x = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])

@@ -8,7 +8,12 @@ import pytest
 from capture2face.rig.influences import group_influences, pose_influences
 from capture2face.synth import SynthOptions, render_performance
 from capture2face.synth.trajectories import (
-    KEY_NEUTRAL, KEY_POSE0, PITCH_LIMIT, ROLL_LIMIT, YAW_LIMIT, random_performance,
+    KEY_NEUTRAL,
+    KEY_POSE0,
+    PITCH_LIMIT,
+    ROLL_LIMIT,
+    YAW_LIMIT,
+    random_performance,
 )
 from capture2face.synth.truth import SyntheticTruth, compute_truth, truth_path
 

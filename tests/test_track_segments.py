@@ -10,10 +10,9 @@ import av
 import numpy as np
 import pytest
 
-from capture2face.tracking import TrackOptions, track_clip
-from capture2face.tracking import segments
-from capture2face.tracking.tracker import Tracker
 from capture2face.io.video_input import frame_times, iter_frames, iter_segment, open_video
+from capture2face.tracking import TrackOptions, segments, track_clip
+from capture2face.tracking.tracker import Tracker
 
 EYES = (33, 263)
 

@@ -16,6 +16,7 @@ from capture2face.pipeline.options import (
     options_json,
     run_render_options,
 )
+from capture2face.pipeline.render_pass import RenderPass, render_stage
 from capture2face.pipeline.report import outputs_complete
 from capture2face.pipeline.runner import run
 from capture2face.pipeline.stages import (
@@ -28,6 +29,6 @@ from capture2face.pipeline.stages import (
     track_stage,
 )
 
-__all__ = ["OUTPUT_FILES", "RunOptions", "avatar_head_poses", "avatar_head_rotations", "encoder_threads",
-           "export_stage", "load_character", "options_json", "outputs_complete", "retarget_stage", "run",
+__all__ = ["OUTPUT_FILES", "RenderPass", "RunOptions", "avatar_head_poses", "avatar_head_rotations", "encoder_threads",
+           "export_stage", "load_character", "options_json", "outputs_complete", "render_stage", "retarget_stage", "run",
            "run_render_options", "start_track_workers", "track_stage"]
