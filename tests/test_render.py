@@ -371,7 +371,6 @@ def test_stretch_wrinkles_inside_forehead_only(rendered, blend):
     assert (diff[inside] > 0).mean() > 0.6 and diff[inside].max() >= 30
 
 
-
 # ---------------------------------------------------------------------------------------
 # The default avatar's automatic wrinkles read clearly, and fade with the influence.
 

@@ -472,7 +472,6 @@ def test_pose_influences_are_one_at_each_pose_and_zero_at_rest(rig):
         assert inf[1 + k, k, 0] == 0.0
 
 
-
 def test_forehead_and_glabella_follow_the_brows(rig):
     """Their skin is weighted to the brow bones (Dutreve bone masks), so at the reference
     poses their per-vertex wrinkle influence is close to 1; the hairline stays partly
@@ -489,6 +488,7 @@ def test_forehead_and_glabella_follow_the_brows(rig):
     outer = max(mesh_ops.boundary_loops(skin_tris), key=len)
     hairline = outer[rig.vertices[outer, 1] > rig.vertices[[105, 334], 1].max() + 1.0]
     assert len(hairline) >= 5 and dense[hairline, 0].min() >= 0.3
+
 
 def test_regions(rig):
     assert rig.region_names == REGION_NAMES

@@ -37,6 +37,8 @@ def part_order(rig: FaceRig) -> np.ndarray:
     """(V,) the rig's vertex indices in the order the export writes them: one mesh per
     material code, in code order."""
     return np.concatenate([np.flatnonzero(rig.material == c) for c in np.unique(rig.material)])
+
+
 _MOVES = 1e-6  # cm: a morph whose deltas on a mesh stay below this does not go on it
 
 

@@ -89,7 +89,6 @@ class RunOptions:
                             face=self.face, workers=self.track_workers)
 
 
-
 def run_render_options(options: RunOptions):
     """The :class:`~capture2face.render.RenderOptions` of ``run``'s character view (with
     ``compare``, its influence view comes out of the same draw)."""
@@ -99,7 +98,6 @@ def run_render_options(options: RunOptions):
         samples = 1 if fxaa else 4
     return RenderOptions(size=int(options.size), wrinkles=options.wrinkles, samples=int(samples), fxaa=fxaa,
                          influence_output=bool(options.compare))
-
 
 
 def options_json(options: RunOptions) -> dict:

@@ -20,7 +20,6 @@ def outputs_complete(folder: str | os.PathLike) -> bool:
     return bool(names) and all((folder / name).is_file() and (folder / name).stat().st_size > 0 for name in names)
 
 
-
 def track_warnings(track, options: RunOptions | None = None) -> list[str]:
     out = []
     missing = track.n_frames - track.tracked_frames

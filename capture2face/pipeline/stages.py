@@ -112,7 +112,6 @@ def avatar_head_rotations(rig: FaceRig, head_pose: np.ndarray) -> np.ndarray | N
     return np.ascontiguousarray(np.asarray(head_pose, np.float32)[:, :3, :3])
 
 
-
 def encoder_threads(software_gl: bool, cores: int | None = None) -> int:
     """x264 threads for each of ``run``'s two encoders. A software rasterizer (llvmpipe
     runs one thread per core) and small machines: one each, in threads of their own (x264's
