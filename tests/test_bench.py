@@ -71,9 +71,10 @@ def test_bench_cli_reports_every_figure(tmp_path):
     assert 0.3 * wall < timed < wall, (timed, wall)
     # MediaPipe alone is part of tracking: its calls take less time than the whole stage.
     assert frames / figures["mediapipe_fps"] < stage_s["track"]
-    # The run's own clock (report.json's seconds) sits inside the bench's clock of it.
+    # The run's own clock (report.json's seconds) sits inside the bench's clock of it; what
+    # lies outside (closing the segment workers) is short, even on a loaded machine.
     total = figures["end_to_end_seconds"]["total"]
-    assert total <= stage_s["end_to_end"] <= total + 2.0
+    assert total <= stage_s["end_to_end"] <= total + max(2.0, 0.25 * total)
     # Processor time: no stage used more than its wall time on every core, and all of them
     # together no more than the process (and its waited-for workers) used in all.
     cpu = figures["cpu_ms_per_frame"]
