@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 from capture2face import batch, bench, pipeline
-from capture2face.errors import CaptureError, install_process_defaults
+from capture2face.errors import CaptureError, exit_interrupted, install_process_defaults
 from capture2face.eval.fidelity import evaluate_fidelity, table
 from capture2face.eval.synthetic import evaluate_synthetic, summary_line
 from capture2face.gltf import export_glb
@@ -353,7 +353,6 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     install_process_defaults()
     if argv is None:  # the process is the command (not a caller's main(args))
-
         defer_pyplot()  # it imports MediaPipe, never matplotlib
     try:
         return int(args.func(args) or 0)
@@ -371,6 +370,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.debug:
             raise
         print("capture2face: interrupted", file=sys.stderr)
+        if argv is None:
+            exit_interrupted()
         return 130
 
 

@@ -1,6 +1,7 @@
 """Errors a user can fix (the CLI prints them as one line and exits with code 2), and the
 process set-up that makes interruptions clean."""
 
+import atexit
 import os
 import signal
 import sys
@@ -52,3 +53,21 @@ def install_process_defaults() -> None:
     sys.unraisablehook = _unraisable
     os.environ.setdefault("GLOG_minloglevel", "2")
     os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
+
+
+def exit_interrupted() -> None:
+    """End this process now with exit code 130 (interrupted), after its exit handlers.
+
+    CPython ends a process by SIGINT, whatever exit code it was given, once a
+    KeyboardInterrupt has left an ``exec`` or ``eval`` of a string (a dataclass being
+    defined while a module imports, say), even where the program caught it afterwards: a
+    signal landing there turned the command's 130 into a death by SIGINT. Only for the
+    process that is the command (its staged outputs are already cleaned up by then).
+    """
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(130)

@@ -240,6 +240,28 @@ def test_truncated_clip_can_be_salvaged_on_request(sample_clip, tmp_path):
         assert sum(1 for _ in c.decode(video=0)) == report["frames"]
 
 
+INTERRUPT_IN_EXEC = """
+import sys
+from capture2face import cli
+def interrupted(args):  # as if the signal landed while a dataclass was being defined
+    exec("raise KeyboardInterrupt")
+cli._cmd_avatar = interrupted
+sys.argv = ["capture2face", "avatar"]
+raise SystemExit(cli.main())
+"""
+
+
+def test_an_interrupt_inside_an_exec_still_exits_130(tmp_path):
+    """Run as ``python -m`` (as the tests and users run it), CPython ends a process by
+    SIGINT once a KeyboardInterrupt has left an exec of a string, even a caught one; the
+    command exits 130 all the same."""
+    (tmp_path / "interrupt_in_exec.py").write_text(INTERRUPT_IN_EXEC)
+    done = subprocess.run([sys.executable, "-m", "interrupt_in_exec"], capture_output=True, text=True, env=ENV,
+                          cwd=tmp_path, timeout=120)
+    assert done.returncode == 130, (done.returncode, done.stderr[-2000:])
+    assert done.stderr.strip() == "capture2face: interrupted"
+
+
 def test_an_interrupt_swallowed_by_a_finalizer_is_not_lost(monkeypatch):
     """A signal that lands in a weakref callback is dropped by Python ("Exception ignored");
     the handler's flag makes the next stage boundary raise it again, and the ignored
