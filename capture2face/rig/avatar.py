@@ -44,32 +44,22 @@ from capture2face.rig import (
     maps,
     mesh_ops,
 )
-from capture2face.rig.avatar_landmarks import (  # noqa: F401 (also re-exported)
-    BROW_INNER_R,
-    BROW_OUTER_R,
+from capture2face.rig.avatar_landmarks import (
     BROW_R,
     EYE_RINGS,
     LIP_INNER_CORNERS,
     LIP_LOWER_LINES,
     LIP_UPPER_LINES,
 )
-from capture2face.rig.avatar_morphs import (  # noqa: F401 (also re-exported)
-    JAW_OPEN_RAD,
-    JAW_PIVOT,
+from capture2face.rig.avatar_morphs import (
     MorphBuilder,
     build_morphs,
     jaw_morphs,
     mirror_map,
 )
-from capture2face.rig.avatar_parts import (  # noqa: F401 (also re-exported)
+from capture2face.rig.avatar_parts import (
     FACE_BLEND_RINGS,
-    HEAD_POLE,
     HEAD_RINGS,
-    IRIS_RADIUS_CM,
-    NECK_BOTTOM_Y,
-    TEETH,
-    TEETH_BEHIND_LIPS_CM,
-    TOOTH_THICKNESS,
     ear,
     eyeball,
     hair_grid,
