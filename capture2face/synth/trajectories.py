@@ -12,7 +12,7 @@ neutral-frame search finds it), then the "stretch" and the "compress" reference 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 from scipy.interpolate import PchipInterpolator
@@ -143,29 +143,28 @@ class _KeyDraws:
 
 
 @dataclass
+class _Values:
+    """The performance's values at N times (its keys, or every frame), float64."""
+
+    bones: np.ndarray  # (N, B, 3) cm, head coordinates
+    weights: np.ndarray  # (N, M) morph weights
+    angles: np.ndarray  # (N, 3) yaw, pitch, roll (degrees)
+    offset: np.ndarray  # (N, 3) head translation (cm, camera axes)
+    light: np.ndarray  # (N, 3) light directions
+    gaze: np.ndarray  # (N, 2, 2) eye yaw, pitch (degrees)
+
+    def map(self, fn) -> "_Values":
+        """``fn`` applied to every array."""
+        return _Values(*(fn(getattr(self, f.name)) for f in fields(self)))
+
+
+@dataclass
 class _Keys:
     """The performance at its keys: frame indices, values and ``key_pose`` labels."""
 
     keys: np.ndarray  # (K,) frame indices
-    bones: np.ndarray
-    weights: np.ndarray
-    angles: np.ndarray
-    offset: np.ndarray
-    light: np.ndarray
-    gaze: np.ndarray
+    values: _Values
     label: np.ndarray  # (K,) KEY_FREE, KEY_NEUTRAL or KEY_POSE0 + p
-
-
-@dataclass
-class _Curves:
-    """The performance interpolated at every frame (float64)."""
-
-    bones: np.ndarray
-    weights: np.ndarray
-    angles: np.ndarray
-    offset: np.ndarray
-    light: np.ndarray
-    gaze: np.ndarray
 
 
 def _pose_space(rig: FaceRig) -> _PoseSpace:
@@ -205,21 +204,21 @@ def _key_values(rig: FaceRig, keys: np.ndarray, d: _KeyDraws, space: _PoseSpace,
         angles[:] = 0.0
         offset[:] = 0.0
     angles[0] *= 0.3  # start near frontal so the tracker locks on at once
-    return _Keys(keys, bones, weights, angles, offset, d.light, d.gaze, label)
+    return _Keys(keys, _Values(bones, weights, angles, offset, d.light, d.gaze), label)
 
 
 def _hold_one_expression(rig: FaceRig, k: _Keys, d: _KeyDraws, space: _PoseSpace) -> None:
     """One mild expression, held throughout (``expression=False``)."""
     K, travel, si, ci = len(k.keys), space.travel, space.si, space.ci
-    k.bones[:] = space.rest + 0.35 * travel[si] + 0.15 * travel[ci] + 0.5 * d.offsets[K // 2]
-    k.weights[:] = np.clip(0.35 * rig.pose_morph_weights[si] + 0.15 * rig.pose_morph_weights[ci]
+    k.values.bones[:] = space.rest + 0.35 * travel[si] + 0.15 * travel[ci] + 0.5 * d.offsets[K // 2]
+    k.values.weights[:] = np.clip(0.35 * rig.pose_morph_weights[si] + 0.15 * rig.pose_morph_weights[ci]
                            + 0.5 * d.morphs[K // 2], 0, 1)
 
 
 def _place_reference_poses(rig: FaceRig, k: _Keys, rest: np.ndarray) -> None:
     """Neutral on key 0, the reference poses on the free keys nearest evenly spread
     fractions of the clip (clear of the face-exit window in the middle)."""
-    keys, n_poses = k.keys, len(rig.pose_names)
+    keys, values, n_poses = k.keys, k.values, len(rig.pose_names)
     fractions = np.linspace(0.2, 0.85, n_poses) if n_poses > 1 else np.array([0.3])
     slots = [0]
     for fr in fractions:  # interior keys only; there are at least n_poses + 1
@@ -227,11 +226,11 @@ def _place_reference_poses(rig: FaceRig, k: _Keys, rest: np.ndarray) -> None:
         slots.append(int(next(i for i in order if i not in slots)))
     for p, i in enumerate(slots):
         if p == 0:
-            k.bones[i], k.weights[i], k.label[i] = rest, 0.0, KEY_NEUTRAL
-            k.gaze[i] = 0.0
+            values.bones[i], values.weights[i], k.label[i] = rest, 0.0, KEY_NEUTRAL
+            values.gaze[i] = 0.0
         else:
-            k.bones[i] = rig.pose_bones[p - 1]
-            k.weights[i] = rig.pose_morph_weights[p - 1]
+            values.bones[i] = rig.pose_bones[p - 1]
+            values.weights[i] = rig.pose_morph_weights[p - 1]
             k.label[i] = KEY_POSE0 + p - 1
 
 
@@ -243,42 +242,34 @@ def _hold_labelled_keys(k: _Keys, hold: int, frames: int) -> _Keys:
     rep = np.where(label != KEY_FREE, 2, 1)
     end_keys = keys + dup
     keys = np.stack([keys, end_keys], 1)[np.arange(2)[None] < rep[:, None]]
-    bones, weights = (np.repeat(x, rep, 0) for x in (k.bones, k.weights))
-    angles, offset, light, label, gaze = (np.repeat(x, rep, 0) for x in (k.angles, k.offset, k.light, label, k.gaze))
     keys[-1] = frames - 1  # absorb rounding
-    return _Keys(keys, bones, weights, angles, offset, light, gaze, label)
+    return _Keys(keys, k.values.map(lambda x: np.repeat(x, rep, 0)), np.repeat(label, rep, 0))
 
 
-def _interpolate(k: _Keys, f: np.ndarray) -> _Curves:
+def _interpolate(k: _Keys, f: np.ndarray) -> _Values:
     """Monotone cubic (PCHIP) through the keys at frames ``f``; weights clipped to [0, 1],
     light directions normalized."""
-    frames = len(f)
-
     def interp(values: np.ndarray) -> np.ndarray:
         flat = values.reshape(len(values), -1)
-        return PchipInterpolator(k.keys, flat, axis=0)(f).reshape((frames,) + values.shape[1:])
+        return PchipInterpolator(k.keys, flat, axis=0)(f).reshape((len(f),) + values.shape[1:])
 
-    bone_f = interp(k.bones)
-    weight_f = np.clip(interp(k.weights), 0.0, 1.0)
-    angle_f = interp(k.angles)
-    offset_f = interp(k.offset)
-    light_f = interp(k.light)
-    gaze_f = interp(k.gaze)
-    light_f /= np.linalg.norm(light_f, axis=1, keepdims=True)
-    return _Curves(bone_f, weight_f, angle_f, offset_f, light_f, gaze_f)
+    out = k.values.map(interp)
+    out.weights = np.clip(out.weights, 0.0, 1.0)
+    out.light /= np.linalg.norm(out.light, axis=1, keepdims=True)
+    return out
 
 
-def _exact_holds(k: _Keys, c: _Curves, frames: int) -> np.ndarray:
+def _exact_holds(k: _Keys, c: _Values, frames: int) -> np.ndarray:
     """Exact values on held frames (interpolation is exact there up to rounding); returns
     the (F,) ``key_pose`` labels."""
     key_pose = np.full(frames, KEY_FREE, np.int8)
-    keys, label = k.keys, k.label
+    keys, label, at = k.keys, k.label, k.values
     for i in range(0, len(keys) - 1):
         if label[i] != KEY_FREE and label[i + 1] == label[i]:
             span = slice(keys[i], keys[i + 1] + 1)
             key_pose[span] = label[i]
-            c.bones[span], c.weights[span] = k.bones[i], k.weights[i]
-            c.gaze[span] = k.gaze[i]
+            c.bones[span], c.weights[span] = at.bones[i], at.weights[i]
+            c.gaze[span] = at.gaze[i]
     return key_pose
 
 
