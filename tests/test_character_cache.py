@@ -97,3 +97,25 @@ def test_an_unwritable_cache_warns_and_still_loads(tmp_path, monkeypatch, counte
     rig = load.load_character(char)
     assert is_automatic(rig) and counted == [1]
     assert any("cannot cache the prepared character" in r.getMessage() for r in caplog.records)
+
+
+def test_only_the_most_recently_used_entries_stay(tmp_path, monkeypatch, counted):
+    monkeypatch.setattr(prepared, "KEEP", 2)
+    chars = []
+    for k, naming in enumerate(("_L", ".L", "arkit")):
+        char = tmp_path / str(k) / "hero.glb"
+        char.parent.mkdir()
+        export_arkit_character(default_avatar(), char, naming=naming)
+        chars.append(char)
+    load.load_character(chars[0])
+    load.load_character(chars[1])
+    _fresh_process(monkeypatch)
+    load.load_character(chars[0])  # read back: now the most recent
+    load.load_character(chars[2])  # a third: the least recently used (chars[1]) goes
+    assert len(list(prepared.prepared_dir().glob("*.rig.npz"))) == 2
+    assert len(list(prepared.prepared_dir().glob("*.said.json"))) == 2
+    _fresh_process(monkeypatch)
+    load.load_character(chars[0])
+    assert counted == [1, 1, 1]
+    load.load_character(chars[1])
+    assert counted == [1, 1, 1, 1]

@@ -26,6 +26,7 @@ from capture2face.runtime.log import log
 
 _PACKAGE = Path(__file__).resolve().parents[1]
 _CHUNK = 1 << 20
+KEEP = 8  # prepared characters kept (the most recently used): each is 10-100 MB
 
 
 @functools.lru_cache(maxsize=1)
@@ -89,7 +90,9 @@ def load_prepared(key: str) -> tuple[FaceRig, list[str]] | None:
         return None
     try:
         said = json.loads(said_path.read_text(encoding="utf-8"))
-        return FaceRig.load(rig_path), [str(s) for s in said]
+        rig = FaceRig.load(rig_path)
+        os.utime(rig_path)  # recently used: kept by _prune
+        return rig, [str(s) for s in said]
     except (OSError, ValueError, TypeError, CaptureError) as exc:
         log.debug("prepared character %s unreadable (%s): preparing it again", key, exc)
         return None
@@ -102,6 +105,15 @@ def store_prepared(key: str, rig: FaceRig, said: list[str]) -> None:
         prepared_dir().mkdir(parents=True, exist_ok=True)
         write_bytes_atomic(prepared_dir() / f"{key}.said.json", json.dumps(said).encode())
         rig.save(prepared_dir() / f"{key}.rig.npz")
+        _prune(prepared_dir())
     except (OSError, CaptureError) as exc:
         log.warning("cannot cache the prepared character in %s (%s); it is prepared again next time",
                     prepared_dir(), exc)
+
+
+def _prune(folder: Path) -> None:
+    """Only the :data:`KEEP` most recently used entries stay."""
+    entries = sorted(folder.glob("*.rig.npz"), key=lambda p: p.stat().st_mtime_ns, reverse=True)
+    for old in entries[KEEP:]:
+        for path in (old, old.with_name(old.name.replace(".rig.npz", ".said.json"))):
+            path.unlink(missing_ok=True)
