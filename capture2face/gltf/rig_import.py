@@ -567,12 +567,15 @@ def _surface(r: GlbReader, picked: list[int], world, skel: dict, mapping: dict, 
         lin = to_scene[:3, :3]
         normal_rows = np.linalg.inv(lin)  # normals as rows: (inv(lin)^T n)^T = n^T inv(lin)
         pos = m["pos"] @ lin.T + to_scene[:3, 3]
+        weld = _welding(pos, m["tris"])
         if m["nrm"] is not None and np.isfinite(m["nrm"]).all():
             normals = m["nrm"] @ normal_rows
         else:
-            computed = vertex_normals(pos, m["tris"])
+            computed = _welded_normals(pos, weld)
             normals = computed if m["nrm"] is None else np.where(np.isfinite(m["nrm"]), m["nrm"] @ normal_rows, computed)
-        normals = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+        # A file's NORMAL deltas go through the same transform and the same normalising scale.
+        normal_scale = 1.0 / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+        normals = normals * normal_scale
         uvs = m["uv"] if m["uv"] is not None else np.zeros((len(pos), 2))
         if m["tan"] is not None and np.isfinite(m["tan"]).all():
             t = m["tan"][:, :3] @ lin.T
@@ -584,11 +587,7 @@ def _surface(r: GlbReader, picked: list[int], world, skel: dict, mapping: dict, 
         if m["joints"] is not None and ni in skel["node_joint_map"]:
             remap = skel["node_joint_map"][ni]
             bones = skel["joint_to_bone"][remap[np.clip(m["joints"], 0, len(remap) - 1)]]
-        mnrm = m["mnrm"] @ normal_rows
-        missing = ~np.isfinite(mnrm).all(axis=(1, 2))
-        for k in np.flatnonzero(missing):  # per morph without NORMAL deltas: from the morphed shape
-            mnrm[k] = np.where(np.isfinite(mnrm[k]), mnrm[k],
-                               vertex_normals(pos + m["mpos"][k] @ lin.T, m["tris"]) - normals)
+        mnrm = _morph_normal_deltas(m["mnrm"] @ normal_rows * normal_scale, m["mpos"] @ lin.T, pos, weld)
         parts.append({
             "pos": pos * scale, "normals": normals, "tangents": tangents, "uv": uvs, "tris": m["tris"] + offset,
             "material": m["material"], "gltf_material": m["gltf_material"], "bones": bones, "weights": m["weights"],
@@ -623,6 +622,45 @@ def _surface(r: GlbReader, picked: list[int], world, skel: dict, mapping: dict, 
         "weights": parts[0]["weights"] if single else None,
         "largest_material": max(parts, key=lambda p: p["tri_count"])["largest_material"],
     }
+
+
+def _welding(pos: np.ndarray, tris: np.ndarray) -> dict:
+    """One mesh's vertices welded by position (UV seams closed): ``ids`` (n,) weld id of
+    each vertex, ``first`` (W,) a vertex of each id, ``tris`` (T, 3) over weld ids."""
+    ids = _weld(pos)
+    first = np.unique(ids, return_index=True)[1]
+    return {"ids": ids, "first": first, "tris": ids[tris]}
+
+
+def _welded_normals(pos: np.ndarray, weld: dict) -> np.ndarray:
+    """(n, 3) smooth unit normals of positions ``pos`` (n, 3), welded (no seam at UV splits)."""
+    return vertex_normals(pos[weld["first"]], weld["tris"])[weld["ids"]]
+
+
+def _morph_normal_deltas(given: np.ndarray, deltas: np.ndarray, pos: np.ndarray, weld: dict) -> np.ndarray:
+    """(K, n, 3) normal deltas of one mesh's K morphs in scene space: the file's NORMAL
+    deltas (``given``, NaN where it has none), else derived from the position deltas
+    ``deltas`` (K, n, 3) at rest positions ``pos`` (n, 3): the welded smooth normals of the
+    morphed shape minus those of the rest shape, computed the same way, so they cancel
+    wherever the morph leaves a vertex's triangles alone; the delta is exactly 0 there."""
+    out = np.array(given, np.float64)
+    missing = ~np.isfinite(out).all(axis=(1, 2))
+    if not missing.any():
+        return out
+    ids, wtris = weld["ids"], weld["tris"]
+    n_weld = len(weld["first"])
+    rest = vertex_normals(pos[weld["first"]], wtris)
+    for k in np.flatnonzero(missing):
+        moved = np.zeros(n_weld, bool)
+        moved[ids[np.abs(deltas[k]).max(axis=1) > 0]] = True
+        touched = np.zeros(n_weld, bool)  # every vertex of a triangle that moved
+        touched[wtris[moved[wtris].any(axis=1)]] = True
+        derived = np.zeros((n_weld, 3))
+        if touched.any():
+            morphed = vertex_normals((pos + deltas[k])[weld["first"]], wtris)
+            derived[touched] = morphed[touched] - rest[touched]
+        out[k] = np.where(np.isfinite(out[k]), out[k], derived[ids])
+    return out
 
 
 # ---- skin -----------------------------------------------------------------------------
