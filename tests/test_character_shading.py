@@ -166,7 +166,7 @@ def _render(rig: FaceRig, weights=None, size: int = 256, eyes: bool = False, pos
 def test_combined_morphs_shade_as_the_deformed_mesh(ict_derived):
     """The frame drawn with the derived morph normals against the same frame drawn from
     the deformed mesh itself with its recomputed normals (where the file's rest normals
-    are the recomputed ones): the same brightness on the skin to a few levels."""
+    are the recomputed ones): the same brightness to a few levels but at a few pixels."""
     rig = ict_derived
     w = _weights(rig)
     positions, normals = Deformer(rig)(rig.bone_rest, w)
@@ -181,7 +181,9 @@ def test_combined_morphs_shade_as_the_deformed_mesh(ict_derived):
     face = luma(truth) > 60  # the lit head, not the background
     diff = np.abs(luma(drawn) - luma(truth))[face]
     assert face.sum() > 5000
-    assert np.percentile(diff, 99) < 12.0 and diff.mean() < 1.0
+    # Deltas against the file's normals (the old derivation): p99.9 17 levels, 48 pixels
+    # off by more than 10; derived against the recomputed rest normals: 8.6 and 8.
+    assert np.percentile(diff, 99.9) < 12.0 and (diff > 10).sum() < 25 and diff.mean() < 0.4
 
 
 def test_mask_lashes_draw_only_their_opaque_texels(ict):
