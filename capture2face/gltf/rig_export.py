@@ -24,8 +24,10 @@ What an exported .glb holds (it passes the Khronos glTF validator without errors
   A rig with turning eyes (``FaceRig.eye_centres``) gets two more joints after the
   bones, ``eye_R`` and ``eye_L`` (children of ``head``, at the eye centres): its eyeball
   vertices are skinned to them alone, so an animation turns the eyes by rotating them.
-* **Textures** (PNG): the albedo as baseColorTexture, the base normal map as
-  normalTexture; the wrinkle maps and the two RGBA zone masks as further images.
+* **Textures** (PNG): the albedo as baseColorTexture (RGBA with ``FaceRig.alpha``), the
+  base normal map as normalTexture; the wrinkle maps and the two RGBA zone masks as
+  further images. A rig with alpha modes gets one primitive per mode (and MASK cutoff),
+  on the same vertices, each with its material's ``alphaMode`` / ``alphaCutoff``.
 * **``extras.capture2face``** at the top level: everything else a FaceRig has (bone
   landmarks, groups and exact rest positions, reference poses, wrinkle-map and zone-mask
   image indices, zone table, region names, tracker landmark vertices), as JSON.

@@ -8,12 +8,22 @@ influences kept, renormalized; the skins' joints united by node), morph targets
 (POSITION and NORMAL deltas, names from ``mesh.extras.targetNames``): one FaceRig morph
 per name over every mesh that carries it, ARKit names matched in any spelling
 (:func:`~capture2face.rig.arkit_names.canonical_arkit`: ``eyeBlink_L`` on the head and
-``eyeBlinkLeft`` on the eyes are one morph). Textures: the albedo (baseColorTexture
-times baseColorFactor) and normal map (normalTexture) of the largest primitive's
-material; when the drawn meshes have different base-colour textures, every material's
-pair packed into one atlas (a grid of tiles of at most ``ATLAS_MAX`` px) with the UVs
-moved into their tile (UVs outside [0, 1] are clamped, not tiled; alpha is not read:
-everything draws opaque). Sparse accessors, ``byteStride``, normalized and quantized
+``eyeBlinkLeft`` on the eyes are one morph). NORMAL deltas are carried like the rest
+normals (the node's or bind pose's inverse transpose, with the rest normal's own
+normalising scale, so rest + sum w * delta normalised is glTF's morphed normal); a morph
+without them gets them derived: the welded smooth normals of the morphed shape minus
+those of the rest shape, exactly 0 wherever the morph leaves a vertex's triangles alone.
+Textures: the albedo (baseColorTexture times baseColorFactor) and normal map
+(normalTexture) of the largest primitive's material; when the drawn meshes need textures
+of their own (different base-colour textures, or a MASK / BLEND material whose alpha
+the largest's texture does not hold), every material's set packed into one atlas (a
+grid of tiles of at most ``ATLAS_MAX`` px) with the UVs moved into their tile (UVs
+outside [0, 1] are clamped, not tiled). Alpha: a MASK or BLEND material's base-colour
+alpha (texture times factor) goes to ``FaceRig.alpha``, its mode and cutoff to each of
+its vertices (``alpha_mode``, ``alpha_cutoff``); all None when every material is
+opaque. A texture that cannot be read (a codec we lack, a missing file): the material
+drawn with its base colour factor (or without its normal map), with a warning naming
+the image. Sparse accessors, ``byteStride``, normalized and quantized
 integer attributes (``KHR_mesh_quantization``) are handled; any other required
 extension is refused in one line naming it (:mod:`capture2face.gltf.container`).
 A .glb written by :func:`capture2face.gltf.export_glb` carries the rest of its

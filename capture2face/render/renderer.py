@@ -10,7 +10,10 @@ Wrinkle maps are uploaded as Jimenez's partial derivatives, two maps per RGBA16F
 the ``auto`` driver adds one texture fetch per pixel. A frame is two draws: the face skin
 with its normal and wrinkle maps, then everything else (eyes, mouth, the head beyond the
 face) with a program compiled without them, since a software GL runs every side of a
-branch and would run the maps' code for every pixel. The influence view can come out of
+branch and would run the maps' code for every pixel. A rig with glTF alpha modes
+(``FaceRig.alpha_mode``) adds those two draws again for its MASK triangles (discarded
+below the cutoff) and then for its BLEND ones (blended, depth not written, sorted back
+to front each frame). The influence view can come out of
 the shaded draw itself (``influence_output``: a second colour attachment), so a
 compare video costs one rasterization per frame, not two. Images are rasterized with the
 projection's y flipped, so GL's bottom-up rows read back top-down without a copy.
