@@ -60,9 +60,11 @@ relative to the JSON file)::
       "morphs": {"Fcl_MTH_A": "jawOpen", "Fcl_EYE_Close_L": "eyeBlinkLeft"}
     }
 
-* ``materials``: material name -> "skin", "eye", "mouth" (the dark mouth cavity) or
-  "teeth" (teeth and tongue); unnamed ones are guessed from the material's name (eye,
-  iris, ... -> eye; teeth, tooth, tongue -> teeth; mouth, gum -> mouth; else skin).
+* ``materials``: material name -> "skin", "eye", "mouth" (the dark mouth cavity),
+  "teeth" (teeth and tongue) or "hair" (lashes, brows, hair cards: shaded as skin, not
+  the face); unnamed ones are guessed from the material's name (lash, brow, hair, ...
+  -> hair; eye, iris, ... -> eye; teeth, tooth, tongue -> teeth; mouth, gum -> mouth;
+  else skin).
 * ``head_bone``: the joint that becomes bone 0 ``head`` (default: a joint named ``head``,
   else a synthetic root bone that takes the weight nothing else has).
 * ``bones``: joint name -> MediaPipe landmark index (0-477) the bone follows.
@@ -115,7 +117,10 @@ from capture2face.runtime.log import log
 
 N_LANDMARKS = 478
 DEFAULT_TEXTURE_SIZE = 256
-MATERIAL_CODES = {"skin": 0, "eye": 1, "mouth": 2, "teeth": 3}
+MATERIAL_CODES = {"skin": 0, "eye": 1, "mouth": 2, "teeth": 3, "hair": 4}
+# Lashes, brows and hair cards: drawn as skin, not as an eye (no glossy highlight on
+# lashes named "EyeLashes"), never the face's skin (no landmarks, no wrinkles).
+_HAIR_WORDS = ("lash", "brow", "hair", "beard", "moustache", "mustache")
 _EYE_WORDS = ("eye", "iris", "cornea", "sclera", "pupil")
 _TEETH_WORDS = ("teeth", "tooth", "tongue")
 _MOUTH_WORDS = ("mouth", "gum")
@@ -223,9 +228,9 @@ def _triangles(r: GlbReader, prim: dict, n_vertices: int) -> np.ndarray:
 
 
 def _material_code(g: dict, prim: dict, mapping: dict, mesh_name: str = "") -> int:
-    """0 skin, 1 eye, 2 mouth: the mapping's word for the material, else its name's,
-    else the mesh's name's (characters often share one material between face, eyes and
-    teeth, in meshes named after them)."""
+    """0 skin, 1 eye, 2 mouth, 3 teeth, 4 hair: the mapping's word for the material, else
+    its name's, else the mesh's name's (characters often share one material between face,
+    eyes and teeth, in meshes named after them)."""
     name = str(g.get("materials", [])[prim["material"]].get("name", "")) if "material" in prim else ""
     given = mapping.get("materials", {})
     if name in given:
@@ -234,6 +239,8 @@ def _material_code(g: dict, prim: dict, mapping: dict, mesh_name: str = "") -> i
             raise CaptureError(f"mapping: material '{name}' must be one of {sorted(MATERIAL_CODES)}")
         return code
     for text in (name.lower(), str(mesh_name).lower()):
+        if any(w in text for w in _HAIR_WORDS):
+            return 4
         if any(w in text for w in _EYE_WORDS):
             return 1
         if any(w in text for w in _TEETH_WORDS):
