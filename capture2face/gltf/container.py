@@ -64,8 +64,18 @@ def encode_png(image: np.ndarray) -> bytes:
     return buf.tobytes()
 
 
+KTX2_MAGIC = b"\xabKTX 20\xbb\r\n\x1a\n"
+
+
 def decode_image(data: bytes) -> np.ndarray:
-    """PNG/JPEG bytes -> (H, W, C) uint8 RGB or RGBA (grey images become RGB)."""
+    """PNG/JPEG/WebP/KTX2 bytes -> (H, W, C) uint8 RGB or RGBA (grey images become RGB).
+
+    KTX2 (``KHR_texture_basisu``: ETC1S or UASTC Basis, the way gltfpack ``-tc`` and
+    glTF-Transform ``etc1s``/``uastc`` write it) is transcoded with the ``alktx2``
+    package (Basis Universal) when it is installed."""
+    data = bytes(data)
+    if data[:12] == KTX2_MAGIC:
+        data = _ktx2_png(data)
     image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise ValueError("undecodable image")
@@ -76,6 +86,19 @@ def decode_image(data: bytes) -> np.ndarray:
     if image.shape[2] == 4:
         return cv2.cvtColor(image, cv2.COLOR_BGRA2RGBA)
     return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
+def _ktx2_png(data: bytes) -> bytes:
+    """A KTX2 texture's first level transcoded to PNG bytes (RGBA)."""
+    try:
+        import alktx2
+    except ImportError:
+        raise ValueError("a KTX2 texture needs the alktx2 package (pip install alktx2)") from None
+    try:
+        png, _ = alktx2.decode_ktx2_to_bytes(data, format="png")
+    except (RuntimeError, ValueError) as exc:
+        raise ValueError(f"KTX2 texture not transcodable: {exc}") from None
+    return png
 
 
 class GlbBuilder:
@@ -168,15 +191,18 @@ def _plain(value):
 
 
 # Required extensions the reader honours: quantized attributes are read like any other
-# accessor (the node's transform dequantizes them); material extensions only change
+# accessor (the node's transform dequantizes them); meshopt and Draco streams are decoded
+# with their packages; KTX2 and WebP images are decoded (a texture that still cannot be
+# read is the texture code's concern, not the file's); material extensions only change
 # the shading, which the renderer does its own way.
-SUPPORTED_REQUIRED = ("KHR_mesh_quantization", "EXT_meshopt_compression", "EXT_texture_webp")
+MESHOPT_EXTENSIONS = ("EXT_meshopt_compression", "KHR_meshopt_compression")
+DRACO = "KHR_draco_mesh_compression"
+SUPPORTED_REQUIRED = ("KHR_mesh_quantization", *MESHOPT_EXTENSIONS, DRACO, "EXT_texture_webp",
+                      "KHR_texture_basisu", "KHR_texture_transform")
 SHADING_ONLY_PREFIX = "KHR_materials_"
-_HINTS = {
-    "KHR_draco_mesh_compression": "export it again without Draco compression",
-    "KHR_texture_basisu": "export it again with PNG, JPEG or WebP textures",
-}
-MESHOPT = "EXT_meshopt_compression"
+MESHOPT = MESHOPT_EXTENSIONS[0]
+# Image sources a texture may name in an extension, tried before its plain ``source``.
+TEXTURE_SOURCE_EXTENSIONS = ("EXT_texture_webp", "KHR_texture_basisu")
 
 
 def check_required_extensions(gltf: dict, path: str) -> None:
@@ -184,46 +210,67 @@ def check_required_extensions(gltf: dict, path: str) -> None:
     line naming it (instead of a confusing error about its buffers later).
 
     Read: ``KHR_mesh_quantization`` (integer attributes, dequantized by the node's
-    transform), ``EXT_meshopt_compression`` (with the ``meshoptimizer`` package),
-    ``EXT_texture_webp`` (OpenCV decodes WebP), ``KHR_materials_*`` (shading only).
+    transform), ``EXT_meshopt_compression`` / ``KHR_meshopt_compression`` (with the
+    ``meshoptimizer`` package), ``KHR_draco_mesh_compression`` (with ``DracoPy``),
+    ``EXT_texture_webp`` (OpenCV), ``KHR_texture_basisu`` (``alktx2``),
+    ``KHR_texture_transform``, ``KHR_materials_*`` (shading only).
     """
     required = [str(e) for e in gltf.get("extensionsRequired") or []]
     missing = [e for e in required if e not in SUPPORTED_REQUIRED and not e.startswith(SHADING_ONLY_PREFIX)]
     if missing:
-        hint = next((_HINTS[e] for e in missing if e in _HINTS), "")
         raise CaptureError(f"{path}: requires the glTF extension{'s' if len(missing) > 1 else ''} "
-                           f"{', '.join(missing)}, which capture2face cannot read" + (f" ({hint})" if hint else ""))
-    if MESHOPT in required:
-        _meshoptimizer(path)
+                           f"{', '.join(missing)}, which capture2face cannot read")
+    for ext in required:
+        if ext in MESHOPT_EXTENSIONS:
+            _meshoptimizer(path, ext)
+        elif ext == DRACO:
+            _dracopy(path)
 
 
-def _meshoptimizer(path: str):
+def _meshoptimizer(path: str, ext: str = MESHOPT):
     try:
         import meshoptimizer
     except ImportError:
-        raise CaptureError(f"{path}: requires the glTF extension {MESHOPT}, which needs the meshoptimizer "
+        raise CaptureError(f"{path}: requires the glTF extension {ext}, which needs the meshoptimizer "
                            "package (pip install meshoptimizer; it builds from source with a C++ compiler)") from None
     return meshoptimizer
 
 
-def _meshopt_decode(path: str, ext: dict, data: bytes) -> bytes:
-    """The bytes of an ``EXT_meshopt_compression`` buffer view: the compressed stream
-    decoded (ATTRIBUTES, TRIANGLES, INDICES), then its filter undone."""
-    mo = _meshoptimizer(path)
+def _dracopy(path: str):
+    try:
+        import DracoPy
+    except ImportError:
+        raise CaptureError(f"{path}: requires the glTF extension {DRACO}, which needs the DracoPy package "
+                           "(pip install DracoPy), or export it again without Draco compression") from None
+    return DracoPy
+
+
+def _meshopt_decode(path: str, ext: dict, data: bytes, name: str = MESHOPT) -> bytes:
+    """The bytes of a meshopt-compressed buffer view: the compressed stream decoded
+    (ATTRIBUTES, TRIANGLES, INDICES), then its filter undone. A stream that does not
+    decode (corrupt, or a codec version newer than the installed meshoptimizer) fails
+    in one line."""
+    mo = _meshoptimizer(path, name)
     count, stride = int(ext["count"]), int(ext["byteStride"])
     mode, filt = ext.get("mode", "ATTRIBUTES"), ext.get("filter", "NONE")
-    if mode == "ATTRIBUTES":
-        out = mo.decode_vertex_buffer(count, stride, data, dtype=np.dtype((np.void, stride))).view(np.uint8)
-    elif mode in ("TRIANGLES", "INDICES"):
-        decode = mo.decode_index_buffer if mode == "TRIANGLES" else mo.decode_index_sequence
-        out = np.asarray(decode(count, stride, data)).astype(np.uint16 if stride == 2 else np.uint32).view(np.uint8)
-    else:
-        raise CaptureError(f"{path}: {MESHOPT} mode '{mode}' is unknown")
+    try:
+        if mode == "ATTRIBUTES":
+            out = mo.decode_vertex_buffer(count, stride, data, dtype=np.dtype((np.void, stride))).view(np.uint8)
+        elif mode in ("TRIANGLES", "INDICES"):
+            decode = mo.decode_index_buffer if mode == "TRIANGLES" else mo.decode_index_sequence
+            # The wrapper decodes into a uint32 array whatever the index size: its first
+            # count * stride bytes are the indices, in the file's own width.
+            out = np.asarray(decode(count, stride, data)).view(np.uint8)[: count * stride]
+        else:
+            raise CaptureError(f"{path}: {name} mode '{mode}' is unknown")
+    except (RuntimeError, ValueError) as exc:
+        raise CaptureError(f"{path}: a {name} buffer view does not decode ({exc}); the file is corrupt or "
+                           "newer than the installed meshoptimizer package") from None
     if filt != "NONE":
         undo = {"OCTAHEDRAL": mo.decode_filter_oct, "QUATERNION": mo.decode_filter_quat,
                 "EXPONENTIAL": mo.decode_filter_exp}.get(filt)
         if undo is None:
-            raise CaptureError(f"{path}: {MESHOPT} filter '{filt}' is unknown")
+            raise CaptureError(f"{path}: {name} filter '{filt}' is unknown")
         out = np.asarray(undo(np.ascontiguousarray(out), count, stride)).view(np.uint8)
     return out.tobytes()
 
@@ -247,6 +294,8 @@ class GlbReader:
         check_required_extensions(self.gltf, self.path)
         self._cache: dict[int, np.ndarray] = {}
         self._decoded: dict[int, bytes] = {}
+        self._draco = _draco_accessors(self.gltf)
+        self._draco_meshes: dict[int, Any] = {}
 
     @staticmethod
     def _parse(data: bytes) -> tuple[dict, bytes]:
@@ -291,11 +340,13 @@ class GlbReader:
 
     def view_bytes(self, index: int) -> tuple[bytes, int | None]:
         view = self.gltf["bufferViews"][index]
-        ext = (view.get("extensions") or {}).get(MESHOPT)
-        if ext is not None:
+        exts = view.get("extensions") or {}
+        name = next((e for e in MESHOPT_EXTENSIONS if e in exts), None)
+        if name is not None:
+            ext = exts[name]
             if index not in self._decoded:  # decompressed once per view
                 raw = self._slice(self._buffer(ext["buffer"]), ext.get("byteOffset", 0), ext["byteLength"], index)
-                self._decoded[index] = _meshopt_decode(self.path, ext, raw)
+                self._decoded[index] = _meshopt_decode(self.path, ext, raw, name)
             return self._decoded[index], ext.get("byteStride")
         return self._slice(self._buffer(view.get("buffer", 0)), view.get("byteOffset", 0), view["byteLength"],
                            index), view.get("byteStride")
@@ -332,7 +383,9 @@ class GlbReader:
         except (IndexError, KeyError, TypeError):
             raise CaptureError(f"{self.path}: accessor {index} is missing or malformed") from None
         count = int(acc["count"])
-        if "bufferView" in acc:
+        if index in self._draco:
+            out = self._draco_values(index, count, dtype, width)
+        elif "bufferView" in acc:
             out = self._read_dense(acc["bufferView"], acc.get("byteOffset", 0), count, dtype, width)
         else:
             out = np.zeros((count, width), dtype)
@@ -348,8 +401,34 @@ class GlbReader:
         if as_float and acc.get("normalized") and dtype.kind in "iu":
             scale = float(np.iinfo(dtype).max)
             out = np.maximum(out.astype(np.float32) / scale, -1.0)
+        if out.dtype.kind == "f" and not np.isfinite(out).all():
+            # A corrupt or mis-decoded stream: refuse it rather than draw garbage.
+            raise CaptureError(f"{self.path}: accessor {index} holds non-finite values (a corrupt file)")
         self._cache[key] = out
         return out
+
+    def _draco_values(self, index: int, count: int, dtype: np.dtype, width: int) -> np.ndarray:
+        """Accessor ``index`` of a ``KHR_draco_mesh_compression`` primitive: its attribute
+        (or the triangle list) from the decoded Draco mesh, decoded once per view."""
+        view, uid = self._draco[index]
+        if view not in self._draco_meshes:
+            raw, _ = self.view_bytes(view)
+            try:
+                self._draco_meshes[view] = _dracopy(self.path).decode(raw)
+            except Exception as exc:  # DracoPy raises its own types for a corrupt stream
+                raise CaptureError(f"{self.path}: a {DRACO} stream does not decode ({exc})") from None
+        mesh = self._draco_meshes[view]
+        if uid is None:
+            values = np.asarray(mesh.faces).reshape(-1, 1)
+        else:
+            attr = mesh.get_attribute_by_unique_id(uid)
+            if attr is None:
+                raise CaptureError(f"{self.path}: {DRACO} attribute {uid} is missing from its stream")
+            values = np.asarray(attr["data"]).reshape(len(attr["data"]), -1)
+        if values.shape != (count, width):
+            raise CaptureError(f"{self.path}: {DRACO} decoded {values.shape[0]} x {values.shape[1]} values for "
+                               f"accessor {index} ({count} x {width})")
+        return values.astype(dtype)
 
     def image(self, index: int) -> np.ndarray:
         """(H, W, C) uint8 RGB(A) of image ``index`` (embedded, data URI or file beside the glTF)."""
@@ -361,15 +440,55 @@ class GlbReader:
                 data = self._uri_bytes(img["uri"])
             return decode_image(data)
         except (OSError, ValueError, KeyError) as exc:
-            raise CaptureError(f"{self.path}: image {index} is unreadable ({exc.__class__.__name__})") from None
+            raise CaptureError(f"{self.path}: image {index} is unreadable ({exc.__class__.__name__}: {exc})") from None
 
     def texture_image(self, texture_info: dict | None) -> np.ndarray | None:
         """The image behind a material's textureInfo, or None."""
         if not texture_info:
             return None
         tex = self.gltf.get("textures", [])[texture_info["index"]]
-        # EXT_texture_webp names the WebP image in its extension (OpenCV decodes it).
-        source = ((tex.get("extensions") or {}).get("EXT_texture_webp") or {}).get("source", tex.get("source"))
-        if source is None:
-            return None
-        return self.image(source)
+        # EXT_texture_webp / KHR_texture_basisu name their image in the extension; the
+        # plain source (if any) is the fallback.
+        exts = tex.get("extensions") or {}
+        sources = [exts[e]["source"] for e in TEXTURE_SOURCE_EXTENSIONS if "source" in (exts.get(e) or {})]
+        sources += [tex["source"]] if tex.get("source") is not None else []
+        for k, source in enumerate(sources):
+            try:
+                return self.image(source)
+            except CaptureError:
+                if k == len(sources) - 1:
+                    raise
+        return None
+
+
+def _draco_accessors(gltf: dict) -> dict[int, tuple[int, int | None]]:
+    """accessor -> (Draco buffer view, attribute unique id; None for the indices) for
+    every primitive compressed with ``KHR_draco_mesh_compression``."""
+    out: dict[int, tuple[int, int | None]] = {}
+    for mesh in gltf.get("meshes", []):
+        for prim in mesh.get("primitives", []):
+            ext = (prim.get("extensions") or {}).get(DRACO)
+            if not ext:
+                continue
+            view = int(ext["bufferView"])
+            for semantic, uid in (ext.get("attributes") or {}).items():
+                if semantic in prim.get("attributes", {}):
+                    out[int(prim["attributes"][semantic])] = (view, int(uid))
+            if "indices" in prim:
+                out[int(prim["indices"])] = (view, None)
+    return out
+
+
+def texture_transform(texture_info: dict | None) -> tuple[int, np.ndarray]:
+    """The texture coordinate set a textureInfo samples and its ``KHR_texture_transform``
+    as a (2, 3) matrix (uv' = M @ (u, v, 1)); the identity when it has none.
+
+    glTF's order: translation * rotation * scale, the rotation counter-clockwise in UV
+    space; the extension's ``texCoord`` overrides the textureInfo's."""
+    info = texture_info or {}
+    ext = (info.get("extensions") or {}).get("KHR_texture_transform") or {}
+    tex_coord = int(ext.get("texCoord", info.get("texCoord", 0)))
+    ox, oy = (float(v) for v in ext.get("offset", (0.0, 0.0)))
+    sx, sy = (float(v) for v in ext.get("scale", (1.0, 1.0)))
+    c, s = np.cos(float(ext.get("rotation", 0.0))), np.sin(float(ext.get("rotation", 0.0)))
+    return tex_coord, np.array([[c * sx, s * sy, ox], [-s * sx, c * sy, oy]])
