@@ -18,6 +18,7 @@ import base64
 import json
 import os
 import struct
+import urllib.parse
 import warnings
 from typing import Any
 
@@ -333,10 +334,7 @@ class GlbReader:
 
     def _uri_bytes(self, uri: str) -> bytes:
         """Bytes behind a glTF URI: a base64 data URI or a file beside the .gltf."""
-        if uri.startswith("data:"):
-            return base64.b64decode(uri.split(",", 1)[1])
-        with open(os.path.join(os.path.dirname(self.path), uri), "rb") as fh:
-            return fh.read()
+        return uri_bytes(uri, os.path.dirname(self.path), self.path)
 
     def view_bytes(self, index: int) -> tuple[bytes, int | None]:
         view = self.gltf["bufferViews"][index]
@@ -442,16 +440,21 @@ class GlbReader:
         except (OSError, ValueError, KeyError) as exc:
             raise CaptureError(f"{self.path}: image {index} is unreadable ({exc.__class__.__name__}: {exc})") from None
 
+    def texture_sources(self, texture_info: dict | None) -> list[int]:
+        """The images a textureInfo may sample, best first: those ``EXT_texture_webp`` /
+        ``KHR_texture_basisu`` name, then the plain ``source`` (their fallback)."""
+        if not texture_info:
+            return []
+        tex = self.gltf.get("textures", [])[texture_info["index"]]
+        exts = tex.get("extensions") or {}
+        sources = [int(exts[e]["source"]) for e in TEXTURE_SOURCE_EXTENSIONS if "source" in (exts.get(e) or {})]
+        return sources + ([int(tex["source"])] if tex.get("source") is not None else [])
+
     def texture_image(self, texture_info: dict | None) -> np.ndarray | None:
         """The image behind a material's textureInfo, or None."""
         if not texture_info:
             return None
-        tex = self.gltf.get("textures", [])[texture_info["index"]]
-        # EXT_texture_webp / KHR_texture_basisu name their image in the extension; the
-        # plain source (if any) is the fallback.
-        exts = tex.get("extensions") or {}
-        sources = [exts[e]["source"] for e in TEXTURE_SOURCE_EXTENSIONS if "source" in (exts.get(e) or {})]
-        sources += [tex["source"]] if tex.get("source") is not None else []
+        sources = self.texture_sources(texture_info)
         for k, source in enumerate(sources):
             try:
                 return self.image(source)
@@ -492,3 +495,101 @@ def texture_transform(texture_info: dict | None) -> tuple[int, np.ndarray]:
     sx, sy = (float(v) for v in ext.get("scale", (1.0, 1.0)))
     c, s = np.cos(float(ext.get("rotation", 0.0))), np.sin(float(ext.get("rotation", 0.0)))
     return tex_coord, np.array([[c * sx, s * sy, ox], [-s * sx, c * sy, oy]])
+
+
+# ---- a file kept as it is: raw JSON and chunks, every resource embedded ---------------------
+_MIME_BY_SUFFIX = {".png": "image/png", ".jpg": "image/jpeg", ".jpeg": "image/jpeg", ".webp": "image/webp",
+                   ".ktx2": "image/ktx2"}
+
+
+def read_gltf_document(path: str | os.PathLike) -> tuple[dict, bytes]:
+    """(JSON document exactly as the file has it, GLB BIN chunk or b"") of a .glb or .gltf,
+    without a parser's defaults or rewrites (pygltflib merges and moves buffers)."""
+    path = os.fspath(path)
+    with open(path, "rb") as fh:
+        data = fh.read()
+    try:
+        if data[:1] == b"{":
+            return json.loads(data.decode("utf-8")), b""
+        magic, version, length = struct.unpack_from("<III", data, 0)
+        if magic != GLB_MAGIC or version != 2 or length > len(data):
+            raise ValueError("not a glTF 2 binary")
+        pos, doc, binary = 12, None, b""
+        while pos + 8 <= length:
+            size, kind = struct.unpack_from("<II", data, pos)
+            chunk = data[pos + 8: pos + 8 + size]
+            if kind == 0x4E4F534A:  # JSON
+                doc = json.loads(chunk.decode("utf-8"))
+            elif kind == 0x004E4942 and not binary:  # BIN
+                binary = bytes(chunk)
+            pos += 8 + size + (-size % 4)
+        if doc is None:
+            raise ValueError("no JSON chunk")
+        return doc, binary
+    except (ValueError, struct.error, UnicodeDecodeError) as exc:
+        raise CaptureError(f"{path}: not a readable glTF file ({exc})") from None
+
+
+def uri_bytes(uri: str, base_dir: str, path: str = "") -> bytes:
+    """Bytes behind a glTF URI: a base64 data URI or a (percent-encoded) file beside the .gltf."""
+    if uri.startswith("data:"):
+        return base64.b64decode(uri.split(",", 1)[1])
+    file = os.path.join(base_dir, urllib.parse.unquote(uri))
+    try:
+        with open(file, "rb") as fh:
+            return fh.read()
+    except OSError:
+        raise CaptureError(f"{path or base_dir}: '{uri}' is missing (it must lie beside the .gltf)") from None
+
+
+def embed_resources(gltf: dict, binary: bytes, base_dir: str, path: str = "") -> bytearray:
+    """Make ``gltf`` self-contained: every buffer with a URI (a .gltf's .bin, data URIs)
+    appended to the one GLB buffer (buffer views and meshopt streams re-pointed), every
+    image with a URI stored in a buffer view. Buffers with no data and no URI (meshopt
+    fallbacks) stay. Returns the new BIN chunk; ``gltf`` is changed in place."""
+    out = bytearray(binary)
+    buffers = gltf.get("buffers", [])
+    glb_owner = 0 if binary and buffers and "uri" not in buffers[0] else None
+    place: dict[int, tuple[int, int]] = {}  # old buffer -> (new buffer, added offset)
+    kept = [{"byteLength": 0}]
+    for i, buf in enumerate(buffers):
+        if i == glb_owner:
+            place[i] = (0, 0)
+        elif "uri" in buf:
+            out.extend(b"\0" * (-len(out) % 16))
+            place[i] = (0, len(out))
+            out.extend(uri_bytes(buf["uri"], base_dir, path)[: int(buf["byteLength"])])
+        else:
+            place[i] = (len(kept), 0)
+            kept.append(buf)
+    for view in gltf.get("bufferViews", []):
+        for holder in [view] + [e for k, e in (view.get("extensions") or {}).items() if k in MESHOPT_EXTENSIONS]:
+            new, shift = place[int(holder.get("buffer", 0))]
+            holder["buffer"], holder["byteOffset"] = new, int(holder.get("byteOffset", 0)) + shift
+    for image in gltf.get("images", []):
+        if "uri" in image:
+            uri = image.pop("uri")
+            data = uri_bytes(uri, base_dir, path)
+            mime = uri[5:].split(";", 1)[0] if uri.startswith("data:") else \
+                _MIME_BY_SUFFIX.get(os.path.splitext(urllib.parse.unquote(uri))[1].lower(), "image/png")
+            out.extend(b"\0" * (-len(out) % 4))
+            gltf.setdefault("bufferViews", []).append({"buffer": 0, "byteOffset": len(out), "byteLength": len(data)})
+            out.extend(data)
+            image["bufferView"], image["mimeType"] = len(gltf["bufferViews"]) - 1, image.get("mimeType", mime)
+    kept[0]["byteLength"] = len(out)
+    gltf["buffers"] = kept
+    return out
+
+
+def write_glb(gltf: dict, binary: bytes | bytearray) -> bytes:
+    """The .glb of a JSON document and its BIN chunk (both padded to 4 bytes)."""
+    binary = bytes(binary) + b"\0" * (-len(binary) % 4)
+    if gltf.get("buffers"):
+        gltf["buffers"][0]["byteLength"] = len(binary)
+    _check_finite(gltf)
+    text = json.dumps(gltf, separators=(",", ":")).encode("utf-8")
+    text += b" " * (-len(text) % 4)
+    chunks = struct.pack("<II", len(text), 0x4E4F534A) + text
+    if binary:
+        chunks += struct.pack("<II", len(binary), 0x004E4942) + binary
+    return struct.pack("<III", GLB_MAGIC, 2, 12 + len(chunks)) + chunks

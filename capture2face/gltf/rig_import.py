@@ -776,7 +776,7 @@ def _textures(r: GlbReader, surf: dict, mapping: dict, mapping_dir: Path, ours: 
     for i in used:
         info = materials[i].get("pbrMetallicRoughness", {}).get("baseColorTexture")
         if info:
-            textured[i] = g["textures"][info["index"]].get("source")
+            textured[i] = next(iter(r.texture_sources(info)), None)
     if len(set(textured.values())) >= 2:
         albedo, normal_map, uvs = _atlas(r, surf, used, materials)
     else:
