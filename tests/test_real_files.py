@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import subprocess
 import sys
 from pathlib import Path
 
@@ -66,6 +67,14 @@ def _albedo_at(rig, uv: np.ndarray) -> np.ndarray:
     return rig.albedo[y, x, :3].astype(np.float64)
 
 
+def _dense_skin(rig) -> np.ndarray:
+    """(V, B) skin weights."""
+    w = np.zeros((len(rig.vertices), len(rig.bone_names)))
+    rows = np.repeat(np.arange(len(rig.vertices)), rig.skin_joints.shape[1])
+    np.add.at(w, (rows, rig.skin_joints.ravel()), rig.skin_weights.ravel())
+    return w
+
+
 def _assert_like_base(base, rig, albedo_p95: float = 6.0) -> None:
     assert sorted(rig.morph_names) == sorted(base.morph_names)
     b = _match(base, rig)
@@ -73,6 +82,10 @@ def _assert_like_base(base, rig, albedo_p95: float = 6.0) -> None:
     assert _unmatched(rig, base) == 0 and _unmatched(base, rig) == 0  # the same triangles, none garbled
     order = [base.morph_names.index(n) for n in rig.morph_names]
     assert np.abs(rig.morph_positions - base.morph_positions[order][:, b]).max() < STEP_CM
+    if len(base.bone_names):  # skinning: the same bones, each vertex's weights on them
+        assert rig.bone_names == base.bone_names
+        assert np.abs(rig.bone_rest - base.bone_rest).max() < STEP_CM
+        np.testing.assert_allclose(_dense_skin(rig), _dense_skin(base)[b], atol=2e-3)
     # The colour each vertex samples (KHR_texture_transform undone, every image decoded).
     diff = np.abs(_albedo_at(rig, rig.uvs) - _albedo_at(base, base.uvs[b])).max(1)
     assert np.percentile(diff, 95) <= albedo_p95, np.percentile(diff, 95)
@@ -97,6 +110,34 @@ def test_meshopt_index_stream_of_two_byte_indices():
         ext = {"count": 6, "byteStride": stride, "mode": "TRIANGLES"}
         out = np.frombuffer(_meshopt_decode("x.glb", ext, enc), dtype)
         assert sorted(map(tuple, np.sort(out.reshape(-1, 3), 1))) == [(0, 1, 2), (0, 1, 3)]
+
+
+def _npx(*args: str) -> None:
+    if shutil.which("npx") is None:
+        pytest.skip("node/npx not installed: cannot run glTF-Transform")
+    proc = subprocess.run(["npx", "-y", *args], capture_output=True, text=True, timeout=300)
+    if proc.returncode != 0:
+        pytest.skip(f"npx {args[0]} did not run (offline?): {proc.stderr.strip()[-200:]}")
+
+
+def test_vroid_style_file_imports_like_the_plain_one(tmp_path):
+    """A skinned multi-mesh ARKit character (the project's own export, with a skeleton and
+    a body) as VRoid exports it: WebP textures, then meshopt compression with quantized
+    attributes (glTF-Transform ``webp`` then ``meshopt``, the tools' own outputs)."""
+    pytest.importorskip("meshoptimizer")
+    from capture2face.gltf.arkit_export import export_arkit_character
+    from capture2face.rig.avatar import default_avatar
+
+    plain = tmp_path / "plain.glb"
+    export_arkit_character(default_avatar(), plain, naming="_L", skeleton=True, body=True)
+    _npx("@gltf-transform/cli@4.5.1", "webp", str(plain), str(tmp_path / "webp.glb"))
+    _npx("@gltf-transform/cli@4.5.1", "meshopt", str(tmp_path / "webp.glb"), str(tmp_path / "vroid.glb"))
+    gltf, _ = read_gltf_document(tmp_path / "vroid.glb")
+    assert {"EXT_meshopt_compression", "KHR_mesh_quantization", "EXT_texture_webp"} <= set(gltf["extensionsRequired"])
+    assert len(gltf["meshes"]) >= 4 and gltf["skins"]
+    base = import_glb(plain)
+    # WebP is lossy: a few levels at most texels.
+    _assert_like_base(base, import_glb(tmp_path / "vroid.glb"), albedo_p95=12.0)
 
 
 def _ktx2_variant(dst, codec: str):

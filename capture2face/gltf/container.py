@@ -411,9 +411,10 @@ class GlbReader:
         view, uid = self._draco[index]
         if view not in self._draco_meshes:
             raw, _ = self.view_bytes(view)
+            draco = _dracopy(self.path)
             try:
-                self._draco_meshes[view] = _dracopy(self.path).decode(raw)
-            except Exception as exc:  # DracoPy raises its own types for a corrupt stream
+                self._draco_meshes[view] = draco.decode(raw)
+            except (draco.FileTypeException, ValueError, RuntimeError) as exc:
                 raise CaptureError(f"{self.path}: a {DRACO} stream does not decode ({exc})") from None
         mesh = self._draco_meshes[view]
         if uid is None:

@@ -19,7 +19,7 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parents[2]))
-from capture2face.gltf.container import read_gltf_document, write_glb  # noqa: E402
+from capture2face.gltf.container import read_gltf_document, write_glb
 
 GLTFPACK = ["npx", "-y", "gltfpack@1.3.0"]
 TRANSFORM = ["npx", "-y", "@gltf-transform/cli@4.5.1"]
