@@ -199,6 +199,27 @@ def test_animation_glb_of_every_variant_is_valid_and_self_contained(tmp_path):
     assert len(GlbReader(moved).gltf["animations"]) == 1
 
 
+def test_animation_glb_loads_in_gltf_transform(tmp_path):
+    """glTF-Transform (the tool, not only the validator) reads animation.glb of a meshopt
+    and a Draco variant with its animation; skipped without npx."""
+    pytest.importorskip("meshoptimizer")
+    pytest.importorskip("DracoPy")
+    from test_arkit import synthetic_track
+
+    from capture2face.gltf.character import export_character_animation
+    from capture2face.retarget import retarget
+
+    track, _ = synthetic_track()
+    for name in ("pack-cc.glb", "transform-draco.glb"):
+        rig = import_glb(DATA / name)
+        out = tmp_path / f"anim-{name}"
+        export_character_animation(DATA / name, rig, retarget(track, rig), out)
+        _npx("@gltf-transform/cli@4.5.1", "copy", str(out), str(tmp_path / f"copy-{name}"))
+        gltf, _ = read_gltf_document(tmp_path / f"copy-{name}")  # what glTF-Transform wrote back
+        assert [a["name"] for a in gltf["animations"]] == ["performance"]
+        assert len(gltf["animations"][0]["channels"]) == len(read_gltf_document(out)[0]["animations"][0]["channels"])
+
+
 # ---- what still cannot be read is refused in one line ----------------------------------------------
 def _rewrite(src, dst, edit) -> None:
     gltf, binary = read_gltf_document(src)
