@@ -220,6 +220,46 @@ def test_animation_glb_loads_in_gltf_transform(tmp_path):
         assert len(gltf["animations"][0]["channels"]) == len(read_gltf_document(out)[0]["animations"][0]["channels"])
 
 
+THREE = Path(__file__).resolve().parents[1] / "tools" / "threejs_check"
+
+
+def test_animation_glb_plays_in_threejs(tmp_path):
+    """three.js's GLTFLoader (in node, no browser: tools/threejs_check/load_node.mjs) loads
+    animation.glb of the plain file and of meshopt variants (EXT_ and KHR_) and plays it:
+    every morph influence equals the file's weights at that time."""
+    if shutil.which("node") is None or not (THREE / "node_modules" / "three" / "package.json").is_file():
+        pytest.skip("three.js check needs node and tools/threejs_check/node_modules (npm ci there)")
+    pytest.importorskip("meshoptimizer")
+    from test_arkit import synthetic_track
+
+    from capture2face.gltf.character import export_character_animation
+    from capture2face.retarget import retarget
+
+    track, _ = synthetic_track()
+    frame = 45  # the jaw wide open
+    for name in ("base.glb", "pack-cc.glb", "pack-khr.glb", "transform-meshopt.glb", "folder/character.gltf"):
+        rig = import_glb(DATA / name)
+        out = tmp_path / f"anim-{name.replace('/', '-')}.glb"
+        export_character_animation(DATA / name, rig, retarget(track, rig), out)
+        proc = subprocess.run(["node", str(THREE / "load_node.mjs"), str(out), str(frame / track.fps)],
+                              capture_output=True, text=True, timeout=120, check=False)
+        assert proc.returncode == 0, proc.stdout + proc.stderr
+        found = json.loads(proc.stdout.strip().splitlines()[-1])
+        reader = GlbReader(out)
+        anim = reader.gltf["animations"][0]
+        # three.js makes a track per primitive of a multi-primitive mesh: at least one per channel.
+        assert found["clip"] == "performance" and found["tracks"] >= len(anim["channels"])
+        expect = {}
+        for ch in anim["channels"]:
+            if ch["target"]["path"] == "weights":
+                w = reader.accessor(anim["samplers"][ch["sampler"]]["output"])[:, 0]
+                expect[str(ch["target"]["node"])] = w.reshape(track.n_frames, -1)[frame]
+        assert set(found["weights"]) == set(expect), name
+        assert max(np.abs(v).max() for v in expect.values()) > 0.3  # a pose, not the rest
+        for node, w in expect.items():
+            np.testing.assert_allclose(found["weights"][node], w, atol=1e-4, err_msg=name)
+
+
 # ---- what still cannot be read is refused in one line ----------------------------------------------
 def _rewrite(src, dst, edit) -> None:
     gltf, binary = read_gltf_document(src)
