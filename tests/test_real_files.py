@@ -160,6 +160,22 @@ def _alktx2(codec: str):
                                                          quality=255 if codec == "etc1s" else 50)
 
 
+def test_texture_transform_follows_the_extension():
+    from capture2face.gltf.container import texture_transform
+
+    def apply(ext, uv, info=None):
+        tex_coord, m = texture_transform({**(info or {}), "index": 0, "extensions": {"KHR_texture_transform": ext}})
+        return tex_coord, m[:, :2] @ np.asarray(uv, float) + m[:, 2]
+
+    # translation * rotation * scale (the extension's GLSL, its mat3s column-major).
+    t, uv = apply({"offset": [0.1, 0.2], "scale": [2.0, 3.0]}, [1.0, 1.0])
+    np.testing.assert_allclose(uv, [2.1, 3.2])
+    _, uv = apply({"rotation": np.pi / 2, "scale": [2.0, 1.0]}, [1.0, 0.0])
+    np.testing.assert_allclose(uv, [0.0, 2.0], atol=1e-12)
+    assert t == 0 and apply({"texCoord": 1}, [0, 0], {"texCoord": 0})[0] == 1
+    assert texture_transform(None)[0] == 0 and np.allclose(texture_transform(None)[1], [[1, 0, 0], [0, 1, 0]])
+
+
 def _ktx2_variant(dst, encode):
     """base.glb with its textures as KTX2 (KHR_texture_basisu) and no PNG fallback."""
     gltf, binary = read_gltf_document(DATA / "base.glb")

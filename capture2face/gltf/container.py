@@ -487,15 +487,16 @@ def texture_transform(texture_info: dict | None) -> tuple[int, np.ndarray]:
     """The texture coordinate set a textureInfo samples and its ``KHR_texture_transform``
     as a (2, 3) matrix (uv' = M @ (u, v, 1)); the identity when it has none.
 
-    glTF's order: translation * rotation * scale, the rotation counter-clockwise in UV
-    space; the extension's ``texCoord`` overrides the textureInfo's."""
+    glTF's order: translation * rotation * scale, the rotation matrix as the extension's
+    GLSL writes it (column-major: columns (cos, sin), (-sin, cos)); the extension's
+    ``texCoord`` overrides the textureInfo's."""
     info = texture_info or {}
     ext = (info.get("extensions") or {}).get("KHR_texture_transform") or {}
     tex_coord = int(ext.get("texCoord", info.get("texCoord", 0)))
     ox, oy = (float(v) for v in ext.get("offset", (0.0, 0.0)))
     sx, sy = (float(v) for v in ext.get("scale", (1.0, 1.0)))
     c, s = np.cos(float(ext.get("rotation", 0.0))), np.sin(float(ext.get("rotation", 0.0)))
-    return tex_coord, np.array([[c * sx, s * sy, ox], [-s * sx, c * sy, oy]])
+    return tex_coord, np.array([[c * sx, -s * sy, ox], [s * sx, c * sy, oy]])
 
 
 # ---- a file kept as it is: raw JSON and chunks, every resource embedded ---------------------
