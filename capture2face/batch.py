@@ -22,6 +22,7 @@ import glob
 import json
 import multiprocessing
 import os
+import sys
 import time
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
@@ -309,14 +310,18 @@ def _plan_clips(report: _Report, clips: list[BatchClip], out: Path, options: Any
 
 def _clip_done(report: _Report, clips: list[BatchClip], bar):
     """The callback ``done(i, result)`` a finished clip ``i`` reports to: its report entry,
-    the progress bar and, for a failure, a line under the bar."""
+    the progress bar and, for a failure, a line on stderr (under the bar)."""
 
     def done(i: int, result: dict) -> None:
         report.set(i, result)
+        if result["status"] == "failed":  # on stderr, with or without the bar
+            line = _failure_line(clips[i].path, result["error"])
+            if bar is not None:
+                bar.write(line, file=sys.stderr)
+            else:
+                print(line, file=sys.stderr)
         if bar is not None:
             bar.update(1)
-            if result["status"] == "failed":
-                bar.write(_failure_line(clips[i].path, result["error"]))
 
     return done
 

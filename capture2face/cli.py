@@ -19,6 +19,7 @@ from capture2face.eval.synthetic import evaluate_synthetic, summary_line
 from capture2face.gltf import export_glb
 from capture2face.gltf.arkit_export import export_arkit_character
 from capture2face.io.atomic import write_text_atomic
+from capture2face.io.paths import readable_streams
 from capture2face.io.video_input import open_video
 from capture2face.models.face_model import find_face_model
 from capture2face.pipeline import RunOptions
@@ -352,6 +353,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     install_process_defaults()
+    readable_streams()  # a file name that is not UTF-8 prints as \xNN, never fails a command
     if argv is None:  # the process is the command (not a caller's main(args))
         defer_pyplot()  # it imports MediaPipe, never matplotlib
     try:

@@ -3,6 +3,7 @@ traceback, and nothing left in the output folder. Interrupts leave nothing behin
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -357,3 +358,44 @@ def test_junk_mapping_fails_the_run_before_tracking(arkit_glb, sample_clip, tmp_
     result = cli("run", str(sample_clip), "-o", str(out), "--character", str(glb), timeout=120)
     assert_clean_failure(result, out, "bones['X'] must be a landmark index")
     assert "scale must be a number" in result.stderr
+
+
+# ---- file names that are not UTF-8 ------------------------------------------------------
+def test_clip_name_not_utf8_runs_and_reports(sample_clip, tmp_path):
+    """``café.mp4`` written in Latin-1 (the bytes ``caf\\xe9``): report.html, report.json and
+    the printed line all name it, with the byte written as ``\\xe9``."""
+    clip = Path(os.fsdecode(bytes(tmp_path) + b"/caf\xe9.mp4"))
+    clip.write_bytes(sample_clip.read_bytes())
+    out = tmp_path / "out"
+    result = cli("-q", "run", str(clip), "-o", str(out), "--size", "128", "--no-audio")
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "Traceback" not in result.stderr
+    folder = out / clip.stem
+    assert "caf\\xe9" in result.stdout, result.stdout
+    report = json.loads((folder / "report.json").read_text(encoding="utf-8"))
+    assert os.fsencode(report["clip"]) == os.fsencode(clip)  # the surrogate escape round-trips
+    page = (folder / "report.html").read_text(encoding="utf-8")  # valid UTF-8 throughout
+    assert "caf\\xe9.mp4" in page
+
+
+def test_batch_of_non_utf8_names_fails_on_stderr(tmp_path):
+    """A bad clip with a Latin-1 name in a batch: its "failed" line on stderr with the
+    byte escaped, batch_report.json written and readable."""
+    bad = Path(os.fsdecode(bytes(tmp_path) + b"/na\xefve.mp4"))
+    bad.write_text("not a video\n")
+    out = tmp_path / "out"
+    result = cli("-q", "batch", str(bad), "-o", str(out), "--jobs", "1")
+    assert result.returncode == 1, result.stderr[-2000:]
+    assert "Traceback" not in result.stderr
+    assert "failed: " not in result.stdout
+    failed = [ln for ln in result.stderr.splitlines() if ln.startswith("failed: ")]
+    assert len(failed) == 1 and "na\\xefve.mp4" in failed[0] and "not a video" in failed[0], result.stderr
+    report = json.loads((out / "batch_report.json").read_text(encoding="utf-8"))
+    assert os.fsencode(report["clips"][0]["path"]) == os.fsencode(bad)
+
+
+def test_readable_escapes_only_undecodable_bytes():
+    from capture2face.io.paths import readable
+
+    assert readable(os.fsdecode(b"caf\xe9-\xc3\xa9.mp4")) == "caf\\xe9-\u00e9.mp4"
+    assert readable("plain") == "plain"
