@@ -20,6 +20,7 @@ from capture2face.gltf import export_glb
 from capture2face.gltf.arkit_export import export_arkit_character
 from capture2face.io.atomic import write_text_atomic
 from capture2face.io.paths import readable_streams
+from capture2face.io.staging import check_output_file
 from capture2face.io.video_input import open_video
 from capture2face.models.face_model import find_face_model
 from capture2face.pipeline import RunOptions
@@ -34,7 +35,27 @@ from capture2face.tracking.landmarker import defer_pyplot
 from capture2face.tracking.overlay import write_overlay
 
 
+def _check_avatar_args(args: argparse.Namespace) -> None:
+    """``avatar``'s flags, before the avatar is built: the --export-arkit options without
+    it, and files that could not be written (a folder, a .gltf name for binary glTF)."""
+    if not args.export_arkit:
+        given = [f for f, v in (("--quantize", args.quantize), ("--skeleton", args.skeleton),
+                                ("--body", args.body), ("--naming", args.naming)) if v]
+        if given:
+            raise CaptureError(f"{', '.join(given)} only appl{'ies' if len(given) == 1 else 'y'} to "
+                               "--export-arkit GLB; add it or leave them out")
+    for flag, path in (("--export", args.export), ("--export-arkit", args.export_arkit)):
+        if path and Path(path).suffix.lower() == ".gltf":
+            raise CaptureError(f"{flag} {path}: writes binary glTF; name the file "
+                               f"{Path(path).with_suffix('.glb')}")
+        if path:
+            check_output_file(path, flag, (".glb",))
+    if args.save:
+        check_output_file(args.save, "--save", (".npz",))
+
+
 def _cmd_avatar(args: argparse.Namespace) -> int:
+    _check_avatar_args(args)
     rig = default_avatar(variant=args.variant)
     if args.maps:
         write_maps(rig, args.maps)
@@ -43,7 +64,7 @@ def _cmd_avatar(args: argparse.Namespace) -> int:
         export_glb(rig, args.export)
         print(f"wrote {args.export}")
     if args.export_arkit:
-        export_arkit_character(rig, args.export_arkit, naming=args.naming, quantize=args.quantize,
+        export_arkit_character(rig, args.export_arkit, naming=args.naming or "_L", quantize=args.quantize,
                                skeleton=args.skeleton, body=args.body)
         print(f"wrote {args.export_arkit}")
     if args.save:
@@ -81,6 +102,9 @@ def _cmd_track(args: argparse.Namespace) -> int:
     # the model exists.
     options = _track_options(args)
     check_neutral_frame(args.neutral_frame, open_video(args.clip))
+    check_output_file(args.output, "-o", protect=[args.clip])
+    if args.overlay:
+        check_output_file(args.overlay, "--overlay", (".mp4",), protect=[args.clip, args.output])
     find_face_model(args.face_model)
     track = track_clip(args.clip, options, progress=not args.quiet)
     track.save(args.output)
@@ -223,7 +247,7 @@ def _add_avatar_parser(sub, common: argparse.ArgumentParser) -> None:
     p.add_argument("--export-arkit", metavar="GLB",
                    help="write the avatar as a third-party ARKit character would come: head, eyes and teeth "
                         "as separate meshes with ARKit-named morphs only, no face bones, no mapping")
-    p.add_argument("--naming", default="_L", choices=["arkit", "_L", ".L", "Left_", "blendShape1."],
+    p.add_argument("--naming", default=None, choices=["arkit", "_L", ".L", "Left_", "blendShape1."],
                    help="--export-arkit: morph naming (eyeBlinkLeft, eyeBlink_L, eyeBlink.L, EyeBlink_Left, "
                         "blendShape1.eyeBlinkLeft; default _L)")
     p.add_argument("--quantize", action="store_true", help="--export-arkit: KHR_mesh_quantization (int16)")

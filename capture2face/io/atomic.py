@@ -39,7 +39,11 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
         yield tmp_path
         if tmp_path.exists():
             os.chmod(tmp_path, FILE_MODE)
-        os.replace(tmp_path, path)
+        try:
+            os.replace(tmp_path, path)
+        except OSError as exc:  # "out: Is a directory", not the temporary name beside it
+            exc.filename, exc.filename2 = str(path), None
+            raise
     finally:
         if tmp_path.exists():
             tmp_path.unlink()

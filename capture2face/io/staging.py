@@ -327,3 +327,26 @@ def check_writable(folder: str | os.PathLike) -> None:
         raise CaptureError(f"cannot write to output folder {folder}: {exc.strerror or exc}") from None
     finally:
         _remove_empty(created)
+
+
+def check_output_file(path: str | os.PathLike, flag: str, suffixes: Iterable[str] = (),
+                      protect: Iterable[str | os.PathLike] = ()) -> None:
+    """Fail early (before any slow work) when the file ``path`` (given as ``flag``) could not
+    be written: it is a folder, its suffix is not one of ``suffixes`` (any when empty), it
+    is a protected file (the source clip), or its folder cannot be created or written.
+
+    Creates nothing that outlives the call.
+    """
+    path = Path(path)
+    suffixes = tuple(suffixes)
+    if path.is_dir():
+        example = path / f"out{suffixes[0]}" if suffixes else path / "out"
+        raise CaptureError(f"{flag} {path}: is a folder; give the file to write (e.g. {example})")
+    if suffixes and path.suffix.lower() not in suffixes:
+        raise CaptureError(f"{flag} {path}: the file must end in {' or '.join(suffixes)}")
+    if _same_file(path, [Path(p) for p in protect]):
+        raise CaptureError(f"{flag} {path}: is the source clip; choose another file name")
+    try:
+        check_writable(path.parent)
+    except CaptureError as exc:
+        raise CaptureError(f"{flag} {path}: {exc}") from None
