@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -141,3 +142,54 @@ def test_batch_imports_a_glb_character_once(tmp_path, monkeypatch):
     assert load_character(char) is rig
     os.utime(char, ns=(char.stat().st_atime_ns, char.stat().st_mtime_ns + 10**9))
     assert load_character(char) is not rig and len(built) == 2
+
+
+# ---- Ray addresses that lead nowhere (issue 24) -----------------------------------------
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _one_line(result: subprocess.CompletedProcess, *said: str) -> None:
+    assert result.returncode == 2, (result.returncode, result.stderr[-2000:])
+    lines = [ln for ln in result.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("capture2face: error: "), result.stderr[-2000:]
+    assert all(s in lines[0] for s in said), lines[0]
+
+
+def test_ray_address_with_nothing_listening_is_one_line(sample_clip, tmp_path):
+    pytest.importorskip("ray")
+    address = f"127.0.0.1:{_free_port()}"
+    out = tmp_path / "out"
+    _one_line(_batch(str(sample_clip), "-o", str(out), "--ray", address), f"--ray {address}: cannot connect",
+              "Connection refused")
+    assert not out.exists()  # no batch_report.json: nothing was started
+
+
+def test_ray_address_that_never_answers_gives_up(sample_clip, tmp_path):
+    """Something listens but never speaks Ray: Ray would retry for minutes."""
+    pytest.importorskip("ray")
+    with socket.socket() as listener:
+        listener.bind(("127.0.0.1", 0))
+        listener.listen(8)
+        address = "127.0.0.1:%d" % listener.getsockname()[1]
+        out = tmp_path / "out"
+        _one_line(_batch(str(sample_clip), "-o", str(out), "--ray", address),
+                  f"--ray {address}: no Ray cluster answered within 10 s")
+    assert not out.exists()
+
+
+def test_ray_auto_without_a_cluster_names_our_flags(sample_clip, tmp_path):
+    pytest.importorskip("ray")
+    if os.environ.get("RAY_ADDRESS") or Path("/tmp/ray/ray_current_cluster").exists():
+        pytest.skip("a Ray cluster may be running here")
+    result = _batch(str(sample_clip), "-o", str(tmp_path / "out"), "--ray", "auto")
+    _one_line(result, "--ray auto: no running Ray cluster", "--ray HOST:PORT")
+    assert "--address" not in result.stderr
+
+
+@pytest.mark.parametrize("jobs", ["0", "-1"])
+def test_jobs_below_one_is_refused(sample_clip, tmp_path, jobs):
+    _one_line(_batch(str(sample_clip), "-o", str(tmp_path / "out"), "--jobs", jobs), f"--jobs {jobs}: must be 1 or more")
+    assert not (tmp_path / "out").exists()
