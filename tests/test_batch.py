@@ -191,5 +191,6 @@ def test_ray_auto_without_a_cluster_names_our_flags(sample_clip, tmp_path):
 
 @pytest.mark.parametrize("jobs", ["0", "-1"])
 def test_jobs_below_one_is_refused(sample_clip, tmp_path, jobs):
-    _one_line(_batch(str(sample_clip), "-o", str(tmp_path / "out"), "--jobs", jobs), f"--jobs {jobs}: must be 1 or more")
+    _one_line(_batch(str(sample_clip), "-o", str(tmp_path / "out"), "--jobs", jobs),
+              f"--jobs {jobs}: must be 1 or more")
     assert not (tmp_path / "out").exists()
