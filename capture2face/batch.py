@@ -21,8 +21,8 @@ import contextlib
 import dataclasses
 import glob
 import json
-import multiprocessing
 import logging
+import multiprocessing
 import os
 import socket
 import sys
@@ -36,9 +36,11 @@ from tqdm import tqdm
 
 from capture2face.errors import CaptureError, install_process_defaults
 from capture2face.io.atomic import write_text_atomic
+from capture2face.io.fingerprint import changes, fingerprint
 from capture2face.io.paths import ERRORS as PATH_ERRORS
 from capture2face.io.staging import check_writable
 from capture2face.pipeline import RunOptions, options_json, outputs_complete, run
+from capture2face.pipeline.options import input_files
 from capture2face.pipeline.preflight import check_gl, check_shared
 from capture2face.runtime.cores import free_cores
 
@@ -191,13 +193,17 @@ def _option_key(name: str, value: Any) -> Any:
     return value
 
 
-def resume_check(folder: str | os.PathLike, options: Any) -> tuple[bool, str | None]:
-    """Whether ``folder`` holds a complete run made with ``options`` (skip it), and if
-    not, why it is run again (None when there is no earlier run there).
+def resume_check(folder: str | os.PathLike, options: Any, clip: str | os.PathLike | None = None
+                 ) -> tuple[bool, str | None]:
+    """Whether ``folder`` holds a complete run of ``clip`` made with ``options`` (skip it),
+    and if not, why it is run again (None when there is no earlier run there).
 
     The options stored in its report.json are compared with the requested ones, both
     normalised as report.json writes them; an option missing from an older report counts
-    as its default.
+    as its default. With ``clip``, its input files (the clip, a character file and its
+    mapping JSON) are compared with the fingerprints report.json stores (size,
+    modification time, a hash of the first and last MiB): a file replaced at the same
+    path is run again.
     """
     folder = Path(folder)
     if not (folder / "report.json").exists():
@@ -205,11 +211,27 @@ def resume_check(folder: str | os.PathLike, options: Any) -> tuple[bool, str | N
     if not outputs_complete(folder):
         return False, "outputs incomplete"
     try:
-        stored = json.loads((folder / "report.json").read_text(encoding="utf-8")).get("options")
-    except (OSError, ValueError, AttributeError):
+        stored = json.loads((folder / "report.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
         stored = None
-    if not isinstance(stored, dict):
+    if not isinstance(stored, dict) or not isinstance(stored.get("options"), dict):
         return False, "no options in its report.json"
+    changed = _changed_options(stored["options"], options)
+    if changed:
+        return False, "options changed: " + ", ".join(changed)
+    if clip is not None:
+        if not isinstance(stored.get("inputs"), dict):
+            return False, "no input fingerprints in its report.json (made by an older version)"
+        changed = [f"{role} {path} changed ({', '.join(diff)})"
+                   for role, path in input_files(clip, options).items()
+                   if (diff := changes(stored["inputs"].get(role), fingerprint(path)))]
+        if changed:
+            return False, "; ".join(changed)
+    return True, None
+
+
+def _changed_options(stored: dict, options: Any) -> list[str]:
+    """``"name old -> new"`` for each option (but :data:`_RESUME_IGNORED`) that differs."""
     wanted = options_json(options)
     defaults = options_json(RunOptions())
     changed = []
@@ -219,9 +241,7 @@ def resume_check(folder: str | os.PathLike, options: Any) -> tuple[bool, str | N
         old = stored.get(name, defaults.get(name))
         if _option_key(name, old) != _option_key(name, new):
             changed.append(f"{name} {old} -> {new}")
-    if changed:
-        return False, "options changed: " + ", ".join(changed)
-    return True, None
+    return changed
 
 
 def _failure_line(path: str, error: str | None) -> str:
@@ -317,7 +337,7 @@ def _plan_clips(report: _Report, clips: list[BatchClip], out: Path, options: Any
     and the others say why they run again. Writes the report."""
     todo = []
     for i, c in enumerate(clips):
-        skip, why = resume_check(out / c.name, options) if resume else (False, None)
+        skip, why = resume_check(out / c.name, options, c.path) if resume else (False, None)
         if skip:
             report.entries[i].update(status="skipped", seconds=0.0, error=None)
         else:

@@ -194,3 +194,60 @@ def test_jobs_below_one_is_refused(sample_clip, tmp_path, jobs):
     _one_line(_batch(str(sample_clip), "-o", str(tmp_path / "out"), "--jobs", jobs),
               f"--jobs {jobs}: must be 1 or more")
     assert not (tmp_path / "out").exists()
+
+
+# ---- --resume decides by content (issue 24) ---------------------------------------------
+SAMPLE = Path(__file__).resolve().parents[1] / "sample_videos" / "sample.mp4"  # 120 frames, not sample_clip's 90
+
+
+def _entry(out: Path) -> dict:
+    (entry,) = json.loads((out / "batch_report.json").read_text())["clips"]
+    return entry
+
+
+@pytest.mark.slow
+def test_resume_reruns_a_clip_or_character_replaced_at_the_same_path(sample_clip, tmp_path):
+    from capture2face.rig.avatar import default_avatar
+
+    clip, hero, out = tmp_path / "take.mp4", tmp_path / "hero.npz", tmp_path / "out"
+    shutil.copy(sample_clip, clip)
+    default_avatar().save(hero)
+    args = [str(clip), "-o", str(out), "--size", "128", "--no-audio", "--jobs", "1", "--character", str(hero)]
+    assert _batch(*args).returncode == 0
+    stored = json.loads((out / "take" / "report.json").read_text())["inputs"]
+    assert stored["clip"]["size"] == clip.stat().st_size and stored["character"]["path"] == str(hero)
+    assert _batch(*args, "--resume").returncode == 0
+    assert _entry(out)["status"] == "skipped"
+
+    shutil.copy(SAMPLE, clip)  # other content, same path
+    assert _batch(*args, "--resume").returncode == 0
+    entry = _entry(out)
+    assert entry["status"] == "ok" and entry["frames"] == 120, entry
+    assert entry["rerun"].startswith(f"clip {clip} changed (size ") and "content" in entry["rerun"], entry
+    assert json.loads((out / "take" / "report.json").read_text())["frames"] == 120
+
+    default_avatar(variant="wide").save(hero)  # the character replaced
+    assert _batch(*args, "--resume").returncode == 0
+    entry = _entry(out)
+    assert entry["status"] == "ok" and entry["rerun"].startswith(f"character {hero} changed"), entry
+    assert _batch(*args, "--resume").returncode == 0
+    assert _entry(out)["status"] == "skipped"
+
+
+def test_fingerprint_reads_the_first_and_last_mib(tmp_path):
+    from capture2face.io.fingerprint import changes, fingerprint
+
+    f = tmp_path / "big.bin"
+    data = bytearray(os.urandom(3 << 20))
+    f.write_bytes(bytes(data))
+    before = fingerprint(f)
+    data[(3 << 20) - 10] ^= 1  # in the last MiB
+    f.write_bytes(bytes(data))
+    os.utime(f, ns=(before["mtime_ns"], before["mtime_ns"]))
+    assert changes(before, fingerprint(f)) == ["content"]
+    data[-10] ^= 1
+    data[(3 << 19)] ^= 1  # the middle is not read: the modification time tells
+    f.write_bytes(bytes(data))
+    assert changes(before, fingerprint(f)) == ["modification time"]
+    assert changes(before, None) == ["gone"] and changes(None, before) == ["new"] and changes(None, None) == []
+    assert changes(before, before) == []
