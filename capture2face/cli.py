@@ -124,7 +124,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
         faces=args.faces, face=args.face, track_workers=args.track_workers,
     )
     opts.allow_truncated = args.allow_truncated
-    report = pipeline.run(args.clip, args.output, opts, progress=not args.quiet)
+    if args.name is not None and (not args.name.strip() or Path(args.name).name != args.name
+                                  or args.name in (".", "..") or args.name.startswith(".tmp-")):
+        raise CaptureError(f"--name {args.name!r}: must be a plain folder name (no '/', not '.' or '..')")
+    report = pipeline.run(args.clip, args.output, opts, progress=not args.quiet, name=args.name)
     for warning in report["warnings"]:  # also in report.json
         print(f"capture2face: warning: {warning}", file=sys.stderr)
     print(f"wrote {report['output_dir']} ({report['frames']} frames, {report['fps_processing']:.1f} fps)")
@@ -287,7 +290,10 @@ def _add_run_parser(sub, common: argparse.ArgumentParser) -> None:
     p = sub.add_parser("run", parents=[common], help="clip -> animated, wrinkled character (video + exports)")
     p.add_argument("clip", help="the video of a face")
     p.add_argument("-o", "--output", required=True, metavar="DIR",
-                   help="output folder: the results go to DIR/<clip stem>/")
+                   help="output folder: the results go to DIR/<clip stem>/ (or DIR/NAME/ with --name)")
+    p.add_argument("--name", metavar="NAME", default=None,
+                   help="the results' folder name under DIR (default: the clip's stem); two clips of "
+                        "the same name from different folders need different names")
     p.add_argument("--neutral-frame", type=int, default=None, metavar="N", help=NEUTRAL_HELP)
     _add_run_options(p)
     p.set_defaults(func=_cmd_run)

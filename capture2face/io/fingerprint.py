@@ -30,7 +30,7 @@ def fingerprint(path: str | os.PathLike) -> dict | None:
                 digest.update(fh.read(CHUNK))
     except OSError:
         return None
-    return {"path": os.fspath(p.absolute()), "size": int(st.st_size), "mtime_ns": int(st.st_mtime_ns),
+    return {"path": os.path.abspath(p), "size": int(st.st_size), "mtime_ns": int(st.st_mtime_ns),
             "sha256": digest.hexdigest()}
 
 

@@ -44,7 +44,7 @@ from capture2face.measures import clip_fidelity
 from capture2face.pipeline.options import OUTPUT_FILES, RunOptions, input_files, options_json
 from capture2face.pipeline.preflight import preflight
 from capture2face.pipeline.render_pass import render_stage
-from capture2face.pipeline.report import track_warnings
+from capture2face.pipeline.report import check_same_clip, track_warnings
 from capture2face.pipeline.report_html import poster_frames, write_report_html
 from capture2face.pipeline.stages import (
     export_stage,
@@ -135,6 +135,7 @@ def _run(clip, out_dir, options: RunOptions, progress: bool, name: str | None, w
     # What the result is made from (report.json's "inputs"; batch --resume compares them).
     inputs = {role: fingerprint(path) for role, path in input_files(clip, options).items()}
     final = Path(out_dir) / (name or Path(clip).stem)
+    check_same_clip(final, inputs["clip"])  # day1/take.mp4 never silently replaces day2/take.mp4's
     seconds: dict[str, float] = {"checks": time.perf_counter() - t_start}  # the default avatar's first build too
     # Only the run's own files in ``final`` are replaced; the clip itself is never touched.
     outputs = [f for f in OUTPUT_FILES if f != "compare.mp4" or options.compare]
