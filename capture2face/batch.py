@@ -5,13 +5,16 @@ are per process; a fresh process per clip also returns its memory). One failing 
 never stops the others: its error is recorded and the batch goes on. ``OUT/batch_report.json``
 is rewritten (atomically) after every clip, so an interrupted batch still says what got
 done, and ``resume=True`` skips the clips whose outputs are complete and were made with the
-same options (a clip whose report.json options differ is run again, the entry saying why).
+same options from the same files (a clip whose report.json options differ, or whose clip,
+character or mapping file changed content, is run again, the entry saying why).
 The report keeps the entries of an earlier batch into the same folder for clips not in
 this batch (marked ``"earlier": true``); this batch's entries replace theirs.
 
 With ``ray_address`` the clips become Ray tasks (``pip install capture2face[ray]``):
 ``"local"`` starts a local Ray instance, ``"auto"`` or ``"ray://host:10001"`` joins a
-cluster whose workers have capture2face installed and can read the input paths.
+cluster whose workers have capture2face installed and can read the input paths. The
+cluster is joined before anything is written; an address where nothing listens or
+answers fails in one line within :data:`RAY_CONNECT_S` seconds.
 """
 
 from __future__ import annotations

@@ -245,7 +245,7 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
 def _add_avatar_parser(sub, common: argparse.ArgumentParser) -> None:
     p = sub.add_parser("avatar", parents=[common], help="build the default avatar; write its maps or a .glb")
     p.add_argument("--maps", metavar="DIR", help="write textures and zone masks as PNGs")
-    p.add_argument("--export", metavar="GLB", help="write the avatar as glTF binary (.glb)")
+    p.add_argument("--export", metavar="GLB", help="write the avatar as binary glTF (a .glb file)")
     p.add_argument("--save", metavar="NPZ", help="write the FaceRig file")
     p.add_argument("--export-arkit", metavar="GLB",
                    help="write the avatar as a third-party ARKit character would come: head, eyes and teeth "
@@ -333,9 +333,12 @@ def _add_batch_parser(sub, common: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", required=True, metavar="DIR",
                    help="output folder: each clip goes to DIR/<clip stem>/, the report to "
                         "DIR/batch_report.json")
-    p.add_argument("--jobs", type=int, default=None, help="parallel clips (default: the cores this process may use)")
-    p.add_argument("--resume", action="store_true", help="skip clips whose outputs are complete")
-    p.add_argument("--ray", metavar="ADDRESS", default=None, help="distribute over a Ray cluster")
+    p.add_argument("--jobs", type=int, default=None,
+                   help="parallel clips, 1 or more (default: the cores this process may use)")
+    p.add_argument("--resume", action="store_true", help="skip clips whose outputs are complete and made with the same options "
+                        "from the same clip and character content")
+    p.add_argument("--ray", metavar="ADDRESS", default=None, help="distribute over a Ray cluster: local, auto (this machine's cluster), "
+                        "HOST:PORT or ray://HOST:PORT")
     _add_run_options(p)
     p.set_defaults(func=_cmd_batch)
 
