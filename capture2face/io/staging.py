@@ -428,7 +428,7 @@ def check_output_file(path: str | os.PathLike, flag: str, suffixes: Iterable[str
     if suffixes and path.suffix.lower() not in suffixes:
         raise CaptureError(f"{flag} {path}: the file must end in {' or '.join(suffixes)}")
     if _same_file(path, [Path(p) for p in protect]):
-        raise CaptureError(f"{flag} {path}: is the source clip; choose another file name")
+        raise CaptureError(f"{flag} {path}: is the source clip or another output; choose another file name")
     try:
         check_writable(path.parent)
     except CaptureError as exc:
