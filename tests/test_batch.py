@@ -173,7 +173,7 @@ def test_ray_address_that_never_answers_gives_up(sample_clip, tmp_path):
     with socket.socket() as listener:
         listener.bind(("127.0.0.1", 0))
         listener.listen(8)
-        address = "127.0.0.1:%d" % listener.getsockname()[1]
+        address = f"127.0.0.1:{listener.getsockname()[1]}"
         out = tmp_path / "out"
         _one_line(_batch(str(sample_clip), "-o", str(out), "--ray", address),
                   f"--ray {address}: no Ray cluster answered within 10 s")
