@@ -87,7 +87,8 @@ def expand_inputs(inputs: Iterable[str | os.PathLike]) -> list[BatchClip]:
                 raise CaptureError(f"no file matches {text}")
             paths += [Path(m) for m in matches if not Path(m).is_dir()]
         elif p.is_file() and p.suffix.lower() in LIST_EXTENSIONS:
-            for line in p.read_text(encoding="utf-8", errors="replace").splitlines():
+            # surrogateescape: a listed name that is not UTF-8 (Latin-1 bytes) still names its file
+            for line in p.read_text(encoding="utf-8", errors="surrogateescape").splitlines():
                 line = line.split("#", 1)[0].strip()
                 if line:
                     q = Path(line)

@@ -383,8 +383,9 @@ def test_batch_of_non_utf8_names_fails_on_stderr(tmp_path):
     byte escaped, batch_report.json written and readable."""
     bad = Path(os.fsdecode(bytes(tmp_path) + b"/na\xefve.mp4"))
     bad.write_text("not a video\n")
+    (tmp_path / "list.txt").write_bytes(b"na\xefve.mp4\n")  # a list in Latin-1 names the same file
     out = tmp_path / "out"
-    result = cli("-q", "batch", str(bad), "-o", str(out), "--jobs", "1")
+    result = cli("-q", "batch", str(tmp_path / "list.txt"), "-o", str(out), "--jobs", "1")
     assert result.returncode == 1, result.stderr[-2000:]
     assert "Traceback" not in result.stderr
     assert "failed: " not in result.stdout
