@@ -110,6 +110,7 @@ from capture2face.gltf.container import (
     decode_image,
     texture_transform,
 )
+from capture2face.gltf.mapping import check_mapping
 from capture2face.rig.arkit_names import arkit_morphs, canonical_arkit
 from capture2face.rig.avatar import default_avatar
 from capture2face.rig.face_rig import REGION_NAMES, ZONE_NAMES, FaceRig
@@ -170,8 +171,7 @@ def _load_mapping(glb: Path, mapping_json) -> tuple[dict, Path]:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise CaptureError(f"{path}: not a readable mapping JSON ({exc})") from None
-    if not isinstance(data, dict):
-        raise CaptureError(f"{path}: the mapping JSON must be an object")
+    check_mapping(data, path)  # the schema (capture2face.gltf.mapping), before anything is imported
     return data, path.parent
 
 
