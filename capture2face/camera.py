@@ -75,6 +75,8 @@ def rotation_matrix(yaw: float, pitch: float, roll: float) -> np.ndarray:
     return rotation_ypr(np.array([yaw, pitch, roll], np.float64))
 
 
+# The face mesh's landmarks (the irises' ten follow).
+N_FACE_LANDMARKS = 468
 # A vertex that some morph moves further than this (cm) belongs to the face.
 _FACE_MORPH_CM = 0.02
 
@@ -82,9 +84,13 @@ _FACE_MORPH_CM = 0.02
 def face_points(rig: FaceRig) -> np.ndarray:
     """(N, 3) the points the camera frames: the skin; for an ARKit character (morphs and
     no face bones of its own, maybe on a whole body with hair and clothes, all of it
-    "skin"), the vertices its morphs move: the face."""
+    "skin"), the face: its tracker landmarks once they are found (the morphs of a scanned
+    head also move its neck, which framed the bust), else the vertices its morphs move."""
     skin = rig.material == 0
-    if rig.n_morphs and (is_automatic(rig) or not (np.asarray(rig.landmark_vertices) >= 0).any()):
+    face = np.asarray(rig.landmark_vertices)[:N_FACE_LANDMARKS]
+    if is_automatic(rig) and np.count_nonzero(face >= 0) >= 3:
+        return rig.vertices[face[face >= 0]]
+    if rig.n_morphs and (is_automatic(rig) or not (face >= 0).any()):
         moved = np.zeros(rig.n_vertices, bool)
         for m in range(rig.n_morphs):  # per morph: no (M, V, 3) temporary
             moved |= np.abs(rig.morph_positions[m]).max(axis=1) > _FACE_MORPH_CM

@@ -9,6 +9,7 @@ import json
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -171,7 +172,7 @@ def test_mapping_json_maps_other_names(tmp_path, avatar):
     np.testing.assert_allclose(rig.morph_positions[mine["jawOpen"]],
                                avatar.morph_positions[avatar.morph_index("jawOpen")][part_order(avatar)], atol=1e-5)
     (tmp_path / "fcl.json").write_text(json.dumps({"morphs": {"Fcl_MTH_A": "mouthWide"}}))
-    with pytest.raises(CaptureError, match="mouthWide.*not an ARKit"):
+    with pytest.raises(CaptureError, match="must be an ARKit blendshape name, not 'mouthWide'"):
         import_glb(out)
 
 
@@ -488,3 +489,21 @@ def test_node_transforms_place_every_mesh_in_the_scene(tmp_path, avatar):
     np.testing.assert_allclose(b.vertices, a.vertices @ rot.T * 0.01, atol=1e-5)
     np.testing.assert_allclose(b.normals, a.normals @ rot.T, atol=1e-5)
     np.testing.assert_allclose(b.morph_positions, a.morph_positions @ rot.T * 0.01, atol=1e-6)
+
+
+def test_a_scanned_head_is_framed_on_its_face_not_its_bust():
+    """ICT's morphs also move the neck: framing the vertices the morphs move showed head,
+    neck and shoulders (32 cm tall); once its landmarks are found, the face is framed as
+    the default avatar's is."""
+    from capture2face.camera import face_centre_and_height
+    from capture2face.pipeline import load_character
+
+    path = Path(__file__).resolve().parents[2] / "shared" / "characters" / "ict-a.glb"
+    if not path.is_file():
+        pytest.skip(f"{path} not present (the shared characters live in ../shared/characters)")
+    rig = load_character(path)
+    centre, height = face_centre_and_height(rig)
+    _, default_height = face_centre_and_height(default_avatar())
+    assert 0.8 * default_height < height < 1.2 * default_height, (height, default_height)
+    nose = rig.vertices[rig.landmark_vertices[1]]
+    assert abs(centre[1] - nose[1]) < 0.25 * height  # centred on the face, not below it
