@@ -14,6 +14,9 @@ triangle, barycentric).
   inner-lip landmarks meet at one line; they are cast in a second view with the mouth
   opened by the character's own ``jawOpen`` morph, and the triangle and barycentric
   weights they land on there are the same points of the rest mesh.
+* **Lids on their own lids**: cast at rest (the eyes are open); where a pair then fails the
+  load-time check (:func:`capture2face.measures.landmark_faults`: eyeBlink must close it
+  by half), that eye's lids are cast again with the eyes opened by ``eyeWide``.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ import numpy as np
 
 from capture2face.camera import framing_pose, project
 from capture2face.errors import CaptureError
+from capture2face.measures import landmark_faults
 from capture2face.render import FrameState, Renderer, RenderOptions
 from capture2face.rig.arkit_names import arkit_morphs
 from capture2face.rig.deform import deform
@@ -38,8 +42,19 @@ RENDER_SIZE = 512
 INNER_LIP_UPPER = (191, 80, 81, 82, 13, 312, 311, 310, 415)
 INNER_LIP_LOWER = (95, 88, 178, 87, 14, 317, 402, 318, 324)
 INNER_LIPS = (78, 308) + INNER_LIP_UPPER + INNER_LIP_LOWER
-# jawOpen weight of the open-mouth view.
-OPEN_JAW = 0.5
+# MediaPipe's eyelid contours (corners excluded), upper then lower: the subject's right
+# eye, then the left.
+EYELIDS_RIGHT = (246, 161, 160, 159, 158, 157, 173, 7, 163, 144, 145, 153, 154, 155)
+EYELIDS_LEFT = (466, 388, 387, 386, 385, 384, 398, 249, 390, 373, 374, 380, 381, 382)
+# Landmarks cast in a view of their own, opened by the character's morphs (ARKit names at
+# that weight): (morphs, {measure: landmarks}, weight, what they open). A measure of None:
+# always; else only where the rest view's landmarks fail that measure's check
+# (:func:`capture2face.measures.landmark_faults`).
+OPENED_VIEWS = (
+    (("jawOpen",), {None: INNER_LIPS}, 0.5, "mouth opened by jawOpen (inner lips)"),
+    (("eyeWideLeft", "eyeWideRight"), {"eye_right": EYELIDS_RIGHT, "eye_left": EYELIDS_LEFT}, 1.0,
+     "eyes opened by eyeWide (eyelids)"),
+)
 # Search radius (px) around a landmark for triangles to land on.
 SEARCH_PX = 12.0
 # A surface further than this (in inter-ocular distances) from the depth the tracker gives
@@ -90,50 +105,53 @@ def with_surface_landmarks(rig: FaceRig) -> FaceRig:
 
 def find_surface_landmarks(rig: FaceRig) -> SurfaceLandmarks:
     """Every MediaPipe landmark of the character's front view cast onto its skin (see the
-    module docs); the inner lips from a second view with the mouth opened by ``jawOpen``.
+    module docs); the landmarks of :data:`OPENED_VIEWS` from views with the character's own
+    morphs opening them.
 
     Raises:
         CaptureError: the tracker finds no face in the render.
     """
     opts = RenderOptions(size=RENDER_SIZE, wrinkles="off", samples=4)
-    pose = framing_pose(rig, fov_y_degrees=opts.fov_y_degrees)
-    weights = [np.zeros(rig.n_morphs, np.float32)]
-    jaw = next((m for m, a in arkit_morphs(rig.morph_names).items() if a == "jawOpen"), None)
-    if jaw is not None:
-        weights.append(weights[0].copy())
-        weights[1][jaw] = OPEN_JAW
-    views = _tracked_views(rig, pose, opts, weights)
-    if views[0] is None:
-        raise CaptureError(f"character '{rig.name}': the tracker finds no face in its front view")
-    out = _cast_view(rig, views[0], opts.fov_y_degrees)
-    if len(views) > 1:
-        if views[1] is None:
-            log.warning("character '%s': the tracker finds no face with its mouth opened by jawOpen; "
-                        "its inner lips are placed from the closed mouth", rig.name)
-        else:
-            opened = _cast_view(rig, views[1], opts.fov_y_degrees)
-            rows = np.array(INNER_LIPS)
-            rows = rows[opened.vertices[rows] >= 0]
-            out.faces[rows], out.bary[rows], out.vertices[rows] = (
-                opened.faces[rows], opened.bary[rows], opened.vertices[rows])
+    fov = opts.fov_y_degrees
+    pose = framing_pose(rig, fov_y_degrees=fov)
+    by_name = {a: m for m, a in arkit_morphs(rig.morph_names).items()}
+    with Renderer(rig, opts) as renderer, \
+            FaceLandmarker.create_from_options(LandmarkerOptions(num_faces=1)) as landmarker:
+        rest = _tracked_view(renderer, landmarker, rig, pose, np.zeros(rig.n_morphs, np.float32))
+        if rest is None:
+            raise CaptureError(f"character '{rig.name}': the tracker finds no face in its front view")
+        out = _cast_view(rig, rest, fov)
+        for names, groups, weight, what in OPENED_VIEWS:
+            have = [by_name[n] for n in names if n in by_name]
+            if None not in groups:  # a fallback: only for the measures the landmarks so far fail
+                faults = landmark_faults(rig.replace(landmark_faces=out.faces, landmark_bary=out.bary,
+                                                     landmark_vertices=out.vertices))
+                groups = {m: rows for m, rows in groups.items() if m in faults}
+            if not have or not groups:
+                continue
+            weights = np.zeros(rig.n_morphs, np.float32)
+            weights[have] = weight
+            view = _tracked_view(renderer, landmarker, rig, pose, weights)
+            if view is None:
+                log.warning("character '%s': the tracker finds no face with its %s; they are placed at rest",
+                            rig.name, what)
+                continue
+            cast = _cast_view(rig, view, fov)
+            rows = np.array([r for g in groups.values() for r in g])
+            rows = rows[cast.vertices[rows] >= 0]
+            out.faces[rows], out.bary[rows], out.vertices[rows] = cast.faces[rows], cast.bary[rows], cast.vertices[rows]
     return out
 
 
-def _tracked_views(rig: FaceRig, pose: np.ndarray, opts: RenderOptions, weights: list) -> list:
-    """One :class:`_View` per morph weight vector (M,) (None where no face is found)."""
-    with Renderer(rig, opts) as renderer:
-        images = [renderer.render(FrameState(rig.bone_rest.copy(), w, pose)) for w in weights]
-    views = []
-    with FaceLandmarker.create_from_options(LandmarkerOptions(num_faces=1)) as landmarker:
-        for k, (image, w) in enumerate(zip(images, weights)):
-            obs = landmarker.detect(image, float(k))
-            if obs is None:
-                views.append(None)
-                continue
-            verts, _ = deform(rig, rig.bone_rest, w)
-            views.append(_View(np.asarray(verts, np.float64), pose, obs.landmarks_px.astype(np.float64),
-                               obs.depth.astype(np.float64)))
-    return views
+def _tracked_view(renderer: Renderer, landmarker, rig: FaceRig, pose: np.ndarray, weights: np.ndarray):
+    """The :class:`_View` of the rig under morph ``weights`` (M,), or None where the tracker
+    finds no face."""
+    obs = landmarker.detect(renderer.render(FrameState(rig.bone_rest.copy(), weights, pose)), 0.0)
+    if obs is None:
+        return None
+    verts, _ = deform(rig, rig.bone_rest, weights)
+    return _View(np.asarray(verts, np.float64), pose, obs.landmarks_px.astype(np.float64),
+                 obs.depth.astype(np.float64))
 
 
 def _cast_view(rig: FaceRig, view: _View, fov_y_degrees: float) -> SurfaceLandmarks:
