@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -13,10 +14,13 @@ import pytest
 from capture2face.character.landmarks import INNER_LIP_LOWER, INNER_LIP_UPPER, INNER_LIPS
 from capture2face.character.load import load_character, warn_landmark_faults
 from capture2face.eval.fidelity import summary_line, table
-from capture2face.measures import MEASURES, ClipFidelity, landmark_faults, rig_landmark_points
+from capture2face.gltf import export_glb, import_glb
+from capture2face.measures import MEASURES, ClipFidelity, clip_fidelity, landmark_faults, rig_landmark_points
+from capture2face.pipeline.report_html import _fidelity_tables
 from capture2face.rig.arkit_names import arkit_morphs
 from capture2face.rig.avatar import default_avatar
 from capture2face.rig.face_rig import FaceRig, landmark_points
+from tests.test_arkit import synthetic_track
 
 SHARED_CHARACTERS = Path(__file__).resolve().parents[2] / "shared" / "characters"
 
@@ -135,6 +139,7 @@ def test_a_character_whose_jaw_does_not_open_its_lips_warns_and_leaves_the_measu
     assert "mouth_open" not in fig["measures"] and "13-14" in fig["left_out"]["mouth_open"]
     assert fig["summary"]["judged"] == len(MEASURES) - 1
     assert "left out" in table([fig]) and f"/{len(MEASURES) - 1} judged" in summary_line([fig])
+    assert "Left out: mouth_open" in _fidelity_tables(fig)
 
 
 def test_default_avatar_keeps_its_hand_set_landmarks():
@@ -165,3 +170,25 @@ def test_surface_landmarks_round_trip_through_the_rig_file(head, tmp_path):
         a, b = getattr(head, name), getattr(back, name)
         assert a.dtype == b.dtype and np.array_equal(a, b), name
     np.testing.assert_array_equal(landmark_points(back, back.vertices), landmark_points(head, head.vertices))
+    # And through the rig's own .glb (its capture2face extras).
+    export_glb(head, tmp_path / "rig.glb")
+    again = import_glb(tmp_path / "rig.glb")
+    assert np.array_equal(again.landmark_faces, head.landmark_faces)
+    assert np.array_equal(again.landmark_bary, head.landmark_bary)
+
+
+def test_clip_fidelity_of_a_failing_character_leaves_the_measure_out():
+    """The wiring of report.json's fidelity (clip_fidelity): the character's failing pair is
+    checked where the figures are made."""
+    good = _shared_character("ict-a.glb")
+    mpos = good.morph_positions.copy()
+    mpos[[i for i, a in arkit_morphs(good.morph_names).items() if a in ("eyeBlinkLeft", "jawOpen")]] = 0.0
+    bad = good.replace(morph_positions=mpos)
+    track, _ = synthetic_track()
+    n = track.n_frames
+    animation = SimpleNamespace(bone_positions=np.repeat(bad.bone_rest[None], n, 0),
+                                blend_weights=np.zeros((n, bad.n_morphs), np.float32))
+    fig = clip_fidelity(track, animation, bad, "x").figures()
+    assert set(fig["left_out"]) == {"mouth_open", "eye_left"}
+    assert set(fig["measures"]) == set(MEASURES) - {"mouth_open", "eye_left"}
+    assert set(clip_fidelity(track, animation, good, "x").figures()["measures"]) == set(MEASURES)

@@ -875,6 +875,9 @@ def _apply_ours(rig: FaceRig, ours: dict, m: dict) -> FaceRig:
         joints[side >= 0], weights[side >= 0] = 0, [1.0, 0.0, 0.0, 0.0]
         eyes = dict(eye_centres=np.asarray(ours["eye_centres_cm"], np.float32).reshape(2, 3),
                     eye_vertex_side=side, skin_joints=joints, skin_weights=weights)
+    if "landmark_faces" in ours and "landmark_bary" in ours:  # landmarks on the surface
+        eyes.update(landmark_faces=np.asarray(ours["landmark_faces"], np.int32).reshape(-1, 3),
+                    landmark_bary=np.asarray(ours["landmark_bary"], np.float32).reshape(-1, 3))
     return rig.replace(
         **eyes,
         bone_rest=np.asarray(ours["bone_rest_cm"], np.float32).reshape(-1, 3),
