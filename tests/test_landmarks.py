@@ -11,7 +11,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from capture2face.character.landmarks import INNER_LIP_LOWER, INNER_LIP_UPPER, INNER_LIPS
+from capture2face.character.landmarks import INNER_LIP_LOWER, INNER_LIP_UPPER, INNER_LIPS, find_surface_landmarks
 from capture2face.character.load import load_character, warn_landmark_faults
 from capture2face.eval.fidelity import summary_line, table
 from capture2face.gltf import export_glb, import_glb
@@ -25,11 +25,16 @@ from tests.test_arkit import synthetic_track
 SHARED_CHARACTERS = Path(__file__).resolve().parents[2] / "shared" / "characters"
 
 
-def _shared_character(name: str) -> FaceRig:
+def _shared_path(name: str) -> Path:
+    """A third-party head from ../shared/characters; skips the test when it is absent."""
     path = SHARED_CHARACTERS / name
     if not path.is_file():
         pytest.skip(f"{path} not present (third-party heads live in ../shared/characters)")
-    return load_character(path)
+    return path
+
+
+def _shared_character(name: str) -> FaceRig:
+    return load_character(_shared_path(name))
 
 
 @pytest.fixture(scope="module", params=["ict-a.glb", "ict-b.glb"])
@@ -192,3 +197,18 @@ def test_clip_fidelity_of_a_failing_character_leaves_the_measure_out():
     assert set(fig["left_out"]) == {"mouth_open", "eye_left"}
     assert set(fig["measures"]) == set(MEASURES) - {"mouth_open", "eye_left"}
     assert set(clip_fidelity(track, animation, good, "x").figures()["measures"]) == set(MEASURES)
+
+
+def test_lash_cards_taken_for_skin_are_still_never_landed_on():
+    """An importer may take an eyelash mesh for skin: its vertices, marked as an overlay (alpha
+    MASK), still take no landmark, and the lids stay on the lids."""
+    rig = import_glb(_shared_path("ict-a.glb"))
+    lashes = rig.overlay_vertices
+    assert lashes is not None and lashes.sum() > 1000  # the EyeLashes mesh (MASK): 1368 vertices
+    material = rig.material.copy()
+    material[lashes] = 0
+    found = find_surface_landmarks(rig.replace(material=material))
+    assert (found.faces >= 0).all() and not lashes[found.faces].any()
+    cast = rig.replace(material=material, landmark_faces=found.faces, landmark_bary=found.bary,
+                       landmark_vertices=found.vertices)
+    assert landmark_faults(cast) == {}
