@@ -81,10 +81,11 @@ class SurfaceLandmarks:
 
 @dataclass
 class _View:
-    """One tracked render: deformed vertices (V, 3), pose (4, 4), the tracker's landmarks
-    (L, 2) px and relative depths (L,) px."""
+    """One tracked render: deformed vertices and normals (V, 3), pose (4, 4), the tracker's
+    landmarks (L, 2) px and relative depths (L,) px."""
 
     vertices: np.ndarray
+    normals: np.ndarray
     pose: np.ndarray
     landmarks_px: np.ndarray
     depth_px: np.ndarray
@@ -149,8 +150,8 @@ def _tracked_view(renderer: Renderer, landmarker, rig: FaceRig, pose: np.ndarray
     obs = landmarker.detect(renderer.render(FrameState(rig.bone_rest.copy(), weights, pose)), 0.0)
     if obs is None:
         return None
-    verts, _ = deform(rig, rig.bone_rest, weights)
-    return _View(np.asarray(verts, np.float64), pose, obs.landmarks_px.astype(np.float64),
+    verts, normals = deform(rig, rig.bone_rest, weights)
+    return _View(np.asarray(verts, np.float64), np.asarray(normals, np.float64), pose, obs.landmarks_px.astype(np.float64),
                  obs.depth.astype(np.float64))
 
 
@@ -162,10 +163,10 @@ def _cast_view(rig: FaceRig, view: _View, fov_y_degrees: float) -> SurfaceLandma
     cam = view.vertices @ view.pose[:3, :3].T + view.pose[:3, 3]
     depth = -cam[:, 2]
     tris = np.asarray(rig.triangles, np.int64)
-    # Facing the camera (counter-clockwise seen from outside): the back of a head projects
-    # onto the face too.
-    e1, e2 = cam[tris[:, 1]] - cam[tris[:, 0]], cam[tris[:, 2]] - cam[tris[:, 0]]
-    facing = np.einsum("tc,tc->t", np.cross(e1, e2), -cam[tris].mean(1)) > 0
+    # Facing the camera (by the vertex normals: a file's winding may be either way): the back
+    # of a head projects onto the face too.
+    normals = view.normals[tris].sum(1) @ view.pose[:3, :3].T  # (T, 3) camera space
+    facing = np.einsum("tc,tc->t", normals, -cam[tris].mean(1)) > 0
     facing &= np.isfinite(px[tris]).all((1, 2))
     overlay = np.zeros(rig.n_vertices, bool) if rig.overlay_vertices is None else np.asarray(rig.overlay_vertices)
     mat = np.asarray(rig.material)
@@ -207,8 +208,16 @@ def _candidates(px: np.ndarray, depth: np.ndarray, tris: np.ndarray, points: np.
     (K, 2), with the point of each nearest the landmark."""
     corners = px[tris]  # (T, 3, 2)
     lo, hi = corners.min(1) - SEARCH_PX, corners.max(1) + SEARCH_PX
-    near = ((points[:, None] >= lo[None]) & (points[:, None] <= hi[None])).all(-1)  # (K, T)
-    row, t = np.nonzero(near)
+    if len(points):  # only triangles near the landmarks at all: a whole body projects mostly elsewhere
+        box = ((lo <= points.max(0)) & (hi >= points.min(0))).all(1)
+        tris, corners, lo, hi = tris[box], corners[box], lo[box], hi[box]
+    rows, ts = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+    for s in range(0, len(points), 64):  # (64, T) at a time: memory stays small
+        chunk = points[s:s + 64, None]
+        r, t = np.nonzero(((chunk >= lo[None]) & (chunk <= hi[None])).all(-1))
+        rows.append(r + s)
+        ts.append(t)
+    row, t = np.concatenate(rows), np.concatenate(ts)
     a, b, c = (corners[t, i] for i in range(3))
     p = points[row]
     q = _closest_on_triangle(p, a, b, c)
