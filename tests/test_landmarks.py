@@ -11,7 +11,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from capture2face.character.landmarks import INNER_LIP_LOWER, INNER_LIP_UPPER, INNER_LIPS, find_surface_landmarks
+from capture2face.character.landmarks import INNER_LIP_LOWER, INNER_LIP_UPPER, INNER_LIPS, with_surface_landmarks
 from capture2face.character.load import load_character, warn_landmark_faults
 from capture2face.eval.fidelity import summary_line, table
 from capture2face.gltf import export_glb, import_glb
@@ -207,8 +207,6 @@ def test_lash_cards_taken_for_skin_are_still_never_landed_on():
     assert lashes is not None and lashes.sum() > 1000  # the EyeLashes mesh (MASK): 1368 vertices
     material = rig.material.copy()
     material[lashes] = 0
-    found = find_surface_landmarks(rig.replace(material=material))
-    assert (found.faces >= 0).all() and not lashes[found.faces].any()
-    cast = rig.replace(material=material, landmark_faces=found.faces, landmark_bary=found.bary,
-                       landmark_vertices=found.vertices)
+    cast = with_surface_landmarks(rig.replace(material=material))
+    assert (cast.landmark_faces >= 0).all() and not lashes[cast.landmark_faces].any()
     assert landmark_faults(cast) == {}

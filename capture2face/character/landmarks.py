@@ -91,12 +91,6 @@ class _View:
     depth_px: np.ndarray
 
 
-def find_landmark_vertices(rig: FaceRig) -> np.ndarray:
-    """(478,) int32 vertex nearest each landmark's surface point (-1 where none); see
-    :func:`find_surface_landmarks`."""
-    return find_surface_landmarks(rig).vertices
-
-
 def with_surface_landmarks(rig: FaceRig) -> FaceRig:
     """``rig`` with ``landmark_faces``, ``landmark_bary`` and ``landmark_vertices`` from
     :func:`find_surface_landmarks`."""
