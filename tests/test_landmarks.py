@@ -15,6 +15,7 @@ from capture2face.character.landmarks import INNER_LIP_LOWER, INNER_LIP_UPPER, I
 from capture2face.character.load import load_character, warn_landmark_faults
 from capture2face.eval.fidelity import summary_line, table
 from capture2face.gltf import export_glb, import_glb
+from capture2face.gltf.rig_import import _overlays
 from capture2face.measures import MEASURES, ClipFidelity, clip_fidelity, landmark_faults, rig_landmark_points
 from capture2face.pipeline.report_html import _fidelity_tables
 from capture2face.rig.arkit_names import arkit_morphs
@@ -210,3 +211,18 @@ def test_lash_cards_taken_for_skin_are_still_never_landed_on():
     cast = with_surface_landmarks(rig.replace(material=material))
     assert (cast.landmark_faces >= 0).all() and not lashes[cast.landmark_faces].any()
     assert landmark_faults(cast) == {}
+
+
+def test_overlays_are_alpha_cards_and_named_meshes_never_the_skin():
+    g = {"materials": [{"name": "Body", "alphaMode": "MASK"}, {"name": "Lashes", "alphaMode": "MASK"},
+                       {"name": "Lens", "alphaMode": "BLEND"}, {"name": "M_Hair"}, {"name": "Teeth"}],
+         "meshes": [{"name": "Head_Brows"}, {"name": "Glasses"}, {"name": "Mouth"}],
+         "nodes": [{"mesh": 0}, {"mesh": 1}, {"mesh": 2}]}
+    # Three meshes: the head (most triangles; its skin is MASKed and its name says brows),
+    # glasses, a mouth with teeth and a hair card.
+    mats = np.array([0, 0, 0, 1, 1, 2, 2, 4, 3, -1])
+    parts = [{"offset": 0, "pos": np.zeros((5, 3)), "tri_count": 100},
+             {"offset": 5, "pos": np.zeros((2, 3)), "tri_count": 4},
+             {"offset": 7, "pos": np.zeros((3, 3)), "tri_count": 10}]
+    got = _overlays(g, [0, 1, 2], {"gltf_material": mats, "largest_material": 0, "parts": parts})
+    assert got.tolist() == [False, False, False, True, True, True, True, False, True, False]
