@@ -11,6 +11,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+import capture2face.character.landmarks as landmarks_module
 from capture2face.character.landmarks import INNER_LIP_LOWER, INNER_LIP_UPPER, INNER_LIPS, with_surface_landmarks
 from capture2face.character.load import load_character, warn_landmark_faults
 from capture2face.eval.fidelity import summary_line, table
@@ -226,3 +227,23 @@ def test_overlays_are_alpha_cards_and_named_meshes_never_the_skin():
              {"offset": 7, "pos": np.zeros((3, 3)), "tri_count": 10}]
     got = _overlays(g, [0, 1, 2], {"gltf_material": mats, "largest_material": 0, "parts": parts})
     assert got.tolist() == [False, False, False, True, True, True, True, False, True, False]
+
+
+def test_lids_are_cast_again_with_eye_wide_only_where_the_rest_view_fails(monkeypatch):
+    """With its left blink zeroed, a head's left lids fail the check at rest: they (and only
+    they) are cast again in the eyeWide view; the inner lips once, in the jawOpen 0.5 view."""
+    rig = import_glb(_shared_path("ict-a.glb"))
+    blink = next(i for i, a in arkit_morphs(rig.morph_names).items() if a == "eyeBlinkLeft")
+    mpos = rig.morph_positions.copy()
+    mpos[blink] = 0.0
+    calls = []
+    recast = landmarks_module._recast
+
+    def spy(rig, out, view, fov, rows, what):
+        calls.append((sorted(rows), what.split()[0]))
+        recast(rig, out, view, fov, rows, what)
+
+    monkeypatch.setattr(landmarks_module, "_recast", spy)
+    cast = with_surface_landmarks(rig.replace(morph_positions=mpos))
+    assert calls == [(sorted(INNER_LIPS), "mouth"), (sorted(landmarks_module.EYELIDS_LEFT), "eyes")]
+    assert list(landmark_faults(cast)) == ["eye_left"]

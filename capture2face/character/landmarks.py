@@ -12,8 +12,9 @@ triangle, barycentric).
   triangle nearest the landmark in the image (a containing one, front-most).
 * **Inner lips on their own lips**: at rest the mouth is closed and the upper and lower
   inner-lip landmarks meet at one line; they are cast in a second view with the mouth
-  opened by the character's own ``jawOpen`` morph, and the triangle and barycentric
-  weights they land on there are the same points of the rest mesh.
+  opened by the character's own ``jawOpen`` morph (0.5; 1.0 where the pair 13-14 then
+  still fails the check below), and the triangle and barycentric weights they land on
+  there are the same points of the rest mesh.
 * **Lids on their own lids**: cast at rest (the eyes are open); where a pair then fails the
   load-time check (:func:`capture2face.measures.landmark_faults`: eyeBlink must close it
   by half), that eye's lids are cast again with the eyes opened by ``eyeWide``.
@@ -46,13 +47,14 @@ INNER_LIPS = (78, 308) + INNER_LIP_UPPER + INNER_LIP_LOWER
 # eye, then the left.
 EYELIDS_RIGHT = (246, 161, 160, 159, 158, 157, 173, 7, 163, 144, 145, 153, 154, 155)
 EYELIDS_LEFT = (466, 388, 387, 386, 385, 384, 398, 249, 390, 373, 374, 380, 381, 382)
-# Landmarks cast in a view of their own, opened by the character's morphs (ARKit names at
-# that weight): (morphs, {measure: landmarks}, weight, what they open). A measure of None:
-# always; else only where the rest view's landmarks fail that measure's check
+# Landmarks cast in views of their own, opened by the character's morphs (ARKit names):
+# (morphs, {measure: its landmarks}, weights tried in turn, always, what they open). Always:
+# the first weight's view is cast whatever the rest view gave; the next weights (or all, if
+# not always) only for the measures whose pair still fails the check
 # (:func:`capture2face.measures.landmark_faults`).
 OPENED_VIEWS = (
-    (("jawOpen",), {None: INNER_LIPS}, 0.5, "mouth opened by jawOpen (inner lips)"),
-    (("eyeWideLeft", "eyeWideRight"), {"eye_right": EYELIDS_RIGHT, "eye_left": EYELIDS_LEFT}, 1.0,
+    (("jawOpen",), {"mouth_open": INNER_LIPS}, (0.5, 1.0), True, "mouth opened by jawOpen (inner lips)"),
+    (("eyeWideLeft", "eyeWideRight"), {"eye_right": EYELIDS_RIGHT, "eye_left": EYELIDS_LEFT}, (1.0,), False,
      "eyes opened by eyeWide (eyelids)"),
 )
 # Search radius (px) around a landmark for triangles to land on.
@@ -112,35 +114,42 @@ def find_surface_landmarks(rig: FaceRig) -> SurfaceLandmarks:
     by_name = {a: m for m, a in arkit_morphs(rig.morph_names).items()}
     with Renderer(rig, opts) as renderer, \
             FaceLandmarker.create_from_options(LandmarkerOptions(num_faces=1)) as landmarker:
-        rest = _tracked_view(renderer, landmarker, rig, pose, np.zeros(rig.n_morphs, np.float32))
+        rest = _tracked_view(renderer, landmarker, rig, pose)
         if rest is None:
             raise CaptureError(f"character '{rig.name}': the tracker finds no face in its front view")
         out = _cast_view(rig, rest, fov)
-        for names, groups, weight, what in OPENED_VIEWS:
-            have = [by_name[n] for n in names if n in by_name]
-            if None not in groups:  # a fallback: only for the measures the landmarks so far fail
-                faults = landmark_faults(rig.replace(landmark_faces=out.faces, landmark_bary=out.bary,
-                                                     landmark_vertices=out.vertices))
-                groups = {m: rows for m, rows in groups.items() if m in faults}
-            if not have or not groups:
-                continue
-            weights = np.zeros(rig.n_morphs, np.float32)
-            weights[have] = weight
-            view = _tracked_view(renderer, landmarker, rig, pose, weights)
-            if view is None:
-                log.warning("character '%s': the tracker finds no face with its %s; they are placed at rest",
-                            rig.name, what)
-                continue
-            cast = _cast_view(rig, view, fov)
-            rows = np.array([r for g in groups.values() for r in g])
-            rows = rows[cast.vertices[rows] >= 0]
-            out.faces[rows], out.bary[rows], out.vertices[rows] = cast.faces[rows], cast.bary[rows], cast.vertices[rows]
+        for names, groups, weights, always, what in OPENED_VIEWS:
+            morphs = [by_name[n] for n in names if n in by_name]
+            for k, weight in enumerate(weights if morphs else ()):
+                todo = groups
+                if k or not always:  # a fallback: only for the measures the landmarks so far fail
+                    faults = landmark_faults(rig.replace(landmark_faces=out.faces, landmark_bary=out.bary,
+                                                         landmark_vertices=out.vertices))
+                    todo = {m: rows for m, rows in groups.items() if m in faults}
+                if todo:
+                    _recast(rig, out, _tracked_view(renderer, landmarker, rig, pose, weight, morphs),
+                            fov, [r for rows in todo.values() for r in rows], what)
     return out
 
 
-def _tracked_view(renderer: Renderer, landmarker, rig: FaceRig, pose: np.ndarray, weights: np.ndarray):
-    """The :class:`_View` of the rig under morph ``weights`` (M,), or None where the tracker
-    finds no face."""
+def _recast(rig: FaceRig, out: SurfaceLandmarks, view, fov_y_degrees: float, rows: list, what: str) -> None:
+    """``out``'s landmarks ``rows`` cast again in ``view`` (in place); a warning where the
+    tracker found no face in it."""
+    if view is None:
+        log.warning("character '%s': the tracker finds no face with its %s; they are placed at rest", rig.name, what)
+        return
+    cast = _cast_view(rig, view, fov_y_degrees)
+    rows = np.array(rows)
+    rows = rows[cast.vertices[rows] >= 0]
+    out.faces[rows], out.bary[rows], out.vertices[rows] = cast.faces[rows], cast.bary[rows], cast.vertices[rows]
+
+
+def _tracked_view(renderer: Renderer, landmarker, rig: FaceRig, pose: np.ndarray, weight: float = 0.0,
+                  morphs=()):
+    """The :class:`_View` of the rig with ``morphs`` (indices) at ``weight``, the others at
+    0, or None where the tracker finds no face."""
+    weights = np.zeros(rig.n_morphs, np.float32)
+    weights[list(morphs)] = weight
     obs = landmarker.detect(renderer.render(FrameState(rig.bone_rest.copy(), weights, pose)), 0.0)
     if obs is None:
         return None
