@@ -14,6 +14,7 @@ from pathlib import Path
 
 from capture2face import batch, bench, pipeline
 from capture2face.errors import CaptureError, exit_interrupted, install_process_defaults
+from capture2face.eval import shading
 from capture2face.eval.fidelity import evaluate_fidelity, table
 from capture2face.eval.synthetic import evaluate_synthetic, summary_line
 from capture2face.gltf import export_glb
@@ -130,6 +131,18 @@ def _cmd_eval_fidelity(args: argparse.Namespace) -> int:
         write_text_atomic(args.json, json.dumps(result, indent=2) + "\n")
     print(table(result["clips"]))
     print(result["summary"])
+    return 0
+
+
+def _cmd_eval_shading(args: argparse.Namespace) -> int:
+    results = [shading.shading_of(path, progress=not args.quiet) for path in args.runs]
+    summary = shading.summary_line(results)
+    if args.json:
+        write_text_atomic(args.json, json.dumps({"runs": results, "summary": summary}, indent=2) + "\n")
+    for r in results:
+        print(f"{r['run']}: skin darkening p95 " + ", ".join(f"{k} {v:.1%}" for k, v in r["darkening_p95"].items())
+              + f"; mouth opening r {r['mouth_open_r']:.2f}")
+    print(summary)
     return 0
 
 
@@ -273,6 +286,7 @@ def _add_eval_parser(sub, common: argparse.ArgumentParser) -> None:
     evals = p.add_subparsers(dest="dataset", required=True, metavar="DATASET")
     _add_eval_synthetic_parser(evals, common)
     _add_eval_fidelity_parser(evals, common)
+    _add_eval_shading_parser(evals, common)
 
 
 def _add_eval_synthetic_parser(evals, common: argparse.ArgumentParser) -> None:
@@ -294,6 +308,14 @@ def _add_eval_fidelity_parser(evals, common: argparse.ArgumentParser) -> None:
                    help="write <clip>.fidelity.png per clip: each measure over time")
     p.add_argument("--json", metavar="PATH", help="write every figure as JSON")
     p.set_defaults(func=_cmd_eval_fidelity)
+
+
+def _add_eval_shading_parser(evals, common: argparse.ArgumentParser) -> None:
+    p = evals.add_parser("shading", parents=[common],
+                         help="does the rendered character shade right? (tracks a run's avatar.mp4)")
+    p.add_argument("runs", nargs="+", metavar="RUN_DIR", help="`run` output folders (avatar.mp4 and track.npz)")
+    p.add_argument("--json", metavar="PATH", help="write every figure as JSON")
+    p.set_defaults(func=_cmd_eval_shading)
 
 
 def _add_batch_parser(sub, common: argparse.ArgumentParser) -> None:

@@ -131,6 +131,7 @@ def test_batch_imports_a_glb_character_once(tmp_path, monkeypatch):
     real = load.automatic_wrinkles
     monkeypatch.setattr(load, "automatic_wrinkles", lambda rig, *a, **k: built.append(1) or real(rig, *a, **k))
     monkeypatch.setattr(load, "_IMPORTED", {})
+    monkeypatch.setenv("CAPTURE2FACE_CACHE", str(tmp_path / "cache"))  # no prepared copy from another run
 
     report = run_batch([clip, tmp_path / "b.mp4"], tmp_path / "out", RunOptions(character=char, size=64, compare=False),
                        jobs=1, progress=False)
@@ -140,4 +141,6 @@ def test_batch_imports_a_glb_character_once(tmp_path, monkeypatch):
     assert len(built) == 1 and is_automatic(rig)  # the memo's rig, with its wrinkle influences
     assert load_character(char) is rig
     os.utime(char, ns=(char.stat().st_atime_ns, char.stat().st_mtime_ns + 10**9))
-    assert load_character(char) is not rig and len(built) == 2
+    assert load_character(char) is not rig and len(built) == 1  # touched, same content: the prepared copy
+    export_arkit_character(default_avatar(), char, naming="_L")  # new content
+    assert len(built) == 1 and load_character(char) is not rig and len(built) == 2
