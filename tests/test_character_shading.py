@@ -232,7 +232,7 @@ def test_unreadable_texture_draws_the_base_colour_factor_with_a_warning(tmp_path
     with caplog.at_level(logging.WARNING, logger="capture2face"):
         rig = import_glb(_variant(tmp_path_factory, "lost_texture.glb", lose))
     said = [r.getMessage() for r in caplog.records if "sclera" in r.getMessage()]
-    assert len(said) == 1 and "image 1" in said[0] and "base colour factor" in said[0]
+    assert len(said) == 1 and "sclera.ktx2' is missing" in said[0] and "base colour factor" in said[0]
     eyes = (rig.material == 1) & (rig.alpha_mode == 0)  # sclera (white factor) and iris
 
     def colours(r):

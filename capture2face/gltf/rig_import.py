@@ -108,7 +108,9 @@ from capture2face.gltf.container import (
     EXTRAS_KEY,
     GlbReader,
     decode_image,
+    texture_transform,
 )
+from capture2face.gltf.mapping import check_mapping
 from capture2face.rig.arkit_names import arkit_morphs, canonical_arkit
 from capture2face.rig.avatar import default_avatar
 from capture2face.rig.face_rig import REGION_NAMES, ZONE_NAMES, FaceRig
@@ -169,8 +171,7 @@ def _load_mapping(glb: Path, mapping_json) -> tuple[dict, Path]:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise CaptureError(f"{path}: not a readable mapping JSON ({exc})") from None
-    if not isinstance(data, dict):
-        raise CaptureError(f"{path}: the mapping JSON must be an object")
+    check_mapping(data, path)  # the schema (capture2face.gltf.mapping), before anything is imported
     return data, path.parent
 
 
@@ -283,12 +284,13 @@ def _primitive_blocks(r: GlbReader, mesh: dict, mapping: dict) -> tuple[dict[int
         if key not in blocks:
             order.append(key)
             blocks[key] = {"prim": prim, "n": len(pos), "tris": [], "material": np.zeros(len(pos), np.uint8),
-                           "gltf_material": np.full(len(pos), -1, np.int64), "tri_count": 0}
+                           "gltf_material": np.full(len(pos), -1, np.int64), "tri_count": 0, "uv_parts": []}
         blk = blocks[key]
         tris = _triangles(r, prim, len(pos))
         blk["tris"].append(tris)
         code = _material_code(g, prim, mapping, mesh.get("name", ""))
         used = np.unique(tris)
+        blk["uv_parts"].append((prim, used))
         if code:
             blk["material"][used] = code
         blk["gltf_material"][used] = prim.get("material", -1)
@@ -310,13 +312,34 @@ def _attribute(r: GlbReader, prim: dict, name: str, as_float: bool = True) -> np
     return None
 
 
+def _texture_uvs(r: GlbReader, blk: dict) -> np.ndarray | None:
+    """(n, 2) UVs of a block as its base colour textures sample them: per primitive, the
+    texture's coordinate set with its ``KHR_texture_transform`` applied (gltfpack's
+    quantized UVs rely on it) at the vertices the primitive draws; TEXCOORD_0 as stored
+    where a primitive has no base colour texture."""
+    uv = _attribute(r, blk["prim"], "TEXCOORD_0")
+    materials = r.gltf.get("materials", [])
+    for prim, used in blk["uv_parts"]:
+        mat = materials[prim["material"]] if "material" in prim else {}
+        info = (mat.get("pbrMetallicRoughness") or {}).get("baseColorTexture")
+        if not info:
+            continue
+        tex_coord, m = texture_transform(info)
+        src = _attribute(r, prim, f"TEXCOORD_{tex_coord}")
+        if src is None:
+            continue
+        uv = np.array(src, np.float64) if uv is None else np.array(uv, np.float64)
+        uv[used] = src[used].astype(np.float64) @ m[:, :2].T + m[:, 2]
+    return uv
+
+
 def _block_arrays(r: GlbReader, key: int, blk: dict, offset: int) -> dict:
     """One block's vertex arrays (None where its primitive lacks the attribute), its
     triangles shifted by ``offset``, and its morph target deltas."""
     prim, n = blk["prim"], blk["n"]
     out = {"pos": r.accessor(key).astype(np.float64)}
     out["nrm"] = _attribute(r, prim, "NORMAL")
-    out["uv"] = _attribute(r, prim, "TEXCOORD_0")
+    out["uv"] = _texture_uvs(r, blk)
     out["tan"] = _attribute(r, prim, "TANGENT")
     j = [_attribute(r, prim, f"JOINTS_{s}", as_float=False) for s in range(2)]
     w = [_attribute(r, prim, f"WEIGHTS_{s}") for s in range(2)]
@@ -815,9 +838,7 @@ class _TextureReader:
         self._images: dict = {}
 
     def _source(self, info: dict) -> object:
-        tex = self.r.gltf.get("textures", [])[info["index"]]
-        ext = [e.get("source") for e in (tex.get("extensions") or {}).values() if isinstance(e, dict)]
-        return next((s for s in ext if s is not None), tex.get("source"))
+        return next(iter(self.r.texture_sources(info)), None)
 
     def get(self, info: dict | None, material: dict, role: str) -> np.ndarray | None:
         """The image behind textureInfo ``info`` of ``material`` (``role``: what is drawn
@@ -881,16 +902,17 @@ def _material_albedo(tr: _TextureReader, mat: dict, size: tuple[int, int] | None
     return (np.clip(_srgb_encode(np.clip(lin, 0, 1)), 0, 1) * 255 + 0.5).astype(np.uint8), alpha
 
 
-def _needs_atlas(g: dict, used: list[int], largest: int | None) -> bool:
+def _needs_atlas(r: GlbReader, used: list[int], largest: int | None) -> bool:
     """The drawn materials need a texture of their own each: two or more base-colour
     textures, or a MASK / BLEND material whose alpha the largest material's texture
     does not hold (another texture, none, or another alpha factor)."""
-    materials = g.get("materials", [])
+    materials = r.gltf.get("materials", [])
 
     def key(i):
         pbr = materials[i].get("pbrMetallicRoughness", {})
-        info = pbr.get("baseColorTexture")
-        source = g["textures"][info["index"]].get("source") if info else None
+        # The image it samples (a WebP / KTX2 one named by an extension counts: a file
+        # from gltfpack -tw or glTF-Transform webp has no plain source).
+        source = next(iter(r.texture_sources(pbr.get("baseColorTexture"))), None)
         return source, (list(pbr.get("baseColorFactor", [1.0] * 4)) + [1.0])[3]
 
     sources = {key(i)[0] for i in used if key(i)[0] is not None}
@@ -926,7 +948,7 @@ def _textures(r: GlbReader, surf: dict, mapping: dict, mapping_dir: Path, ours: 
     tr = _TextureReader(r)
     uvs = surf["uv"].astype(np.float32)
     used = sorted(int(i) for i in np.unique(surf["gltf_material"]) if i >= 0)
-    if _needs_atlas(g, used, surf["largest_material"]):
+    if _needs_atlas(r, used, surf["largest_material"]):
         albedo, alpha, normal_map, uvs = _atlas(tr, surf, used, materials)
     else:
         index = surf["largest_material"]
