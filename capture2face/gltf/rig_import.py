@@ -484,6 +484,7 @@ def _build(r: GlbReader, glb: Path, mapping: dict, mapping_dir: Path, ours: dict
         double_sided=_double_sided(r.gltf, surf),
         alpha=tex["alpha"], alpha_mode=None if tex["alpha_modes"] is None else tex["alpha_modes"][0],
         alpha_cutoff=None if tex["alpha_modes"] is None else tex["alpha_modes"][1],
+        overlay_vertices=_overlays(g, picked, surf),
     )
     if ours:
         return _apply_ours(rig.replace(head_weights=None), ours, surf)
@@ -495,6 +496,29 @@ def _double_sided(g: dict, surf: dict) -> bool:
     without culling: one draw call); a primitive without a material is single-sided."""
     materials = g.get("materials", [])
     return any(bool(materials[int(i)].get("doubleSided", False)) for i in np.unique(surf["gltf_material"]) if i >= 0)
+
+
+_OVERLAY_WORDS = ("lash", "brow", "hair", "glass", "lens", "beard", "fur")
+
+
+def _overlays(g: dict, picked: list[int], surf: dict) -> np.ndarray | None:
+    """(V,) bool: vertices of see-through overlays in front of the face that landmarks must
+    not land on (alpha MASK / BLEND materials: lash and hair cards, glass; meshes or
+    materials named lash, brow, hair, glass...), or None where there are none. The material
+    and the mesh with the most triangles (the skin, whatever its name or alpha mode) never."""
+    materials = g.get("materials", [])
+    see_through = np.array([str(m.get("alphaMode", "OPAQUE")).upper() in ("MASK", "BLEND")
+                            or any(w in str(m.get("name", "")).lower() for w in _OVERLAY_WORDS)
+                            for m in materials] + [False], bool)  # index -1: no material
+    if surf["largest_material"] is not None:
+        see_through[int(surf["largest_material"])] = False
+    out = see_through[surf["gltf_material"]]
+    largest = max(range(len(picked)), key=lambda k: surf["parts"][k]["tri_count"])
+    for k, (ni, part) in enumerate(zip(picked, surf["parts"])):
+        name = str(g["meshes"][g["nodes"][ni]["mesh"]].get("name", "")).lower()
+        if k != largest and any(w in name for w in _OVERLAY_WORDS):
+            out[part["offset"]:part["offset"] + len(part["pos"])] = True
+    return out if out.any() else None
 
 
 # ---- skeleton -------------------------------------------------------------------------
@@ -1038,6 +1062,9 @@ def _apply_ours(rig: FaceRig, ours: dict, m: dict) -> FaceRig:
         joints[side >= 0], weights[side >= 0] = 0, [1.0, 0.0, 0.0, 0.0]
         eyes = dict(eye_centres=np.asarray(ours["eye_centres_cm"], np.float32).reshape(2, 3),
                     eye_vertex_side=side, skin_joints=joints, skin_weights=weights)
+    if "landmark_faces" in ours and "landmark_bary" in ours:  # landmarks on the surface
+        eyes.update(landmark_faces=np.asarray(ours["landmark_faces"], np.int32).reshape(-1, 3),
+                    landmark_bary=np.asarray(ours["landmark_bary"], np.float32).reshape(-1, 3))
     return rig.replace(
         **eyes,
         bone_rest=np.asarray(ours["bone_rest_cm"], np.float32).reshape(-1, 3),

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from capture2face.errors import CaptureError
-from capture2face.rig.face_rig import FaceRig
+from capture2face.rig.face_rig import FaceRig, landmark_points, landmark_support
 
 # Bone-name prefix of automatic feature bones: they measure wrinkle influences, never move.
 AUTO_PREFIX = "auto_feature/"
@@ -17,15 +17,16 @@ def feature_correspondence(rig) -> tuple[np.ndarray, np.ndarray, bool]:
 
     Returns:
         (landmarks (N,), target points (N, 3), per_vertex): with per-landmark vertices
-        (``per_vertex`` True) every landmark that sits on a skin vertex; otherwise the bones'
-        landmarks and the bones' rest positions.
+        (``per_vertex`` True) every landmark that sits on the skin, at its point
+        (:func:`~capture2face.rig.face_rig.landmark_points`: its vertex, or its point on a
+        triangle); otherwise the bones' landmarks and the bones' rest positions.
     """
     lv = np.asarray(rig.landmark_vertices)
     # Skin only: iris landmarks follow the gaze, which the rig's eyeballs do not.
     has = np.flatnonzero(lv >= 0)
     has = has[np.asarray(rig.material)[lv[has]] == 0]
     if len(has) >= 3 * max(1, rig.n_bones - 1):
-        return has, rig.vertices[lv[has]].astype(np.float64), True
+        return has, landmark_points(rig, rig.vertices, has).astype(np.float64), True
     bones = np.flatnonzero(np.asarray(rig.bone_landmarks) >= 0)
     if len(bones) < 4:
         raise CaptureError(f"character '{rig.name}' has too few tracked feature points to retarget onto")
@@ -34,7 +35,8 @@ def feature_correspondence(rig) -> tuple[np.ndarray, np.ndarray, bool]:
 
 def feature_positions(rig: FaceRig, blend_weights: np.ndarray) -> np.ndarray:
     """(F, B, 3) float32 bone positions for the influences: the rest positions, with each
-    automatic feature bone at its vertex deformed by the frame's morph weights.
+    automatic feature bone at its landmark's surface point deformed by the frame's morph
+    weights.
 
     Args:
         blend_weights: (F, M) morph weights.
@@ -44,7 +46,12 @@ def feature_positions(rig: FaceRig, blend_weights: np.ndarray) -> np.ndarray:
     auto = [b for b, n in enumerate(rig.bone_names) if n.startswith(AUTO_PREFIX)]
     if not auto:
         return out
-    verts = rig.landmark_vertices[rig.bone_landmarks[auto]]
-    deltas = rig.morph_positions[:, verts].reshape(rig.n_morphs, -1).astype(np.float32)  # (M, n*3)
+    if rig.landmark_faces is None:
+        verts = rig.landmark_vertices[rig.bone_landmarks[auto]]
+        deltas = rig.morph_positions[:, verts].reshape(rig.n_morphs, -1).astype(np.float32)  # (M, n*3)
+    else:  # barycentric on the landmark's triangle
+        verts, bary, _ = landmark_support(rig, rig.bone_landmarks[auto])
+        deltas = np.einsum("mnjc,nj->mnc", rig.morph_positions[:, verts], bary.astype(np.float32))
+        deltas = deltas.reshape(rig.n_morphs, -1).astype(np.float32)
     out[:, auto] += (weights @ deltas).reshape(len(weights), len(auto), 3)
     return out
