@@ -14,6 +14,7 @@ from capture2face.errors import CaptureError
 from capture2face.retarget import gaze
 from capture2face.retarget.animation import Animation
 from capture2face.retarget.arkit import arkit_curves
+from capture2face.retarget.arkit_solve import CurveShifted, morph_solve
 from capture2face.retarget.rbf import FeatureMap, fit_feature_map
 from capture2face.retarget.solve import LinearSolver, linear_rig_model
 from capture2face.retarget.windows import MappedPoints, SpilledMedian, frame_windows
@@ -86,6 +87,9 @@ class RetargetOptions:
     window_frames: int = 1000
     window_overlap: int = 100
     eye_radius_iod: float = gaze.HUMAN_RADIUS_IOD
+    arkit_prior: float = 1.0
+    arkit_sparsity: float = 0.0
+    arkit_min_motion: float = 0.02
 
 
 def shared_blendshapes(morph_names: list[str], blendshape_names: list[str]) -> list[tuple[int, int]]:
@@ -154,10 +158,46 @@ def _fit_network(track, rig, landmarks, target, options: RetargetOptions) -> Fea
     )
 
 
-def _joint_solver(model, options: RetargetOptions, landmark_weights, morph_ridge: float, sparsity: float) -> LinearSolver:
+def _joint_solver(model, options: RetargetOptions, landmark_weights, morph_ridge: float, sparsity: float,
+                  prior_strength: np.ndarray | None = None) -> LinearSolver:
     return LinearSolver(model, ridge=options.ridge, temporal=options.temporal_smoothness,
                         morph_ridge=morph_ridge, sparsity=sparsity,
-                        axis_weights=(1.0, 1.0, options.depth_weight), landmark_weights=landmark_weights)
+                        axis_weights=(1.0, 1.0, options.depth_weight), landmark_weights=landmark_weights,
+                        prior_strength=prior_strength)
+
+
+def solve_windows(mapped, model, landmarks: np.ndarray, options: RetargetOptions, neutral: int | None,
+                  prior: np.ndarray | None = None, prior_strength: np.ndarray | None = None,
+                  sparsity: float | None = None):
+    """Yield (window, x (k, n)) for every window of ``mapped``: the joint solve of the
+    :class:`~capture2face.retarget.solve.LinearRigModel`'s unknowns, after the reliability
+    passes (which fit without the prior).
+
+    Args:
+        mapped: target feature points by window (:class:`MappedPoints` or alike).
+        landmarks: (N,) the tracker landmarks of the feature points.
+        prior: (F, n) values the unknowns are pulled towards with ``prior_strength`` (n,).
+        sparsity: the L1 weight (None: ``options.sparsity``).
+    """
+    prior_w = landmark_prior_weights(landmarks, options)
+    lw = prior_w
+    # Reliability passes fit with weak morph priors: their residual is what the rig
+    # cannot explain (tracker error), not motion the priors hold back, so a
+    # perfect track keeps uniform weights. A short ADMM is enough for residuals (the
+    # unbounded fit is worse: negative morphs soak up the tracker's error).
+    for _ in range(options.reweight_iterations):
+        solver = _joint_solver(model, options, lw, morph_ridge=1e-4, sparsity=0.0)
+        solver.iterations = RELIABILITY_ADMM_ITERATIONS
+        with SpilledMedian(len(landmarks)) as r2:
+            for w in mapped.windows:
+                pts = mapped.read(w)
+                r2.add(_residual2(model, solver.solve(pts, pin=w.pin(neutral))[w.own], pts[w.own]))
+            lw = prior_w * _reliability(r2.median(), options.reweight_floor)
+    solver = _joint_solver(model, options, lw, options.morph_ridge,
+                           options.sparsity if sparsity is None else sparsity, prior_strength)
+    for w in mapped.windows:
+        yield w, solver.solve(mapped.read(w), pin=w.pin(neutral),
+                              prior=None if prior is None else prior[w.start:w.stop])
 
 
 class _Blend:
@@ -202,24 +242,8 @@ def solve_bones_weights(mapped: MappedPoints, rig, landmarks: np.ndarray, per_ve
     vertices = np.asarray(rig.landmark_vertices)[landmarks]
     if options.joint_solve:
         model = linear_rig_model(rig, vertices, solve_morphs=solve_w)
-        prior_w = landmark_prior_weights(landmarks, options)
-        lw = prior_w
-        # Reliability passes fit with weak morph priors: their residual is what the rig
-        # cannot explain (tracker error), not motion the priors hold back, so a
-        # perfect track keeps uniform weights. A short ADMM is enough for residuals (the
-        # unbounded fit is worse: negative morphs soak up the tracker's error).
-        for _ in range(options.reweight_iterations):
-            solver = _joint_solver(model, options, lw, morph_ridge=1e-4, sparsity=0.0)
-            solver.iterations = RELIABILITY_ADMM_ITERATIONS
-            with SpilledMedian(len(landmarks)) as r2:
-                for w in mapped.windows:
-                    pts = mapped.read(w)
-                    r2.add(_residual2(model, solver.solve(pts, pin=w.pin(neutral))[w.own], pts[w.own]))
-                lw = prior_w * _reliability(r2.median(), options.reweight_floor)
-        solver = _joint_solver(model, options, lw, options.morph_ridge, options.sparsity)
         nb = model.n_bone_vars
-        for w in mapped.windows:
-            x = solver.solve(mapped.read(w), pin=w.pin(neutral))
+        for w, x in solve_windows(mapped, model, landmarks, options, neutral):
             bones = np.repeat(rest[None], len(x), 0)
             bones[:, model.free_bones] += x[:, :nb].reshape(len(x), -1, 3)
             weights = None
@@ -300,17 +324,43 @@ def _retarget(track, rig, options: RetargetOptions) -> Animation:
 
 
 def _retarget_arkit(track, rig, options: RetargetOptions) -> Animation:
-    """A character without face bones: its ARKit-named morphs (any spelling, on every
-    mesh that has them) take the clip's ARKit curves, which already have ARKit meaning
-    (:func:`~capture2face.retarget.arkit.arkit_curves`); bones stay at rest (the head
-    rotation is the animation's head pose)."""
+    """A character without face bones: its morph weights are solved from the feature
+    points, with the clip's ARKit curves (which already have ARKit meaning,
+    :func:`~capture2face.retarget.arkit.arkit_curves`) as the prior and as the weights of
+    what the points cannot see (:mod:`capture2face.retarget.arkit_solve`); without
+    landmark points on its skin (or ``solve_blend_weights`` off) its ARKit-named morphs
+    take the curves. Bones stay at rest (the head rotation is the animation's head pose)."""
     curves = arkit_curves(track)
     weights = arkit_weights(list(track.blendshape_names), curves, rig.morph_names)
+    landmarks, _, per_vertex = feature_correspondence(rig)
+    if options.solve_blend_weights and per_vertex:
+        weights = _solve_arkit_weights(track, rig, landmarks, weights, options)
     bones = np.repeat(rig.bone_rest[None].astype(np.float32), track.n_frames, 0)
     # Automatic feature points (character.auto_wrinkles) measure the influences where the
     # morphs carry them; as bones they stay at rest (the morphs deform the face).
     return _animation(track, rig, bones, weights, curves, options,
                       influence_bones=_per_frame(lambda w: feature_positions(rig, w), weights))
+
+
+def _solve_arkit_weights(track, rig, landmarks: np.ndarray, prior: np.ndarray, options: RetargetOptions) -> np.ndarray:
+    """(F, M) float32 morph weights of an ARKit character solved from the mapped feature
+    points at ``landmarks`` (N,), ``prior`` (F, M) the curves as morph weights."""
+    solve = morph_solve(rig, landmarks, options.arkit_min_motion)
+    network = _fit_network(track, rig, landmarks, solve.model.rest, options)
+    windows = frame_windows(track.n_frames, options.window_frames, options.window_overlap)
+    weights = np.zeros_like(prior)
+    weights[:, solve.fixed] = prior[:, solve.fixed]
+    solved, nf = solve.model.morphs, solve.model.n_free_vars
+    strength = np.zeros(solve.model.matrix.shape[1])
+    strength[nf:] = options.arkit_prior
+    prior_x = np.zeros((track.n_frames, len(strength)))
+    prior_x[:, nf:] = prior[:, solved]
+    with MappedPoints(track.landmarks_head, network, landmarks, windows, 1 + options.reweight_iterations) as mapped:
+        for w, x in solve_windows(CurveShifted(mapped, solve, prior), solve.model, landmarks, options,
+                                  track.neutral_frame, prior=prior_x, prior_strength=strength,
+                                  sparsity=options.arkit_sparsity):
+            weights[w.start:w.stop, solved] += (w.fade[:, None] * x[:, nf:]).astype(np.float32)
+    return weights
 
 
 def _gaze(track, options: RetargetOptions) -> np.ndarray | None:

@@ -48,3 +48,16 @@ def feature_positions(rig: FaceRig, blend_weights: np.ndarray) -> np.ndarray:
     deltas = rig.morph_positions[:, verts].reshape(rig.n_morphs, -1).astype(np.float32)  # (M, n*3)
     out[:, auto] += (weights @ deltas).reshape(len(weights), len(auto), 3)
     return out
+
+
+def landmark_basis(rig: FaceRig, landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where the rig's tracker landmarks sit and how its morphs move them: the linear model
+    an ARKit character's morph weights are solved through.
+
+    Args:
+        landmarks: (N,) tracker landmark indices (each with a vertex on the rig).
+    Returns:
+        rest (N, 3) float64 positions and deltas (M, N, 3) float64 per morph target.
+    """
+    verts = np.asarray(rig.landmark_vertices)[np.asarray(landmarks)]
+    return rig.vertices[verts].astype(np.float64), rig.morph_positions[:, verts].astype(np.float64)
