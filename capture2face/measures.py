@@ -29,14 +29,15 @@ goal r >= :data:`GAZE_R_GOAL`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from capture2face.errors import CaptureError
 from capture2face.maths.stats import pearson
-from capture2face.rig.arkit_names import GAZE_SCORES
+from capture2face.rig.arkit_names import GAZE_SCORES, arkit_morphs
+from capture2face.rig.face_rig import landmark_points, landmark_support
 from capture2face.tracking.head_pose import head_landmarks
 
 # name -> (landmark a, landmark b): the measure is |p_a - p_b|.
@@ -72,6 +73,48 @@ GAZE_CHECKS: dict[str, tuple[int, int, tuple[str, str]]] = {
 }
 MIN_GAZE_STD = 0.1  # std of the score difference below which the gaze barely moves
 GAZE_R_GOAL = 0.8
+
+
+# Landmark check of a character whose landmarks were found automatically: measure ->
+# (ARKit morph, its landmark pair's change at weight 1). "open": the distance grows by at
+# least the share of the inter-ocular distance; "close": it shrinks to at most the share of
+# its rest value.
+LANDMARK_CHECKS: dict[str, tuple[str, str, float]] = {
+    "mouth_open": ("jawOpen", "open", 0.15),
+    "eye_left": ("eyeBlinkLeft", "close", 0.5),
+    "eye_right": ("eyeBlinkRight", "close", 0.5),
+}
+
+
+def landmark_faults(rig) -> dict[str, str]:
+    """{measure: why} for each pair of :data:`MEASURES` that does not move the way its morph
+    says (:data:`LANDMARK_CHECKS`) on a rig whose landmarks were cast automatically
+    (``landmark_faces``): the landmarks are on the wrong parts of the face, the measure
+    says nothing of the performance. Rigs with hand-set landmarks, and morphs the rig does
+    not have, are not checked."""
+    if getattr(rig, "landmark_faces", None) is None:
+        return {}
+    morph = {a: m for m, a in arkit_morphs(rig.morph_names).items()}
+    rest = landmark_points(rig, rig.vertices.astype(np.float64))
+    iod = float(np.linalg.norm(rest[IOD_PAIR[0]] - rest[IOD_PAIR[1]]))
+    _, _, have = landmark_support(rig)
+    out = {}
+    for name, (morph_name, way, share) in LANDMARK_CHECKS.items():
+        a, b = MEASURES[name]
+        if not (have[a] and have[b]):
+            out[name] = f"landmarks {a}-{b} have no place on the face"
+            continue
+        if morph_name not in morph:
+            continue
+        moved = landmark_points(rig, rig.vertices + rig.morph_positions[morph[morph_name]].astype(np.float64), [a, b])
+        d0, d1 = float(np.linalg.norm(rest[a] - rest[b])), float(np.linalg.norm(moved[0] - moved[1]))
+        if way == "open" and d1 - d0 < share * iod:
+            out[name] = (f"{morph_name} opens landmarks {a}-{b} by {(d1 - d0) / max(iod, 1e-9):.2f} of the "
+                         f"inter-ocular distance (at least {share:.2f} expected)")
+        elif way == "close" and d1 > share * d0:
+            out[name] = (f"{morph_name} closes landmarks {a}-{b} to {d1 / max(d0, 1e-9):.2f} of their rest "
+                         f"distance (at most {share:.2f} expected)")
+    return out
 
 
 # ---- measures ----------------------------------------------------------------------------
@@ -144,23 +187,28 @@ def source_measures(track) -> np.ndarray:
 
 def rig_landmark_points(rig, bone_positions: np.ndarray, blend_weights: np.ndarray,
                         landmarks=None) -> np.ndarray:
-    """(F, L, 3) the rig's landmark vertices deformed (morphs, then skinning); landmarks
-    without a vertex stay 0. With ``landmarks`` (K,), only those: (F, K, 3).
+    """(F, L, 3) the rig's landmark points deformed (morphs, then skinning; on their
+    triangles where the rig has ``landmark_faces``); landmarks without a place stay 0. With
+    ``landmarks`` (K,), only those: (F, K, 3).
 
     Args:
         bone_positions: (F, B, 3); blend_weights: (F, M).
     """
-    lv = np.asarray(rig.landmark_vertices)
-    ids = np.arange(len(lv)) if landmarks is None else np.asarray(landmarks)
-    rows = np.flatnonzero(lv[ids] >= 0)
-    verts = lv[ids[rows]]
+    support, bary, have = landmark_support(rig, landmarks)
+    rows = np.flatnonzero(have)
+    # Only the vertices under the landmarks are deformed.
+    verts, local = np.unique(support[rows], return_inverse=True)
+    local = local.reshape(len(rows), 3)
     weights = np.asarray(blend_weights, np.float64)
     pos = rig.vertices[verts].astype(np.float64) + np.einsum(
         "fm,mvc->fvc", weights, rig.morph_positions[:, verts].astype(np.float64))
     skin = rig.dense_skin_weights()[verts].astype(np.float64)  # (n, B)
     pos += np.einsum("vb,fbc->fvc", skin, np.asarray(bone_positions, np.float64) - rig.bone_rest)
-    out = np.zeros((len(pos), len(ids), 3))
-    out[:, rows] = pos
+    out = np.zeros((len(pos), len(have), 3))
+    if rig.landmark_faces is None:
+        out[:, rows] = pos[:, local[:, 0]]  # a vertex each (bit-exact with the old sum)
+    else:
+        out[:, rows] = np.einsum("fkjc,kj->fkc", pos[:, local], bary[rows])
     return out
 
 
@@ -209,6 +257,8 @@ class ClipFidelity:
         arkit_source: which curves were judged ("animation" or "tracker").
         gaze: (T, 2, 2) the animation's eye yaw and pitch (degrees), or None.
         gaze_scores: (T, 4) the tracker's score differences of :data:`GAZE_CHECKS`.
+        left_out: {measure: why} measures left out of the figures: the character's landmark
+            pair does not move with its morph (:func:`landmark_faults`).
     """
 
     name: str
@@ -221,13 +271,18 @@ class ClipFidelity:
     arkit_source: str
     gaze: np.ndarray | None = None
     gaze_scores: np.ndarray | None = None
+    left_out: dict[str, str] = field(default_factory=dict)
 
     def figures(self) -> dict:
         """Per measure r, gain, source range, judged and faithful for the character and
         the direct alternative; ARKit curve correlations; a summary."""
         out: dict = {"clip": self.name, "frames": int(len(self.times)), "measures": {}, "arkit": {}}
         judged = passed = beats = 0
+        if self.left_out:
+            out["left_out"] = dict(self.left_out)
         for k, name in enumerate(MEASURES):
+            if name in self.left_out:
+                continue
             src = self.source[:, k]
             rng = float(src.max() - src.min()) if len(src) else 0.0
             limit = MIN_RANGE_EYE if name in EYE_MEASURES else MIN_RANGE_IOD
@@ -291,4 +346,4 @@ def clip_fidelity(track, animation, rig, name: str = "") -> ClipFidelity:
     return ClipFidelity(name=name or Path(str(track.source)).stem, times=np.asarray(track.times)[keep],
                         source=source[keep], character=character[keep], direct=direct[keep],
                         arkit=np.asarray(arkit[keep], np.float64), arkit_names=names, arkit_source=which,
-                        gaze=gaze, gaze_scores=gaze_scores)
+                        gaze=gaze, gaze_scores=gaze_scores, left_out=landmark_faults(rig))

@@ -6,16 +6,17 @@ vertices play their part:
 
 1. **Where the face is**: the character's neutral face is rendered from the front and
    tracked with the same MediaPipe tracker as the clips; each landmark is cast onto the
-   surface (the front-most vertex under it): ``landmark_vertices``.
+   skin's surface (:mod:`capture2face.character.landmarks`): ``landmark_faces`` and
+   ``landmark_bary`` (a point on a triangle), ``landmark_vertices`` (its nearest vertex).
 2. **Feature points as bones**: one feature bone per face bone of the default avatar (its
-   25 landmarks: brows, lids, cheeks, nose wings, lips, jaw), at the character's vertex
-   for that landmark, grouped as the avatar groups its bones. They never translate
+   25 landmarks: brows, lids, cheeks, nose wings, lips, jaw), at the character's surface
+   point for that landmark, grouped as the avatar groups its bones. They never translate
    (``Animation.bone_positions`` keep them at rest; the morphs move the face): their
-   per-frame positions for the influences are the feature vertices deformed by the
+   per-frame positions for the influences are the feature points deformed by the
    morph weights (:func:`capture2face.rig.feature_points.feature_positions`).
 3. **Reference poses from the ARKit morphs**: "stretch" = browInnerUp + browOuterUp + eyeWide,
    "compress" = browDown + eyeSquint + noseSneer (all at 1): each feature bone's pose
-   position is its vertex under that morph mix.
+   position is its surface point under that morph mix.
 4. **Masks, regions, zone table** lent by the default avatar fitted to the character's
    landmarks (similarity transform): each face vertex takes the skin weights (as feature
    bones), the region weights of its nearest avatar vertex, and the zone-table rows go by
@@ -39,12 +40,12 @@ import logging
 import numpy as np
 from scipy.spatial import cKDTree
 
-from capture2face.character.landmarks import find_landmark_vertices
+from capture2face.character.landmarks import find_surface_landmarks
 from capture2face.errors import CaptureError
 from capture2face.gltf.rig_import import _similarity
 from capture2face.rig.arkit_names import arkit_morphs
 from capture2face.rig.avatar import default_avatar
-from capture2face.rig.face_rig import FaceRig
+from capture2face.rig.face_rig import FaceRig, landmark_points, landmark_support
 from capture2face.rig.feature_points import AUTO_PREFIX
 from capture2face.rig.maps import decode_normals, encode_normals
 
@@ -71,7 +72,10 @@ def automatic_wrinkles(rig: FaceRig) -> FaceRig:
     if not any(n in by_name for names in POSES.values() for n in names):
         raise CaptureError(f"character '{rig.name}': none of the brow / eye / nose ARKit morphs that make "
                            "its wrinkle reference poses")
-    lmv = find_landmark_vertices(rig)
+    found = find_surface_landmarks(rig)
+    lmv = found.vertices
+    rig = rig.replace(landmark_faces=found.faces, landmark_bary=found.bary, landmark_vertices=lmv)
+    points = landmark_points(rig, rig.vertices).astype(np.float64)  # (L, 3) on the surface
     avatar = default_avatar()
     face_bones = [b for b in range(1, avatar.n_bones) if avatar.bone_landmarks[b] >= 0
                   and lmv[avatar.bone_landmarks[b]] >= 0]
@@ -80,8 +84,7 @@ def automatic_wrinkles(rig: FaceRig) -> FaceRig:
     B0 = rig.n_bones
     names = rig.bone_names + [AUTO_PREFIX + avatar.bone_names[b] for b in face_bones]
     feature_lm = avatar.bone_landmarks[face_bones]
-    feature_v = lmv[feature_lm]
-    rest = np.concatenate([rig.bone_rest, rig.vertices[feature_v]]).astype(np.float32)
+    rest = np.concatenate([rig.bone_rest, points[feature_lm]]).astype(np.float32)
     # Reference poses: every feature vertex under the pose's morph mix.
     pose_names = list(POSES)
     pose_w = np.zeros((len(pose_names), rig.n_morphs), np.float32)
@@ -90,7 +93,8 @@ def automatic_wrinkles(rig: FaceRig) -> FaceRig:
             if n in by_name:
                 pose_w[p, by_name[n]] = 1.0
     pose_bones = np.repeat(rest[None], len(pose_names), 0)
-    pose_bones[:, B0:] += np.einsum("pm,mnc->pnc", pose_w, rig.morph_positions[:, feature_v])
+    verts, bary, _ = landmark_support(rig, feature_lm)  # (n, 3) each: barycentric on the surface
+    pose_bones[:, B0:] += np.einsum("pm,mnjc,nj->pnc", pose_w, rig.morph_positions[:, verts], bary)
     # Groups: as the avatar groups the same bones; the rig's own joints alone.
     groups = np.concatenate([np.arange(B0), B0 + avatar.bone_groups[face_bones]]).astype(np.int32)
     _, groups = np.unique(groups, return_inverse=True)
@@ -99,12 +103,12 @@ def automatic_wrinkles(rig: FaceRig) -> FaceRig:
     canon = avatar.vertices[avatar.landmark_vertices.clip(0)].astype(np.float64)
     both = np.flatnonzero((avatar.landmark_vertices >= 0) & (lmv >= 0))[:468]
     both = both[both < 468]
-    s, rot, t = _similarity(canon[both], rig.vertices[lmv[both]].astype(np.float64))
+    s, rot, t = _similarity(canon[both], points[both])
     fitted = avatar.vertices.astype(np.float64) @ (s * rot).T + t  # (Va, 3) on the character
     askin = np.flatnonzero(avatar.material == 0)
     dist, nearest = cKDTree(fitted[askin]).query(rig.vertices.astype(np.float64), k=1)
     nearest = askin[nearest]
-    iod = float(np.linalg.norm(rig.vertices[lmv[33]] - rig.vertices[lmv[263]]))
+    iod = float(np.linalg.norm(points[33] - points[263]))
     face = (rig.material == 0) & (dist < _FACE_REACH_IOD * iod)
     to_rig = np.zeros(avatar.n_bones, np.int64)  # avatar bone -> rig bone (head -> 0)
     to_rig[face_bones] = B0 + np.arange(len(face_bones))
@@ -123,7 +127,6 @@ def automatic_wrinkles(rig: FaceRig) -> FaceRig:
     wrinkle_maps, zone_masks = _bake_maps(rig, avatar, nearest, face)
     return rig.replace(
         wrinkle_maps=wrinkle_maps, zone_masks=zone_masks,
-        landmark_vertices=lmv,
         bone_names=names, bone_rest=rest,
         bone_parents=np.concatenate([rig.bone_parents, np.zeros(len(face_bones), np.int32)]).astype(np.int32),
         bone_landmarks=np.concatenate([rig.bone_landmarks, feature_lm]).astype(np.int32),

@@ -1,53 +1,265 @@
-"""A character's tracker landmarks found automatically: its neutral face rendered from the
-front, tracked with the clips' tracker, each landmark cast onto the surface."""
+"""A character's tracker landmarks found automatically: its face rendered from the front,
+tracked with the clips' tracker, each landmark cast onto the skin's surface (a point on a
+triangle, barycentric).
+
+* **Skin only**: the landmarks land on skin triangles (irises on the eyes), never on
+  eyeballs, teeth, the mouth cavity, or see-through overlays in front of the face (lash and
+  hair cards, glasses: ``FaceRig.overlay_vertices``).
+* **At the depth the tracker sees**: MediaPipe gives each landmark a relative depth; fitted
+  to the character's own (an affine map, over the landmarks that hit skin squarely), it
+  rejects the surfaces a pixel's ray also meets far behind or before the face (the back of
+  the head, the eye and mouth sockets behind an eyeball or the teeth). Among the rest, the
+  triangle nearest the landmark in the image (a containing one, front-most).
+* **Inner lips on their own lips**: at rest the mouth is closed and the upper and lower
+  inner-lip landmarks meet at one line; they are cast in a second view with the mouth
+  opened by the character's own ``jawOpen`` morph, and the triangle and barycentric
+  weights they land on there are the same points of the rest mesh.
+"""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
-from scipy.spatial import cKDTree
 
 from capture2face.camera import framing_pose, project
 from capture2face.errors import CaptureError
 from capture2face.render import FrameState, Renderer, RenderOptions
+from capture2face.rig.arkit_names import arkit_morphs
+from capture2face.rig.deform import deform
 from capture2face.rig.face_rig import FaceRig
+from capture2face.runtime.log import log
 from capture2face.tracking.landmarker import FaceLandmarker, LandmarkerOptions
 
 # The front view's size in pixels.
 RENDER_SIZE = 512
+# MediaPipe's inner lip contour, upper (13 in the middle) and lower (14); the corners
+# (78, 308) belong to both.
+INNER_LIP_UPPER = (191, 80, 81, 82, 13, 312, 311, 310, 415)
+INNER_LIP_LOWER = (95, 88, 178, 87, 14, 317, 402, 318, 324)
+INNER_LIPS = (78, 308) + INNER_LIP_UPPER + INNER_LIP_LOWER
+# jawOpen weight of the open-mouth view.
+OPEN_JAW = 0.5
+# Search radius (px) around a landmark for triangles to land on.
+SEARCH_PX = 12.0
+# A surface further than this (in inter-ocular distances) from the depth the tracker gives
+# the landmark is not the one it sees.
+DEPTH_TOL_IOD = 0.12
+SKIN_CODES = (0, 4)  # FaceRig.material: face skin, rest of the head
+EYE_CODE = 1
+
+
+@dataclass
+class SurfaceLandmarks:
+    """Each tracker landmark's point on the character's surface (L landmarks).
+
+    Attributes:
+        faces: (L, 3) int32 vertex ids of its triangle (-1 where none).
+        bary: (L, 3) float32 barycentric weights on it (0 where none).
+        vertices: (L,) int32 the nearest of the three (-1 where none).
+    """
+
+    faces: np.ndarray
+    bary: np.ndarray
+    vertices: np.ndarray
+
+
+@dataclass
+class _View:
+    """One tracked render: deformed vertices (V, 3), pose (4, 4), the tracker's landmarks
+    (L, 2) px and relative depths (L,) px."""
+
+    vertices: np.ndarray
+    pose: np.ndarray
+    landmarks_px: np.ndarray
+    depth_px: np.ndarray
 
 
 def find_landmark_vertices(rig: FaceRig) -> np.ndarray:
-    """(478,) int32 vertex under each MediaPipe landmark of the character's neutral face
-    rendered from the front (-1 where none).
+    """(478,) int32 vertex nearest each landmark's surface point (-1 where none); see
+    :func:`find_surface_landmarks`."""
+    return find_surface_landmarks(rig).vertices
+
+
+def with_surface_landmarks(rig: FaceRig) -> FaceRig:
+    """``rig`` with ``landmark_faces``, ``landmark_bary`` and ``landmark_vertices`` from
+    :func:`find_surface_landmarks`."""
+    found = find_surface_landmarks(rig)
+    return rig.replace(landmark_faces=found.faces, landmark_bary=found.bary, landmark_vertices=found.vertices)
+
+
+def find_surface_landmarks(rig: FaceRig) -> SurfaceLandmarks:
+    """Every MediaPipe landmark of the character's front view cast onto its skin (see the
+    module docs); the inner lips from a second view with the mouth opened by ``jawOpen``.
 
     Raises:
         CaptureError: the tracker finds no face in the render.
     """
     opts = RenderOptions(size=RENDER_SIZE, wrinkles="off", samples=4)
     pose = framing_pose(rig, fov_y_degrees=opts.fov_y_degrees)
-    with Renderer(rig, opts) as renderer:
-        image = renderer.render(FrameState.at_pose(rig, pose))
-    with FaceLandmarker.create_from_options(LandmarkerOptions(num_faces=1)) as landmarker:
-        obs = landmarker.detect(image, 0.0)
-    if obs is None:
+    weights = [np.zeros(rig.n_morphs, np.float32)]
+    jaw = next((m for m, a in arkit_morphs(rig.morph_names).items() if a == "jawOpen"), None)
+    if jaw is not None:
+        weights.append(weights[0].copy())
+        weights[1][jaw] = OPEN_JAW
+    views = _tracked_views(rig, pose, opts, weights)
+    if views[0] is None:
         raise CaptureError(f"character '{rig.name}': the tracker finds no face in its front view")
-    px = project(rig.vertices, pose, opts.fov_y_degrees, RENDER_SIZE)  # (V, 2)
-    cam = rig.vertices.astype(np.float64) @ pose[:3, :3].T + pose[:3, 3]
+    out = _cast_view(rig, views[0], opts.fov_y_degrees)
+    if len(views) > 1:
+        if views[1] is None:
+            log.warning("character '%s': the tracker finds no face with its mouth opened by jawOpen; "
+                        "its inner lips are placed from the closed mouth", rig.name)
+        else:
+            opened = _cast_view(rig, views[1], opts.fov_y_degrees)
+            rows = np.array(INNER_LIPS)
+            rows = rows[opened.vertices[rows] >= 0]
+            out.faces[rows], out.bary[rows], out.vertices[rows] = (
+                opened.faces[rows], opened.bary[rows], opened.vertices[rows])
+    return out
+
+
+def _tracked_views(rig: FaceRig, pose: np.ndarray, opts: RenderOptions, weights: list) -> list:
+    """One :class:`_View` per morph weight vector (M,) (None where no face is found)."""
+    with Renderer(rig, opts) as renderer:
+        images = [renderer.render(FrameState(rig.bone_rest.copy(), w, pose)) for w in weights]
+    views = []
+    with FaceLandmarker.create_from_options(LandmarkerOptions(num_faces=1)) as landmarker:
+        for k, (image, w) in enumerate(zip(images, weights)):
+            obs = landmarker.detect(image, float(k))
+            if obs is None:
+                views.append(None)
+                continue
+            verts, _ = deform(rig, rig.bone_rest, w)
+            views.append(_View(np.asarray(verts, np.float64), pose, obs.landmarks_px.astype(np.float64),
+                               obs.depth.astype(np.float64)))
+    return views
+
+
+def _cast_view(rig: FaceRig, view: _View, fov_y_degrees: float) -> SurfaceLandmarks:
+    """Every landmark of ``view`` cast onto the allowed triangles of its deformed mesh:
+    the face's 468 onto skin, the irises onto the eyes."""
+    L = len(view.landmarks_px)
+    px = project(view.vertices, view.pose, fov_y_degrees, RENDER_SIZE)  # (V, 2)
+    cam = view.vertices @ view.pose[:3, :3].T + view.pose[:3, 3]
     depth = -cam[:, 2]
-    # Only vertices facing the camera: the back of a whole head projects onto the face too.
-    facing = np.einsum("vc,vc->v", rig.normals.astype(np.float64) @ pose[:3, :3].T, -cam) > 0
-    out = np.full(len(obs.landmarks_px), -1, np.int32)
-    lm = obs.landmarks_px.astype(np.float64)
-    for material, rows in ((0, slice(0, 468)), (1, slice(468, None))):  # skin; irises on the eyes
-        cand = np.flatnonzero((rig.material == material) & facing & np.isfinite(px).all(1))
-        if not len(cand):
-            continue
-        k = min(32, len(cand))
-        d, idx = cKDTree(px[cand]).query(lm[rows], k=k)
-        d, idx = d.reshape(len(d), k), idx.reshape(len(idx), k)
-        # The front-most vertex among those within 2 px (or the nearest, if further): the
-        # surface under the landmark, not the back of the head behind it.
-        near = d <= np.maximum(d[:, :1], 2.0)
-        front = np.where(near, depth[cand][idx], np.inf)
-        out[rows] = cand[idx[np.arange(len(idx)), np.argmin(front, axis=1)]]
+    tris = np.asarray(rig.triangles, np.int64)
+    # Facing the camera (counter-clockwise seen from outside): the back of a head projects
+    # onto the face too.
+    e1, e2 = cam[tris[:, 1]] - cam[tris[:, 0]], cam[tris[:, 2]] - cam[tris[:, 0]]
+    facing = np.einsum("tc,tc->t", np.cross(e1, e2), -cam[tris].mean(1)) > 0
+    facing &= np.isfinite(px[tris]).all((1, 2))
+    overlay = np.zeros(rig.n_vertices, bool) if rig.overlay_vertices is None else np.asarray(rig.overlay_vertices)
+    mat = np.asarray(rig.material)
+    clean = facing & ~overlay[tris].any(1)
+    skin = clean & np.isin(mat[tris], SKIN_CODES).all(1)
+    eyes = clean & (mat[tris] == EYE_CODE).all(1)
+    faces = np.full((L, 3), -1, np.int32)
+    bary = np.zeros((L, 3), np.float32)
+    rows_face, rows_iris = np.arange(min(L, 468)), np.arange(468, L)
+    hits = _candidates(px, depth, tris[skin], view.landmarks_px[rows_face])
+    expect, tol = _expected_depth(rig, view, hits, rows_face, fov_y_degrees)
+    for rows, h in ((rows_face, hits), (rows_iris, _candidates(px, depth, tris[eyes], view.landmarks_px[rows_iris]))):
+        pick = _choose(h, len(rows), expect[rows] if len(rows) and rows[0] < 468 else None, tol)
+        # None at the tracker's depth (a landmark on the silhouette): the nearest facing skin.
+        pick = np.where(pick >= 0, pick, _choose(h, len(rows), None, tol))
+        ok = pick >= 0
+        faces[rows[ok]] = h.tris[pick[ok]]
+        bary[rows[ok]] = h.bary[pick[ok]]
+    lmv = np.where((faces >= 0).all(1), faces[np.arange(L), np.argmax(bary, 1)], -1).astype(np.int32)
+    return SurfaceLandmarks(faces, bary, lmv)
+
+
+@dataclass
+class _Hits:
+    """Landmark x triangle pairs near each other in the image (N of them): the landmark's
+    row (N,), the triangle's vertices (N, 3), the 2D distance (px) from the landmark to the
+    triangle (0 inside), the barycentric weights (N, 3) of the triangle's point nearest it
+    (perspective-correct: a point of the 3D triangle) and that point's depth (N,) cm."""
+
+    row: np.ndarray
+    tris: np.ndarray
+    dist: np.ndarray
+    bary: np.ndarray
+    depth: np.ndarray
+
+
+def _candidates(px: np.ndarray, depth: np.ndarray, tris: np.ndarray, points: np.ndarray) -> _Hits:
+    """The triangles (T, 3) whose image box comes within :data:`SEARCH_PX` of each point
+    (K, 2), with the point of each nearest the landmark."""
+    corners = px[tris]  # (T, 3, 2)
+    lo, hi = corners.min(1) - SEARCH_PX, corners.max(1) + SEARCH_PX
+    near = ((points[:, None] >= lo[None]) & (points[:, None] <= hi[None])).all(-1)  # (K, T)
+    row, t = np.nonzero(near)
+    a, b, c = (corners[t, i] for i in range(3))
+    p = points[row]
+    q = _closest_on_triangle(p, a, b, c)
+    l2 = _bary2d(q, a, b, c)
+    z = depth[tris[t]]  # (N, 3)
+    inv = l2 / np.maximum(z, 1e-6)
+    b3 = inv / np.maximum(inv.sum(1, keepdims=True), 1e-12)
+    return _Hits(row, tris[t].astype(np.int32), np.linalg.norm(p - q, axis=1), b3.astype(np.float32),
+                 1.0 / np.maximum(inv.sum(1), 1e-12))
+
+
+def _bary2d(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """(N, 3) barycentric weights of 2D points (N, 2) in triangles a, b, c (N, 2) each."""
+    v0, v1, v2 = b - a, c - a, p - a
+    den = v0[:, 0] * v1[:, 1] - v1[:, 0] * v0[:, 1]
+    den = np.where(np.abs(den) < 1e-12, 1e-12, den)
+    l1 = (v2[:, 0] * v1[:, 1] - v1[:, 0] * v2[:, 1]) / den
+    l2 = (v0[:, 0] * v2[:, 1] - v2[:, 0] * v0[:, 1]) / den
+    return np.clip(np.stack([1.0 - l1 - l2, l1, l2], 1), 0.0, 1.0)
+
+
+def _closest_on_triangle(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """(N, 2) the point of each 2D triangle nearest p: p itself inside, else the nearest
+    point of its edges."""
+    def on_edge(u, v):
+        d = v - u
+        s = np.clip(np.einsum("nc,nc->n", p - u, d) / np.maximum(np.einsum("nc,nc->n", d, d), 1e-12), 0, 1)
+        return u + s[:, None] * d
+
+    edges = np.stack([on_edge(a, b), on_edge(b, c), on_edge(c, a)], 1)  # (N, 3, 2)
+    best = edges[np.arange(len(p)), np.argmin(np.linalg.norm(edges - p[:, None], axis=2), 1)]
+    cross = [(v[:, 0] - u[:, 0]) * (p[:, 1] - u[:, 1]) - (v[:, 1] - u[:, 1]) * (p[:, 0] - u[:, 0])
+             for u, v in ((a, b), (b, c), (c, a))]
+    inside = (np.stack(cross, 1) >= 0).all(1) | (np.stack(cross, 1) <= 0).all(1)
+    return np.where(inside[:, None], p, best)
+
+
+def _expected_depth(rig: FaceRig, view: _View, hits: _Hits, rows: np.ndarray,
+                    fov_y_degrees: float) -> tuple[np.ndarray, float]:
+    """(L,) the depth (cm) the tracker sees each landmark at, fitted affinely to the front-most
+    skin under the landmarks that lie inside a triangle, and the tolerance (cm) about it."""
+    inside = hits.dist <= 0.0
+    front = np.full(len(rows), np.inf)
+    np.minimum.at(front, hits.row[inside], hits.depth[inside])
+    ok = np.isfinite(front)
+    src = view.depth_px[rows]
+    lms = np.flatnonzero(ok)
+    fit = np.array([0.0, float(np.median(front[ok])) if ok.any() else 0.0])
+    for _ in range(3):  # least squares, then without the outliers (a ray through an eye's socket)
+        if len(lms) < 8:
+            break
+        fit = np.polyfit(src[lms], front[lms], 1)
+        resid = np.abs(np.polyval(fit, src[ok]) - front[ok])
+        lms = np.flatnonzero(ok)[resid <= max(2.5 * np.median(resid), 1e-6)]
+    iod_px = float(np.linalg.norm(view.landmarks_px[33] - view.landmarks_px[263]))
+    cm_per_px = 2.0 * np.tan(np.radians(fov_y_degrees) / 2.0) * float(np.median(front[ok])) / RENDER_SIZE
+    return np.polyval(fit, view.depth_px), DEPTH_TOL_IOD * iod_px * cm_per_px
+
+
+def _choose(h: _Hits, n_rows: int, expect: np.ndarray | None, tol: float) -> np.ndarray:
+    """(n_rows,) index into ``h`` of each landmark's triangle (-1: none): the nearest in the
+    image among those at the expected depth, the front-most among equally near ones."""
+    ok = np.ones(len(h.row), bool) if expect is None else np.abs(h.depth - expect[h.row]) <= tol
+    score = np.where(ok, h.dist + 1e-3 * (h.depth - h.depth.min(initial=0.0)), np.inf)
+    order = np.lexsort((score, h.row))
+    first = np.ones(len(order), bool)
+    first[1:] = h.row[order][1:] != h.row[order][:-1]
+    out = np.full(n_rows, -1, np.int64)
+    pick = order[first]
+    good = np.isfinite(score[pick])
+    out[h.row[pick[good]]] = pick[good]
     return out

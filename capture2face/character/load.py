@@ -14,6 +14,7 @@ from tqdm import tqdm
 from capture2face.character.auto_wrinkles import automatic_wrinkles
 from capture2face.errors import CaptureError
 from capture2face.gltf import import_glb
+from capture2face.measures import landmark_faults
 from capture2face.rig import avatar
 from capture2face.rig.arkit_names import drive_mode, is_automatic
 from capture2face.rig.face_rig import FaceRig
@@ -99,10 +100,24 @@ def with_automatic_wrinkles(rig: FaceRig) -> FaceRig:
     except CaptureError:
         return rig  # undrivable: the check before tracking says why
     try:
-        return automatic_wrinkles(rig)
+        rig = automatic_wrinkles(rig)
     except CaptureError as exc:
         log.warning("no automatic wrinkles: %s", exc)
         return rig
+    warn_landmark_faults(rig)
+    return rig
+
+
+def warn_landmark_faults(rig: FaceRig) -> dict[str, str]:
+    """The load-time check of automatically cast landmarks
+    (:func:`capture2face.measures.landmark_faults`): one warning naming the landmark pairs
+    that do not move with their morphs (the character still runs; the fidelity figures leave
+    those measures out). Returns the faults."""
+    faults = landmark_faults(rig)
+    if faults:
+        log.warning("character '%s': its automatic landmarks do not follow its morphs (%s); fidelity leaves out %s",
+                    rig.name, "; ".join(faults.values()), ", ".join(faults))
+    return faults
 
 
 def builtin_avatar(variant: str | None = None, progress: bool = False) -> FaceRig:

@@ -76,7 +76,10 @@ def table(results: list[dict]) -> str:
     for res in results:
         cells = []
         for name in MEASURES:
-            m = res["measures"][name]
+            m = res["measures"].get(name)
+            if m is None:  # the character's landmarks for it do not move with its morph
+                cells.append("left out")
+                continue
             mark = "" if not m["judged"] else (" ✓" if m["faithful"] else " ✗")
             cells.append(f"{m['r']:.2f} / {m['gain']:.2f}{mark} ({m['direct_r']:.2f} / {m['direct_gain']:.2f})"
                          if m["judged"] else f"— ({m['range']:.3f})")

@@ -441,6 +441,7 @@ def _build(r: GlbReader, glb: Path, mapping: dict, mapping_dir: Path, ours: dict
         region_names=list(REGION_NAMES), region_weights=np.zeros((len(REGION_NAMES), V), np.float32),
         head_weights=_head_weights(skin_joints, skin_weights, skel),
         double_sided=_double_sided(r.gltf, surf),
+        overlay_vertices=_overlays(g, picked, surf),
     )
     if ours:
         return _apply_ours(rig.replace(head_weights=None), ours, surf)
@@ -452,6 +453,25 @@ def _double_sided(g: dict, surf: dict) -> bool:
     without culling: one draw call); a primitive without a material is single-sided."""
     materials = g.get("materials", [])
     return any(bool(materials[int(i)].get("doubleSided", False)) for i in np.unique(surf["gltf_material"]) if i >= 0)
+
+
+_OVERLAY_WORDS = ("lash", "brow", "hair", "glass", "lens", "beard", "fur")
+
+
+def _overlays(g: dict, picked: list[int], surf: dict) -> np.ndarray | None:
+    """(V,) bool: vertices of see-through overlays in front of the face that landmarks must
+    not land on (alpha MASK / BLEND materials: lash and hair cards, glass; meshes or
+    materials named lash, brow, hair, glass...), or None where there are none."""
+    materials = g.get("materials", [])
+    see_through = np.array([str(m.get("alphaMode", "OPAQUE")).upper() in ("MASK", "BLEND")
+                            or any(w in str(m.get("name", "")).lower() for w in _OVERLAY_WORDS)
+                            for m in materials] + [False], bool)  # index -1: no material
+    out = see_through[surf["gltf_material"]]
+    for ni, part in zip(picked, surf["parts"]):
+        name = str(g["meshes"][g["nodes"][ni]["mesh"]].get("name", "")).lower()
+        if any(w in name for w in _OVERLAY_WORDS):
+            out[part["offset"]:part["offset"] + len(part["pos"])] = True
+    return out if out.any() else None
 
 
 # ---- skeleton -------------------------------------------------------------------------

@@ -60,7 +60,8 @@ class FaceRig:
         material: (V,) uint8; 0 skin of the face, 1 eye, 2 mouth interior (dark cavity),
             3 teeth and tongue, 4 the rest of the head (scalp, ears, neck: shaded as skin,
             no wrinkles; framing and face size go by the face's skin alone).
-        landmark_vertices: (L,) int32; the vertex that tracker landmark l sits on, or -1.
+        landmark_vertices: (L,) int32; the vertex that tracker landmark l sits on, or -1
+            (with ``landmark_faces``: the nearest of its triangle's three).
         bone_names: B names; bone_names[0] == "head".
         bone_rest: (B, 3) float32 rest positions, head coordinates.
         bone_parents: (B,) int32 parent bone index, -1 for the root.
@@ -100,6 +101,15 @@ class FaceRig:
             those vertices turn rigidly about their eye's centre after skinning
             (``Animation.eye_rotation``, :func:`eye_rotation_matrices`). None with
             ``eye_centres``.
+        landmark_faces: (L, 3) int32 vertex ids of the triangle each tracker landmark
+            lies on (a point of the skin's surface, :func:`landmark_points`), or None: the
+            landmarks sit on ``landmark_vertices``. Rows of landmarks without a vertex
+            repeat ``landmark_vertices`` (-1).
+        landmark_bary: (L, 3) float32 barycentric weights of that point on its triangle
+            (rows sum to 1), or None with ``landmark_faces``.
+        overlay_vertices: (V,) bool vertices of see-through overlays in front of the face
+            (eyelash and hair cards, brows, glasses: alpha-masked or blended materials,
+            meshes named so) that no landmark may land on, or None: none.
         double_sided: draw both sides of every triangle. False: back faces are culled,
             as glTF renders single-sided materials; the built-in avatar is closed and wound
             consistently (the back of its head never shows), and culling halves what a
@@ -142,6 +152,9 @@ class FaceRig:
     eye_centres: np.ndarray | None = None
     eye_vertex_side: np.ndarray | None = None
     double_sided: bool = True
+    landmark_faces: np.ndarray | None = None
+    landmark_bary: np.ndarray | None = None
+    overlay_vertices: np.ndarray | None = None
 
     @property
     def has_eyes(self) -> bool:
@@ -184,8 +197,8 @@ class FaceRig:
 
     def interocular(self) -> float:
         """Distance between the outer eye corners (landmarks 33 and 263) at rest, cm."""
-        a, b = self.landmark_vertices[[33, 263]]
-        return float(np.linalg.norm(self.vertices[a] - self.vertices[b]))
+        a, b = landmark_points(self, self.vertices, [33, 263])
+        return float(np.linalg.norm(a - b))
 
     def replace(self, **changes) -> "FaceRig":
         return dataclasses.replace(self, **changes)
@@ -199,6 +212,47 @@ class FaceRig:
     def load(cls, path: str | os.PathLike) -> "FaceRig":
         """Read a rig written by :meth:`save`; a bad file raises ``CaptureError``."""
         return load_dataclass(cls, path, FORMAT)
+
+
+def landmark_support(rig: FaceRig, landmarks=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where each tracker landmark sits, as a convex mix of vertices.
+
+    Args:
+        landmarks: (K,) landmark ids, or None: all L of them.
+    Returns:
+        vertex ids (K, 3) int64 (0 where the landmark has none), weights (K, 3) float64
+        (barycentric on ``landmark_faces``, else [1, 0, 0] on ``landmark_vertices``), and
+        (K,) bool: the landmark has a place on the rig.
+    """
+    lv = np.asarray(rig.landmark_vertices)
+    ids = np.arange(len(lv)) if landmarks is None else np.asarray(landmarks, np.int64)
+    have = lv[ids] >= 0
+    if rig.landmark_faces is not None and rig.landmark_bary is not None:
+        verts = np.asarray(rig.landmark_faces, np.int64)[ids]
+        weights = np.asarray(rig.landmark_bary, np.float64)[ids]
+        have &= (verts >= 0).all(1)
+    else:
+        verts = np.repeat(lv[ids, None].astype(np.int64), 3, 1)
+        weights = np.broadcast_to(np.array([1.0, 0.0, 0.0]), verts.shape).copy()
+    verts = np.where(have[:, None], verts, 0)
+    weights = np.where(have[:, None], weights, 0.0)
+    return verts, weights, have
+
+
+def landmark_points(rig: FaceRig, vertices: np.ndarray, landmarks=None) -> np.ndarray:
+    """(..., K, 3) the tracker landmarks' points on ``vertices`` (..., V, 3) (the rest
+    mesh or any deformed one): barycentric on their triangles where the rig has
+    ``landmark_faces``, else their vertices; landmarks without a place are 0.
+
+    Args:
+        landmarks: (K,) landmark ids, or None: all L of them.
+    """
+    verts, weights, _ = landmark_support(rig, landmarks)
+    v = np.asarray(vertices)
+    if not v.dtype.kind == "f":
+        v = v.astype(np.float64)
+    picked = v[..., verts, :]  # (..., K, 3, 3)
+    return np.einsum("...kjc,kj->...kc", picked, weights.astype(v.dtype))
 
 
 def eye_rotation_matrices(eye_rotation: np.ndarray) -> np.ndarray:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from capture2face.errors import CaptureError
-from capture2face.rig.face_rig import FaceRig
+from capture2face.rig.face_rig import FaceRig, landmark_support
 
 # Bone-name prefix of automatic feature bones: they measure wrinkle influences, never move.
 AUTO_PREFIX = "auto_feature/"
@@ -34,7 +34,8 @@ def feature_correspondence(rig) -> tuple[np.ndarray, np.ndarray, bool]:
 
 def feature_positions(rig: FaceRig, blend_weights: np.ndarray) -> np.ndarray:
     """(F, B, 3) float32 bone positions for the influences: the rest positions, with each
-    automatic feature bone at its vertex deformed by the frame's morph weights.
+    automatic feature bone at its landmark's surface point deformed by the frame's morph
+    weights.
 
     Args:
         blend_weights: (F, M) morph weights.
@@ -44,8 +45,13 @@ def feature_positions(rig: FaceRig, blend_weights: np.ndarray) -> np.ndarray:
     auto = [b for b, n in enumerate(rig.bone_names) if n.startswith(AUTO_PREFIX)]
     if not auto:
         return out
-    verts = rig.landmark_vertices[rig.bone_landmarks[auto]]
-    deltas = rig.morph_positions[:, verts].reshape(rig.n_morphs, -1).astype(np.float32)  # (M, n*3)
+    if rig.landmark_faces is None:
+        verts = rig.landmark_vertices[rig.bone_landmarks[auto]]
+        deltas = rig.morph_positions[:, verts].reshape(rig.n_morphs, -1).astype(np.float32)  # (M, n*3)
+    else:  # barycentric on the landmark's triangle
+        verts, bary, _ = landmark_support(rig, rig.bone_landmarks[auto])
+        deltas = np.einsum("mnjc,nj->mnc", rig.morph_positions[:, verts], bary.astype(np.float32))
+        deltas = deltas.reshape(rig.n_morphs, -1).astype(np.float32)
     out[:, auto] += (weights @ deltas).reshape(len(weights), len(auto), 3)
     return out
 

@@ -10,7 +10,7 @@ import numpy as np
 from capture2face.camera import project
 from capture2face.io.npz import load_dataclass, save_dataclass
 from capture2face.rig.deform import deform
-from capture2face.rig.face_rig import FaceRig
+from capture2face.rig.face_rig import FaceRig, landmark_points
 from capture2face.rig.influences import region_influence, rig_influences, zone_weights
 
 FORMAT = "capture2face.SyntheticTruth/1"
@@ -127,7 +127,8 @@ def deformed_landmarks(rig: FaceRig, bone_positions: np.ndarray, blend_weights: 
     for s in range(0, len(bone_positions), chunk):
         eyes = None if eye_rotation is None else eye_rotation[s:s + chunk]
         pos, _ = deform(rig, bone_positions[s:s + chunk], blend_weights[s:s + chunk], eyes)
-        out[s:s + chunk, have] = pos[:, lv[have]]
+        out[s:s + chunk, have] = (pos[:, lv[have]] if rig.landmark_faces is None
+                                  else landmark_points(rig, pos, np.flatnonzero(have)))
     return out
 
 
