@@ -37,6 +37,26 @@ CURVE_ONLY = frozenset({
 })
 
 
+#: MediaPipe's contours of the features (lips, eyes, brows): the points an expression moves
+#: (the rest, the cheeks, the nose and the silhouette, carry the tracker's noise as much).
+FEATURE_CONTOURS = np.array([
+    61, 146, 91, 181, 84, 17, 314, 405, 321, 375, 291, 185, 40, 39, 37, 0, 267, 269, 270, 409,  # outer lips
+    78, 95, 88, 178, 87, 14, 317, 402, 318, 324, 308, 191, 80, 81, 82, 13, 312, 311, 310, 415,  # inner lips
+    263, 249, 390, 373, 374, 380, 381, 382, 362, 466, 388, 387, 386, 385, 384, 398,  # left eye
+    33, 7, 163, 144, 145, 153, 154, 155, 133, 246, 161, 160, 159, 158, 157, 173,  # right eye
+    276, 283, 282, 295, 285, 300, 293, 334, 296, 336, 46, 53, 52, 65, 55, 70, 63, 105, 66, 107,  # brows
+])
+#: Landmark pairs whose relative motion is an expression: the lids apart (three columns per
+#: eye), the inner lips apart (three columns), the mouth's corners, each brow (inner, middle,
+#: outer) against its eye's corners. Fitted as extra points (the pair's difference), so a
+#: global morph basis does not trade them for the many points around them.
+EXPRESSION_PAIRS = np.array([
+    (159, 145), (158, 153), (160, 144), (386, 374), (385, 380), (387, 373),
+    (13, 14), (82, 87), (312, 317), (61, 291),
+    (105, 33), (107, 133), (70, 33), (334, 263), (336, 362), (300, 263),
+])
+
+
 @dataclass
 class MorphSolve:
     """The linear model of an ARKit character's landmark points.
@@ -46,11 +66,32 @@ class MorphSolve:
         fixed: (Mf,) morphs that take their curve (:data:`CURVE_ONLY`, or moving no
             landmark); morphs in neither list are 0 on the solve's side.
         fixed_deltas: (Mf, N, 3) their landmark deltas.
+        pairs: (K, 2) slots (into the N landmarks) of the :data:`EXPRESSION_PAIRS` the rig
+            has: the model's points are the N landmarks, then the K differences.
     """
 
     model: LinearRigModel
     fixed: np.ndarray
     fixed_deltas: np.ndarray
+    pairs: np.ndarray
+
+    def points(self, landmark_points: np.ndarray) -> np.ndarray:
+        """(..., N + K, 3) the model's points of (..., N, 3) landmark points."""
+        a, b = self.pairs[:, 0], self.pairs[:, 1]
+        return np.concatenate([landmark_points, landmark_points[..., a, :] - landmark_points[..., b, :]], -2)
+
+
+def expression_pairs(landmarks: np.ndarray) -> np.ndarray:
+    """(K, 2) slots into ``landmarks`` (N,) of the :data:`EXPRESSION_PAIRS` it holds."""
+    slot = {int(l): i for i, l in enumerate(landmarks)}
+    return np.array([(slot[a], slot[b]) for a, b in EXPRESSION_PAIRS if a in slot and b in slot], np.int64).reshape(-1, 2)
+
+
+def arkit_point_weights(landmarks: np.ndarray, landmark_weights: np.ndarray, other: float, pair: float) -> np.ndarray:
+    """(N + K,) a-priori weights of the model's points: ``landmark_weights`` (N,) times
+    ``other`` off the :data:`FEATURE_CONTOURS`, then ``pair`` for each expression pair."""
+    w = np.where(np.isin(landmarks, FEATURE_CONTOURS), 1.0, other) * landmark_weights
+    return np.concatenate([w, np.full(len(expression_pairs(landmarks)), pair)])
 
 
 def morph_solve(rig, landmarks: np.ndarray, min_motion: float) -> MorphSolve:
@@ -66,9 +107,15 @@ def morph_solve(rig, landmarks: np.ndarray, min_motion: float) -> MorphSolve:
     fixed = np.array([named.get(m) in CURVE_ONLY or motion[m] < min_motion * rig.interocular()
                       for m in range(rig.n_morphs)], bool)
     solved = np.flatnonzero(~fixed)
-    matrix = np.concatenate([rigid_columns(rest), deltas[solved].reshape(len(solved), -1).T], 1)  # (3N, 6 + Ms)
-    model = LinearRigModel(rest=rest, matrix=matrix, free_bones=np.zeros(0, np.int64), morphs=solved, n_rigid=6)
-    return MorphSolve(model=model, fixed=np.flatnonzero(fixed), fixed_deltas=deltas[fixed])
+    out = MorphSolve(model=None, fixed=np.flatnonzero(fixed), fixed_deltas=deltas[fixed],
+                     pairs=expression_pairs(landmarks))
+    n = len(landmarks)
+    columns = np.concatenate([rigid_columns(rest), deltas[solved].reshape(len(solved), -1).T], 1)  # (3N, 6 + Ms)
+    # Each column is a motion of the N points: its pair differences follow from it.
+    matrix = np.moveaxis(out.points(np.moveaxis(columns.reshape(n, 3, -1), -1, 0)), 0, -1).reshape(-1, columns.shape[1])
+    out.model = LinearRigModel(rest=out.points(rest), matrix=matrix, free_bones=np.zeros(0, np.int64),
+                               morphs=solved, n_rigid=6)
+    return out
 
 
 def rigid_columns(rest: np.ndarray) -> np.ndarray:
@@ -98,9 +145,10 @@ class CurveShifted:
         self.windows, self.frames = mapped.windows, mapped.frames
 
     def read(self, w) -> np.ndarray:
+        """(k, N + K, 3) the model's points of the window's frames."""
         pts = self.mapped.read(w)
         d = self.solve.fixed_deltas
-        if not len(d):
-            return pts
-        shift = (self.prior[w.start:w.stop, self.solve.fixed].astype(np.float64) @ d.reshape(len(d), -1))
-        return pts - shift.reshape(pts.shape)
+        if len(d):
+            shift = (self.prior[w.start:w.stop, self.solve.fixed].astype(np.float64) @ d.reshape(len(d), -1))
+            pts = pts - shift.reshape(pts.shape)
+        return self.solve.points(pts)

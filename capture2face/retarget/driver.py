@@ -4,6 +4,7 @@ and morph weights window by window, and evaluates wrinkle influences and zone we
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 
@@ -14,7 +15,7 @@ from capture2face.errors import CaptureError
 from capture2face.retarget import gaze
 from capture2face.retarget.animation import Animation
 from capture2face.retarget.arkit import arkit_curves
-from capture2face.retarget.arkit_solve import CurveShifted, morph_solve
+from capture2face.retarget.arkit_solve import CurveShifted, arkit_point_weights, morph_solve
 from capture2face.retarget.rbf import FeatureMap, fit_feature_map
 from capture2face.retarget.solve import LinearSolver, linear_rig_model
 from capture2face.retarget.windows import MappedPoints, SpilledMedian, frame_windows
@@ -88,8 +89,11 @@ class RetargetOptions:
     window_overlap: int = 100
     eye_radius_iod: float = gaze.HUMAN_RADIUS_IOD
     arkit_prior: float = 1.0
+    arkit_morph_ridge: float = 0.001
     arkit_sparsity: float = 0.0
     arkit_min_motion: float = 0.02
+    arkit_other_weight: float = 0.1
+    arkit_pair_weight: float = 30.0
 
 
 def shared_blendshapes(morph_names: list[str], blendshape_names: list[str]) -> list[tuple[int, int]]:
@@ -166,20 +170,19 @@ def _joint_solver(model, options: RetargetOptions, landmark_weights, morph_ridge
                         prior_strength=prior_strength)
 
 
-def solve_windows(mapped, model, landmarks: np.ndarray, options: RetargetOptions, neutral: int | None,
-                  prior: np.ndarray | None = None, prior_strength: np.ndarray | None = None,
-                  sparsity: float | None = None):
+def solve_windows(mapped, model, point_weights: np.ndarray, options: RetargetOptions, neutral: int | None,
+                  prior: np.ndarray | None = None, prior_strength: np.ndarray | None = None):
     """Yield (window, x (k, n)) for every window of ``mapped``: the joint solve of the
     :class:`~capture2face.retarget.solve.LinearRigModel`'s unknowns, after the reliability
     passes (which fit without the prior).
 
     Args:
         mapped: target feature points by window (:class:`MappedPoints` or alike).
-        landmarks: (N,) the tracker landmarks of the feature points.
+        point_weights: (N,) a-priori weight of each feature point
+            (:func:`landmark_prior_weights`).
         prior: (F, n) values the unknowns are pulled towards with ``prior_strength`` (n,).
-        sparsity: the L1 weight (None: ``options.sparsity``).
     """
-    prior_w = landmark_prior_weights(landmarks, options)
+    prior_w = np.asarray(point_weights, np.float64)
     lw = prior_w
     # Reliability passes fit with weak morph priors: their residual is what the rig
     # cannot explain (tracker error), not motion the priors hold back, so a
@@ -188,13 +191,12 @@ def solve_windows(mapped, model, landmarks: np.ndarray, options: RetargetOptions
     for _ in range(options.reweight_iterations):
         solver = _joint_solver(model, options, lw, morph_ridge=1e-4, sparsity=0.0)
         solver.iterations = RELIABILITY_ADMM_ITERATIONS
-        with SpilledMedian(len(landmarks)) as r2:
+        with SpilledMedian(len(prior_w)) as r2:
             for w in mapped.windows:
                 pts = mapped.read(w)
                 r2.add(_residual2(model, solver.solve(pts, pin=w.pin(neutral))[w.own], pts[w.own]))
             lw = prior_w * _reliability(r2.median(), options.reweight_floor)
-    solver = _joint_solver(model, options, lw, options.morph_ridge,
-                           options.sparsity if sparsity is None else sparsity, prior_strength)
+    solver = _joint_solver(model, options, lw, options.morph_ridge, options.sparsity, prior_strength)
     for w in mapped.windows:
         yield w, solver.solve(mapped.read(w), pin=w.pin(neutral),
                               prior=None if prior is None else prior[w.start:w.stop])
@@ -243,7 +245,7 @@ def solve_bones_weights(mapped: MappedPoints, rig, landmarks: np.ndarray, per_ve
     if options.joint_solve:
         model = linear_rig_model(rig, vertices, solve_morphs=solve_w)
         nb = model.n_bone_vars
-        for w, x in solve_windows(mapped, model, landmarks, options, neutral):
+        for w, x in solve_windows(mapped, model, landmark_prior_weights(landmarks, options), options, neutral):
             bones = np.repeat(rest[None], len(x), 0)
             bones[:, model.free_bones] += x[:, :nb].reshape(len(x), -1, 3)
             weights = None
@@ -346,7 +348,10 @@ def _solve_arkit_weights(track, rig, landmarks: np.ndarray, prior: np.ndarray, o
     """(F, M) float32 morph weights of an ARKit character solved from the mapped feature
     points at ``landmarks`` (N,), ``prior`` (F, M) the curves as morph weights."""
     solve = morph_solve(rig, landmarks, options.arkit_min_motion)
-    network = _fit_network(track, rig, landmarks, solve.model.rest, options)
+    point_weights = arkit_point_weights(landmarks, landmark_prior_weights(landmarks, options),
+                                        options.arkit_other_weight, options.arkit_pair_weight)
+    options = dataclasses.replace(options, morph_ridge=options.arkit_morph_ridge, sparsity=options.arkit_sparsity)
+    network = _fit_network(track, rig, landmarks, solve.model.rest[:len(landmarks)], options)
     windows = frame_windows(track.n_frames, options.window_frames, options.window_overlap)
     weights = np.zeros_like(prior)
     weights[:, solve.fixed] = prior[:, solve.fixed]
@@ -356,9 +361,8 @@ def _solve_arkit_weights(track, rig, landmarks: np.ndarray, prior: np.ndarray, o
     prior_x = np.zeros((track.n_frames, len(strength)))
     prior_x[:, nf:] = prior[:, solved]
     with MappedPoints(track.landmarks_head, network, landmarks, windows, 1 + options.reweight_iterations) as mapped:
-        for w, x in solve_windows(CurveShifted(mapped, solve, prior), solve.model, landmarks, options,
-                                  track.neutral_frame, prior=prior_x, prior_strength=strength,
-                                  sparsity=options.arkit_sparsity):
+        for w, x in solve_windows(CurveShifted(mapped, solve, prior), solve.model, point_weights, options,
+                                  track.neutral_frame, prior=prior_x, prior_strength=strength):
             weights[w.start:w.stop, solved] += (w.fade[:, None] * x[:, nf:]).astype(np.float32)
     return weights
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from capture2face.errors import CaptureError
-from capture2face.rig.face_rig import FaceRig, landmark_support
+from capture2face.rig.face_rig import FaceRig, landmark_points, landmark_support
 
 # Bone-name prefix of automatic feature bones: they measure wrinkle influences, never move.
 AUTO_PREFIX = "auto_feature/"
@@ -65,5 +65,7 @@ def landmark_basis(rig: FaceRig, landmarks: np.ndarray) -> tuple[np.ndarray, np.
     Returns:
         rest (N, 3) float64 positions and deltas (M, N, 3) float64 per morph target.
     """
-    verts = np.asarray(rig.landmark_vertices)[np.asarray(landmarks)]
-    return rig.vertices[verts].astype(np.float64), rig.morph_positions[:, verts].astype(np.float64)
+    verts, bary, _ = landmark_support(rig, landmarks)  # on their triangles (or vertices)
+    rest = landmark_points(rig, rig.vertices.astype(np.float64), landmarks)
+    deltas = np.einsum("mnjc,nj->mnc", rig.morph_positions[:, verts].astype(np.float64), bary)
+    return rest, deltas
