@@ -46,6 +46,8 @@ FEATURE_CONTOURS = np.array([
     33, 7, 163, 144, 145, 153, 154, 155, 133, 246, 161, 160, 159, 158, 157, 173,  # right eye
     276, 283, 282, 295, 285, 300, 293, 334, 296, 336, 46, 53, 52, 65, 55, 70, 63, 105, 66, 107,  # brows
 ])
+#: The eyes' contours (both lids): their motion is the network's (:class:`SteadiedMap`).
+EYE_CONTOURS = FEATURE_CONTOURS[40:72]
 #: Landmark pairs whose relative motion is an expression: the lids apart (three columns per
 #: eye), the inner lips apart (three columns), the mouth's corners, each brow (inner, middle,
 #: outer) against its eye's corners. Fitted as extra points (the pair's difference), so a
@@ -129,6 +131,46 @@ def rigid_columns(rest: np.ndarray) -> np.ndarray:
     for k in range(3):  # d(omega x p)/d(omega_k) = e_k x p
         cols[:, :, 3 + k] = np.cross(np.eye(3)[k], p)
     return cols.reshape(3 * n, 6)
+
+
+def similarity(source: np.ndarray, target: np.ndarray) -> tuple[float, np.ndarray]:
+    """Scale and rotation (3, 3) of the least-squares similarity from ``source`` (N, 3) onto
+    ``target`` (N, 3) (Umeyama)."""
+    a, b = source - source.mean(0), target - target.mean(0)
+    u, sv, vt = np.linalg.svd(b.T @ a)
+    d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
+    return float((sv * np.diag(d)).sum() / max((a * a).sum(), 1e-12)), u @ d @ vt
+
+
+class SteadiedMap:
+    """The feature-point network, its motion blended with a similarity's: ``share`` of each
+    frame's motion away from the neutral as the network maps it, the rest as the whole
+    face's similarity (scale and rotation from the actor's neutral onto the character's)
+    carries it. The neutral still lands on the character's neutral exactly.
+
+    Why: the network's local stretch comes from where the landmarks sit on the character,
+    which on a third-party head is a cast (:mod:`capture2face.character.landmarks`), not a
+    hand-placed correspondence: a landmark row cast a little closer to its neighbours
+    shrinks the motion between them (brows rose 0.66 as much as the actor's on an ICT head).
+    The similarity keeps motion in proportion to the face's size; the network keeps what
+    the character's shape says (a wider eye closes over a longer way).
+
+    Args:
+        network: :class:`~capture2face.retarget.rbf.FeatureMap`.
+        share: the network's share of the motion (1: the network alone).
+    """
+
+    def __init__(self, network, share):
+        self.network, self.share = network, np.asarray(share, np.float64)[..., None]
+        self.scale, self.rotation = similarity(network.source_neutral, network.target_neutral)
+
+    def __call__(self, source_points: np.ndarray) -> np.ndarray:
+        pts = np.asarray(source_points, np.float64)
+        mapped = self.network(pts)
+        if np.all(self.share >= 1.0):
+            return mapped
+        rigid = self.network.target_neutral + self.scale * (pts - self.network.source_neutral) @ self.rotation.T
+        return self.share * mapped + (1.0 - self.share) * rigid
 
 
 class CurveShifted:

@@ -15,7 +15,7 @@ from capture2face.errors import CaptureError
 from capture2face.retarget import gaze
 from capture2face.retarget.animation import Animation
 from capture2face.retarget.arkit import arkit_curves
-from capture2face.retarget.arkit_solve import CurveShifted, arkit_point_weights, morph_solve
+from capture2face.retarget.arkit_solve import EYE_CONTOURS, CurveShifted, SteadiedMap, arkit_point_weights, morph_solve
 from capture2face.retarget.rbf import FeatureMap, fit_feature_map
 from capture2face.retarget.solve import LinearSolver, linear_rig_model
 from capture2face.retarget.windows import MappedPoints, SpilledMedian, frame_windows
@@ -94,6 +94,8 @@ class RetargetOptions:
     arkit_min_motion: float = 0.02
     arkit_other_weight: float = 0.1
     arkit_pair_weight: float = 30.0
+    arkit_network_share: float = 0.5
+    arkit_eye_share: float = 1.0
 
 
 def shared_blendshapes(morph_names: list[str], blendshape_names: list[str]) -> list[tuple[int, int]]:
@@ -351,7 +353,8 @@ def _solve_arkit_weights(track, rig, landmarks: np.ndarray, prior: np.ndarray, o
     point_weights = arkit_point_weights(landmarks, landmark_prior_weights(landmarks, options),
                                         options.arkit_other_weight, options.arkit_pair_weight)
     options = dataclasses.replace(options, morph_ridge=options.arkit_morph_ridge, sparsity=options.arkit_sparsity)
-    network = _fit_network(track, rig, landmarks, solve.model.rest[:len(landmarks)], options)
+    network = SteadiedMap(_fit_network(track, rig, landmarks, solve.model.rest[:len(landmarks)], options),
+                          np.where(np.isin(landmarks, EYE_CONTOURS), options.arkit_eye_share, options.arkit_network_share))
     windows = frame_windows(track.n_frames, options.window_frames, options.window_overlap)
     weights = np.zeros_like(prior)
     weights[:, solve.fixed] = prior[:, solve.fixed]
