@@ -336,14 +336,24 @@ def _retarget_arkit(track, rig, options: RetargetOptions) -> Animation:
     take the curves. Bones stay at rest (the head rotation is the animation's head pose)."""
     curves = arkit_curves(track)
     weights = arkit_weights(list(track.blendshape_names), curves, rig.morph_names)
-    landmarks, _, per_vertex = feature_correspondence(rig)
-    if options.solve_blend_weights and per_vertex:
+    landmarks = _skin_landmarks(rig)
+    if options.solve_blend_weights and landmarks is not None:
         weights = _solve_arkit_weights(track, rig, landmarks, weights, options)
     bones = np.repeat(rig.bone_rest[None].astype(np.float32), track.n_frames, 0)
     # Automatic feature points (character.auto_wrinkles) measure the influences where the
     # morphs carry them; as bones they stay at rest (the morphs deform the face).
     return _animation(track, rig, bones, weights, curves, options,
                       influence_bones=_per_frame(lambda w: feature_positions(rig, w), weights))
+
+
+def _skin_landmarks(rig) -> np.ndarray | None:
+    """(N,) the tracker landmarks on the rig's skin, or None when it has too few of them
+    (a character imported without its landmarks cast)."""
+    try:
+        landmarks, _, per_vertex = feature_correspondence(rig)
+    except CaptureError:
+        return None
+    return landmarks if per_vertex else None
 
 
 def _solve_arkit_weights(track, rig, landmarks: np.ndarray, prior: np.ndarray, options: RetargetOptions) -> np.ndarray:
