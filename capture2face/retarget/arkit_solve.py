@@ -37,14 +37,16 @@ CURVE_ONLY = frozenset({
 })
 
 
-#: MediaPipe's contours of the features (lips, eyes, brows): the points an expression moves
-#: (the rest, the cheeks, the nose and the silhouette, carry the tracker's noise as much).
+#: MediaPipe's contours of the features (lips, eyes, brows, the nose's wings): the points an
+#: expression moves (the rest, the cheeks, forehead and silhouette, carry the tracker's
+#: noise as much).
 FEATURE_CONTOURS = np.array([
     61, 146, 91, 181, 84, 17, 314, 405, 321, 375, 291, 185, 40, 39, 37, 0, 267, 269, 270, 409,  # outer lips
     78, 95, 88, 178, 87, 14, 317, 402, 318, 324, 308, 191, 80, 81, 82, 13, 312, 311, 310, 415,  # inner lips
     263, 249, 390, 373, 374, 380, 381, 382, 362, 466, 388, 387, 386, 385, 384, 398,  # left eye
     33, 7, 163, 144, 145, 153, 154, 155, 133, 246, 161, 160, 159, 158, 157, 173,  # right eye
     276, 283, 282, 295, 285, 300, 293, 334, 296, 336, 46, 53, 52, 65, 55, 70, 63, 105, 66, 107,  # brows
+    48, 64, 98, 102, 240, 278, 294, 327, 331, 460,  # the nose's wings (a sneer)
 ])
 #: The eyes' contours (both lids): their motion is the network's (:class:`SteadiedMap`).
 EYE_CONTOURS = FEATURE_CONTOURS[40:72]

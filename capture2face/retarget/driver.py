@@ -88,7 +88,7 @@ class RetargetOptions:
     window_frames: int = 1000
     window_overlap: int = 100
     eye_radius_iod: float = gaze.HUMAN_RADIUS_IOD
-    arkit_prior: float = 1.0
+    arkit_prior: float = 0.1
     arkit_morph_ridge: float = 0.001
     arkit_sparsity: float = 0.0
     arkit_min_motion: float = 0.02
