@@ -131,6 +131,7 @@ def _performed_track(rig, by: dict[str, int], truth: dict[str, np.ndarray], scor
     weights (F,) by ARKit name (an actor with the character's face: the weights to find),
     with MediaPipe-like ``scores`` (the others 0)."""
     from test_arkit import FPS
+
     from capture2face.rig.face_rig import landmark_points
     from capture2face.tracking.track import Track
 

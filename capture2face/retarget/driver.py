@@ -65,6 +65,16 @@ class RetargetOptions:
         eye_radius_iod: the actor's distance from eye centre to iris in inter-ocular
             distances, which turns the irises' motion into angles
             (:func:`capture2face.retarget.gaze.eye_rotation`); a human's by default.
+        arkit_prior: an ARKit character (:mod:`capture2face.retarget.arkit_solve`): weight
+            (cm^2, the fit's units) of |w - curve|^2 pulling each solved morph towards its
+            ARKit curve.
+        arkit_morph_ridge, arkit_sparsity: ``morph_ridge`` and ``sparsity`` of its solve.
+        arkit_min_motion: a morph moving no landmark by more than this (inter-ocular
+            distances) takes its curve.
+        arkit_other_weight: a-priori weight of the landmarks off the features' contours.
+        arkit_pair_weight: a-priori weight of each expression pair's difference.
+        arkit_network_share, arkit_eye_share: the network's share of the mapped motion (the
+            rest: the faces' similarity), off the eyes and on their lids.
     """
 
     kernel: str = "cubic"
