@@ -68,7 +68,7 @@ class MorphSolve:
     Attributes:
         model: rest (N, 3) and d(points)/d(w) of the solved morphs (``model.morphs``).
         fixed: (Mf,) morphs that take their curve (:data:`CURVE_ONLY`, or moving no
-            landmark); morphs in neither list are 0 on the solve's side.
+            landmark; a morph without an ARKit name has a curve of 0).
         fixed_deltas: (Mf, N, 3) their landmark deltas.
         pairs: (K, 2) slots (into the N landmarks) of the :data:`EXPRESSION_PAIRS` the rig
             has: the model's points are the N landmarks, then the K differences.
@@ -110,7 +110,9 @@ def morph_solve(rig, landmarks: np.ndarray, min_motion: float) -> MorphSolve:
     named = arkit_morphs(rig.morph_names)
     fixed = np.array([named.get(m) in CURVE_ONLY or motion[m] < min_motion * rig.interocular()
                       for m in range(rig.n_morphs)], bool)
-    solved = np.flatnonzero(~fixed)
+    # Only ARKit morphs are solved: others (visemes, a character's extras) have no curve to
+    # say which of two look-alike shapes is meant, and stay 0.
+    solved = np.flatnonzero(~fixed & np.isin(np.arange(rig.n_morphs), list(named)))
     out = MorphSolve(model=None, fixed=np.flatnonzero(fixed), fixed_deltas=deltas[fixed],
                      pairs=expression_pairs(landmarks))
     n = len(landmarks)
