@@ -40,7 +40,7 @@ import logging
 import numpy as np
 from scipy.spatial import cKDTree
 
-from capture2face.character.landmarks import find_surface_landmarks
+from capture2face.character.landmarks import with_surface_landmarks
 from capture2face.errors import CaptureError
 from capture2face.gltf.rig_import import _similarity
 from capture2face.rig.arkit_names import arkit_morphs
@@ -72,9 +72,8 @@ def automatic_wrinkles(rig: FaceRig) -> FaceRig:
     if not any(n in by_name for names in POSES.values() for n in names):
         raise CaptureError(f"character '{rig.name}': none of the brow / eye / nose ARKit morphs that make "
                            "its wrinkle reference poses")
-    found = find_surface_landmarks(rig)
-    lmv = found.vertices
-    rig = rig.replace(landmark_faces=found.faces, landmark_bary=found.bary, landmark_vertices=lmv)
+    rig = with_surface_landmarks(rig)
+    lmv = rig.landmark_vertices
     points = landmark_points(rig, rig.vertices).astype(np.float64)  # (L, 3) on the surface
     avatar = default_avatar()
     face_bones = [b for b in range(1, avatar.n_bones) if avatar.bone_landmarks[b] >= 0

@@ -12,8 +12,12 @@ triangle, barycentric).
   triangle nearest the landmark in the image (a containing one, front-most).
 * **Inner lips on their own lips**: at rest the mouth is closed and the upper and lower
   inner-lip landmarks meet at one line; they are cast in a second view with the mouth
-  opened by the character's own ``jawOpen`` morph, and the triangle and barycentric
-  weights they land on there are the same points of the rest mesh.
+  opened by the character's own ``jawOpen`` morph (0.5; 1.0 where the pair 13-14 then
+  still fails the check below), and the triangle and barycentric weights they land on
+  there are the same points of the rest mesh.
+* **Lids on their own lids**: cast at rest (the eyes are open); where a pair then fails the
+  load-time check (:func:`capture2face.measures.landmark_faults`: eyeBlink must close it
+  by half), that eye's lids are cast again with the eyes opened by ``eyeWide``.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ import numpy as np
 
 from capture2face.camera import framing_pose, project
 from capture2face.errors import CaptureError
+from capture2face.measures import landmark_faults
 from capture2face.render import FrameState, Renderer, RenderOptions
 from capture2face.rig.arkit_names import arkit_morphs
 from capture2face.rig.deform import deform
@@ -38,8 +43,20 @@ RENDER_SIZE = 512
 INNER_LIP_UPPER = (191, 80, 81, 82, 13, 312, 311, 310, 415)
 INNER_LIP_LOWER = (95, 88, 178, 87, 14, 317, 402, 318, 324)
 INNER_LIPS = (78, 308) + INNER_LIP_UPPER + INNER_LIP_LOWER
-# jawOpen weight of the open-mouth view.
-OPEN_JAW = 0.5
+# MediaPipe's eyelid contours (corners excluded), upper then lower: the subject's right
+# eye, then the left.
+EYELIDS_RIGHT = (246, 161, 160, 159, 158, 157, 173, 7, 163, 144, 145, 153, 154, 155)
+EYELIDS_LEFT = (466, 388, 387, 386, 385, 384, 398, 249, 390, 373, 374, 380, 381, 382)
+# Landmarks cast in views of their own, opened by the character's morphs (ARKit names):
+# (morphs, {measure: its landmarks}, weights tried in turn, always, what they open). Always:
+# the first weight's view is cast whatever the rest view gave; the next weights (or all, if
+# not always) only for the measures whose pair still fails the check
+# (:func:`capture2face.measures.landmark_faults`).
+OPENED_VIEWS = (
+    (("jawOpen",), {"mouth_open": INNER_LIPS}, (0.5, 1.0), True, "mouth opened by jawOpen (inner lips)"),
+    (("eyeWideLeft", "eyeWideRight"), {"eye_right": EYELIDS_RIGHT, "eye_left": EYELIDS_LEFT}, (1.0,), False,
+     "eyes opened by eyeWide (eyelids)"),
+)
 # Search radius (px) around a landmark for triangles to land on.
 SEARCH_PX = 12.0
 # A surface further than this (in inter-ocular distances) from the depth the tracker gives
@@ -66,19 +83,14 @@ class SurfaceLandmarks:
 
 @dataclass
 class _View:
-    """One tracked render: deformed vertices (V, 3), pose (4, 4), the tracker's landmarks
-    (L, 2) px and relative depths (L,) px."""
+    """One tracked render: deformed vertices and normals (V, 3), pose (4, 4), the tracker's
+    landmarks (L, 2) px and relative depths (L,) px."""
 
     vertices: np.ndarray
+    normals: np.ndarray
     pose: np.ndarray
     landmarks_px: np.ndarray
     depth_px: np.ndarray
-
-
-def find_landmark_vertices(rig: FaceRig) -> np.ndarray:
-    """(478,) int32 vertex nearest each landmark's surface point (-1 where none); see
-    :func:`find_surface_landmarks`."""
-    return find_surface_landmarks(rig).vertices
 
 
 def with_surface_landmarks(rig: FaceRig) -> FaceRig:
@@ -90,50 +102,60 @@ def with_surface_landmarks(rig: FaceRig) -> FaceRig:
 
 def find_surface_landmarks(rig: FaceRig) -> SurfaceLandmarks:
     """Every MediaPipe landmark of the character's front view cast onto its skin (see the
-    module docs); the inner lips from a second view with the mouth opened by ``jawOpen``.
+    module docs); the landmarks of :data:`OPENED_VIEWS` from views with the character's own
+    morphs opening them.
 
     Raises:
         CaptureError: the tracker finds no face in the render.
     """
     opts = RenderOptions(size=RENDER_SIZE, wrinkles="off", samples=4)
-    pose = framing_pose(rig, fov_y_degrees=opts.fov_y_degrees)
-    weights = [np.zeros(rig.n_morphs, np.float32)]
-    jaw = next((m for m, a in arkit_morphs(rig.morph_names).items() if a == "jawOpen"), None)
-    if jaw is not None:
-        weights.append(weights[0].copy())
-        weights[1][jaw] = OPEN_JAW
-    views = _tracked_views(rig, pose, opts, weights)
-    if views[0] is None:
-        raise CaptureError(f"character '{rig.name}': the tracker finds no face in its front view")
-    out = _cast_view(rig, views[0], opts.fov_y_degrees)
-    if len(views) > 1:
-        if views[1] is None:
-            log.warning("character '%s': the tracker finds no face with its mouth opened by jawOpen; "
-                        "its inner lips are placed from the closed mouth", rig.name)
-        else:
-            opened = _cast_view(rig, views[1], opts.fov_y_degrees)
-            rows = np.array(INNER_LIPS)
-            rows = rows[opened.vertices[rows] >= 0]
-            out.faces[rows], out.bary[rows], out.vertices[rows] = (
-                opened.faces[rows], opened.bary[rows], opened.vertices[rows])
+    fov = opts.fov_y_degrees
+    pose = framing_pose(rig, fov_y_degrees=fov)
+    by_name = {a: m for m, a in arkit_morphs(rig.morph_names).items()}
+    with Renderer(rig, opts) as renderer, \
+            FaceLandmarker.create_from_options(LandmarkerOptions(num_faces=1)) as landmarker:
+        rest = _tracked_view(renderer, landmarker, rig, pose)
+        if rest is None:
+            raise CaptureError(f"character '{rig.name}': the tracker finds no face in its front view")
+        out = _cast_view(rig, rest, fov)
+        for names, groups, weights, always, what in OPENED_VIEWS:
+            morphs = [by_name[n] for n in names if n in by_name]
+            for k, weight in enumerate(weights if morphs else ()):
+                todo = groups
+                if k or not always:  # a fallback: only for the measures the landmarks so far fail
+                    faults = landmark_faults(rig.replace(landmark_faces=out.faces, landmark_bary=out.bary,
+                                                         landmark_vertices=out.vertices))
+                    todo = {m: rows for m, rows in groups.items() if m in faults}
+                if todo:
+                    _recast(rig, out, _tracked_view(renderer, landmarker, rig, pose, weight, morphs),
+                            fov, [r for rows in todo.values() for r in rows], what)
     return out
 
 
-def _tracked_views(rig: FaceRig, pose: np.ndarray, opts: RenderOptions, weights: list) -> list:
-    """One :class:`_View` per morph weight vector (M,) (None where no face is found)."""
-    with Renderer(rig, opts) as renderer:
-        images = [renderer.render(FrameState(rig.bone_rest.copy(), w, pose)) for w in weights]
-    views = []
-    with FaceLandmarker.create_from_options(LandmarkerOptions(num_faces=1)) as landmarker:
-        for k, (image, w) in enumerate(zip(images, weights)):
-            obs = landmarker.detect(image, float(k))
-            if obs is None:
-                views.append(None)
-                continue
-            verts, _ = deform(rig, rig.bone_rest, w)
-            views.append(_View(np.asarray(verts, np.float64), pose, obs.landmarks_px.astype(np.float64),
-                               obs.depth.astype(np.float64)))
-    return views
+def _recast(rig: FaceRig, out: SurfaceLandmarks, view, fov_y_degrees: float, rows: list, what: str) -> None:
+    """``out``'s landmarks ``rows`` cast again in ``view`` (in place); a warning where the
+    tracker found no face in it."""
+    if view is None:
+        log.warning("character '%s': the tracker finds no face with its %s; they are placed at rest", rig.name, what)
+        return
+    cast = _cast_view(rig, view, fov_y_degrees)
+    rows = np.array(rows)
+    rows = rows[cast.vertices[rows] >= 0]
+    out.faces[rows], out.bary[rows], out.vertices[rows] = cast.faces[rows], cast.bary[rows], cast.vertices[rows]
+
+
+def _tracked_view(renderer: Renderer, landmarker, rig: FaceRig, pose: np.ndarray, weight: float = 0.0,
+                  morphs=()):
+    """The :class:`_View` of the rig with ``morphs`` (indices) at ``weight``, the others at
+    0, or None where the tracker finds no face."""
+    weights = np.zeros(rig.n_morphs, np.float32)
+    weights[list(morphs)] = weight
+    obs = landmarker.detect(renderer.render(FrameState(rig.bone_rest.copy(), weights, pose)), 0.0)
+    if obs is None:
+        return None
+    verts, normals = deform(rig, rig.bone_rest, weights)
+    return _View(np.asarray(verts, np.float64), np.asarray(normals, np.float64), pose, obs.landmarks_px.astype(np.float64),
+                 obs.depth.astype(np.float64))
 
 
 def _cast_view(rig: FaceRig, view: _View, fov_y_degrees: float) -> SurfaceLandmarks:
@@ -144,10 +166,10 @@ def _cast_view(rig: FaceRig, view: _View, fov_y_degrees: float) -> SurfaceLandma
     cam = view.vertices @ view.pose[:3, :3].T + view.pose[:3, 3]
     depth = -cam[:, 2]
     tris = np.asarray(rig.triangles, np.int64)
-    # Facing the camera (counter-clockwise seen from outside): the back of a head projects
-    # onto the face too.
-    e1, e2 = cam[tris[:, 1]] - cam[tris[:, 0]], cam[tris[:, 2]] - cam[tris[:, 0]]
-    facing = np.einsum("tc,tc->t", np.cross(e1, e2), -cam[tris].mean(1)) > 0
+    # Facing the camera (by the vertex normals: a file's winding may be either way): the back
+    # of a head projects onto the face too.
+    normals = view.normals[tris].sum(1) @ view.pose[:3, :3].T  # (T, 3) camera space
+    facing = np.einsum("tc,tc->t", normals, -cam[tris].mean(1)) > 0
     facing &= np.isfinite(px[tris]).all((1, 2))
     overlay = np.zeros(rig.n_vertices, bool) if rig.overlay_vertices is None else np.asarray(rig.overlay_vertices)
     mat = np.asarray(rig.material)
@@ -189,8 +211,16 @@ def _candidates(px: np.ndarray, depth: np.ndarray, tris: np.ndarray, points: np.
     (K, 2), with the point of each nearest the landmark."""
     corners = px[tris]  # (T, 3, 2)
     lo, hi = corners.min(1) - SEARCH_PX, corners.max(1) + SEARCH_PX
-    near = ((points[:, None] >= lo[None]) & (points[:, None] <= hi[None])).all(-1)  # (K, T)
-    row, t = np.nonzero(near)
+    if len(points):  # only triangles near the landmarks at all: a whole body projects mostly elsewhere
+        box = ((lo <= points.max(0)) & (hi >= points.min(0))).all(1)
+        tris, corners, lo, hi = tris[box], corners[box], lo[box], hi[box]
+    rows, ts = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+    for s in range(0, len(points), 64):  # (64, T) at a time: memory stays small
+        chunk = points[s:s + 64, None]
+        r, t = np.nonzero(((chunk >= lo[None]) & (chunk <= hi[None])).all(-1))
+        rows.append(r + s)
+        ts.append(t)
+    row, t = np.concatenate(rows), np.concatenate(ts)
     a, b, c = (corners[t, i] for i in range(3))
     p = points[row]
     q = _closest_on_triangle(p, a, b, c)

@@ -275,6 +275,8 @@ def _rig_extras(rig: FaceRig, textures: _Textures, n_region_chunks: int) -> dict
     }
     if rig.has_eyes:
         extras.update(eye_joints=list(EYE_JOINT_NAMES), eye_centres_cm=_tolist(rig.eye_centres))
+    if rig.landmark_faces is not None and rig.landmark_bary is not None:  # landmarks on the surface
+        extras.update(landmark_faces=_tolist(rig.landmark_faces), landmark_bary=_tolist(rig.landmark_bary))
     return extras
 
 

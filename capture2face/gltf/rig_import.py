@@ -461,15 +461,19 @@ _OVERLAY_WORDS = ("lash", "brow", "hair", "glass", "lens", "beard", "fur")
 def _overlays(g: dict, picked: list[int], surf: dict) -> np.ndarray | None:
     """(V,) bool: vertices of see-through overlays in front of the face that landmarks must
     not land on (alpha MASK / BLEND materials: lash and hair cards, glass; meshes or
-    materials named lash, brow, hair, glass...), or None where there are none."""
+    materials named lash, brow, hair, glass...), or None where there are none. The material
+    and the mesh with the most triangles (the skin, whatever its name or alpha mode) never."""
     materials = g.get("materials", [])
     see_through = np.array([str(m.get("alphaMode", "OPAQUE")).upper() in ("MASK", "BLEND")
                             or any(w in str(m.get("name", "")).lower() for w in _OVERLAY_WORDS)
                             for m in materials] + [False], bool)  # index -1: no material
+    if surf["largest_material"] is not None:
+        see_through[int(surf["largest_material"])] = False
     out = see_through[surf["gltf_material"]]
-    for ni, part in zip(picked, surf["parts"]):
+    largest = max(range(len(picked)), key=lambda k: surf["parts"][k]["tri_count"])
+    for k, (ni, part) in enumerate(zip(picked, surf["parts"])):
         name = str(g["meshes"][g["nodes"][ni]["mesh"]].get("name", "")).lower()
-        if any(w in name for w in _OVERLAY_WORDS):
+        if k != largest and any(w in name for w in _OVERLAY_WORDS):
             out[part["offset"]:part["offset"] + len(part["pos"])] = True
     return out if out.any() else None
 
@@ -875,6 +879,9 @@ def _apply_ours(rig: FaceRig, ours: dict, m: dict) -> FaceRig:
         joints[side >= 0], weights[side >= 0] = 0, [1.0, 0.0, 0.0, 0.0]
         eyes = dict(eye_centres=np.asarray(ours["eye_centres_cm"], np.float32).reshape(2, 3),
                     eye_vertex_side=side, skin_joints=joints, skin_weights=weights)
+    if "landmark_faces" in ours and "landmark_bary" in ours:  # landmarks on the surface
+        eyes.update(landmark_faces=np.asarray(ours["landmark_faces"], np.int32).reshape(-1, 3),
+                    landmark_bary=np.asarray(ours["landmark_bary"], np.float32).reshape(-1, 3))
     return rig.replace(
         **eyes,
         bone_rest=np.asarray(ours["bone_rest_cm"], np.float32).reshape(-1, 3),

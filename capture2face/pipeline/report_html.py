@@ -453,6 +453,10 @@ def _fidelity_tables(fig: dict) -> str:
                f"(r ≥ {R_MIN}, gain {GAIN_MIN}–{GAIN_MAX}); {s.get('not_worse_than_direct', 0)} of "
                f"{s.get('judged', 0)} not worse than the direct scores "
                f"({fig.get('frames', 0)} tracked frames).</p>")
+    left_out = fig.get("left_out") or {}
+    if left_out:  # the character's landmarks for them do not move with its morphs
+        summary += ('<p class="note">Left out: ' + "; ".join(f"{_e(k)} ({_e(v)})" for k, v in left_out.items())
+                    + ".</p>")
     return summary + f'<div class="cols"><div>{measures}</div><div>{arkit}</div></div>'
 
 

@@ -31,6 +31,7 @@ from capture2face.io.framestore import take_points
 from capture2face.retarget.arkit import (
     IOD_PAIR,  # the outer eye corners: the face's size
 )
+from capture2face.rig.face_rig import landmark_points
 
 # Right eye (the subject's right, -x) first, as everywhere: (iris landmarks, corners, lids).
 EYES = (
@@ -117,7 +118,6 @@ def eye_radius_iod(rig) -> float:
     character (the synthetic loop, whose actor is the default avatar)."""
     if not rig.has_eyes:
         return HUMAN_RADIUS_IOD
-    lv = rig.landmark_vertices
-    r = [np.linalg.norm(rig.vertices[lv[iris]].astype(np.float64).mean(0) - rig.eye_centres[e])
+    r = [np.linalg.norm(landmark_points(rig, rig.vertices, list(iris)).astype(np.float64).mean(0) - rig.eye_centres[e])
          for e, (iris, _, _) in enumerate(EYES)]
     return float(np.mean(r)) / rig.interocular()

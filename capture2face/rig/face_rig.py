@@ -249,7 +249,7 @@ def landmark_points(rig: FaceRig, vertices: np.ndarray, landmarks=None) -> np.nd
     """
     verts, weights, _ = landmark_support(rig, landmarks)
     v = np.asarray(vertices)
-    if not v.dtype.kind == "f":
+    if v.dtype.kind != "f":
         v = v.astype(np.float64)
     picked = v[..., verts, :]  # (..., K, 3, 3)
     return np.einsum("...kjc,kj->...kc", picked, weights.astype(v.dtype))

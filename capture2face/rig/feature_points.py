@@ -17,15 +17,16 @@ def feature_correspondence(rig) -> tuple[np.ndarray, np.ndarray, bool]:
 
     Returns:
         (landmarks (N,), target points (N, 3), per_vertex): with per-landmark vertices
-        (``per_vertex`` True) every landmark that sits on a skin vertex; otherwise the bones'
-        landmarks and the bones' rest positions.
+        (``per_vertex`` True) every landmark that sits on the skin, at its point
+        (:func:`~capture2face.rig.face_rig.landmark_points`: its vertex, or its point on a
+        triangle); otherwise the bones' landmarks and the bones' rest positions.
     """
     lv = np.asarray(rig.landmark_vertices)
     # Skin only: iris landmarks follow the gaze, which the rig's eyeballs do not.
     has = np.flatnonzero(lv >= 0)
     has = has[np.asarray(rig.material)[lv[has]] == 0]
     if len(has) >= 3 * max(1, rig.n_bones - 1):
-        return has, rig.vertices[lv[has]].astype(np.float64), True
+        return has, landmark_points(rig, rig.vertices, has).astype(np.float64), True
     bones = np.flatnonzero(np.asarray(rig.bone_landmarks) >= 0)
     if len(bones) < 4:
         raise CaptureError(f"character '{rig.name}' has too few tracked feature points to retarget onto")
