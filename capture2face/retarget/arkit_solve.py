@@ -15,6 +15,15 @@ The clip's ARKit curves (:func:`~capture2face.retarget.arkit.arkit_curves`) are 
 * the solved morphs are pulled towards their curves, ``strength |w - curve|^2`` (in
   the fit's units, cm^2): where several morphs could explain the same landmark motion
   (a smile or a cheek squint), the one the tracker's scores name wins.
+
+What is fitted: the landmark points, those on the features' contours
+(:data:`FEATURE_CONTOURS`) weighing most, and the differences of the
+:data:`EXPRESSION_PAIRS` (lids, lips, mouth corners, brows against the eyes), whose motion
+a morph basis shaped for the whole face would otherwise trade for the many points around
+them. Six unbounded unknowns take the rigid head motion that the pose removal leaves in
+the landmarks (:func:`rigid_columns`: the default avatar's bones follow it, no morph
+can); they are solved and dropped. The network's output is steadied by the two faces'
+similarity (:class:`SteadiedMap`).
 """
 
 from __future__ import annotations

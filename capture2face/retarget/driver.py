@@ -381,7 +381,7 @@ def _solve_arkit_weights(track, rig, landmarks: np.ndarray, prior: np.ndarray, o
     solved, nf = solve.model.morphs, solve.model.n_free_vars
     strength = np.zeros(solve.model.matrix.shape[1])
     strength[nf:] = options.arkit_prior
-    prior_x = np.zeros((track.n_frames, len(strength)))
+    prior_x = np.zeros((track.n_frames, len(strength)), np.float32)
     prior_x[:, nf:] = prior[:, solved]
     with MappedPoints(track.landmarks_head, network, landmarks, windows, 1 + options.reweight_iterations) as mapped:
         for w, x in solve_windows(CurveShifted(mapped, solve, prior), solve.model, point_weights, options,
