@@ -87,11 +87,29 @@ class MorphSolve:
     fixed: np.ndarray
     fixed_deltas: np.ndarray
     pairs: np.ndarray
+    pair_frames: np.ndarray | None = None
 
     def points(self, landmark_points: np.ndarray) -> np.ndarray:
         """(..., N + K, 3) the model's points of (..., N, 3) landmark points."""
         a, b = self.pairs[:, 0], self.pairs[:, 1]
-        return np.concatenate([landmark_points, landmark_points[..., a, :] - landmark_points[..., b, :]], -2)
+        diff = landmark_points[..., a, :] - landmark_points[..., b, :]
+        if self.pair_frames is not None:
+            diff = np.einsum("kij,...kj->...ki", self.pair_frames, diff)
+        return np.concatenate([landmark_points, diff], -2)
+
+
+ACROSS = 0.1
+
+
+def pair_frames(rest_diff: np.ndarray, across: float) -> np.ndarray:
+    """(K, 3, 3) operators taking a pair's difference to (along its rest direction,
+    ``across`` times the two across it)."""
+    u = rest_diff / np.maximum(np.linalg.norm(rest_diff, axis=1, keepdims=True), 1e-9)
+    helper = np.where(np.abs(u[:, [0]]) < 0.9, np.array([1.0, 0, 0]), np.array([0, 1.0, 0]))
+    v = np.cross(u, helper)
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    w = np.cross(u, v)
+    return np.stack([u, across * v, across * w], 1)
 
 
 def expression_pairs(landmarks: np.ndarray) -> np.ndarray:
@@ -122,8 +140,9 @@ def morph_solve(rig, landmarks: np.ndarray, min_motion: float) -> MorphSolve:
     # Only ARKit morphs are solved: others (visemes, a character's extras) have no curve to
     # say which of two look-alike shapes is meant, and stay 0.
     solved = np.flatnonzero(~fixed & np.isin(np.arange(rig.n_morphs), list(named)))
+    pairs = expression_pairs(landmarks)
     out = MorphSolve(model=None, fixed=np.flatnonzero(fixed), fixed_deltas=deltas[fixed],
-                     pairs=expression_pairs(landmarks))
+                     pairs=pairs, pair_frames=pair_frames(rest[pairs[:, 0]] - rest[pairs[:, 1]], ACROSS))
     n = len(landmarks)
     columns = np.concatenate([rigid_columns(rest), deltas[solved].reshape(len(solved), -1).T], 1)  # (3N, 6 + Ms)
     # Each column is a motion of the N points: its pair differences follow from it.
