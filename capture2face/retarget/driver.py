@@ -73,6 +73,7 @@ class RetargetOptions:
             distances) takes its curve.
         arkit_other_weight: a-priori weight of the landmarks off the features' contours.
         arkit_pair_weight: a-priori weight of each expression pair's difference.
+        arkit_pair_across: its weight across the pair's rest direction against along it.
         arkit_network_share, arkit_eye_share: the network's share of the mapped motion (the
             rest: the faces' similarity), off the eyes and on their lids.
     """
@@ -104,6 +105,7 @@ class RetargetOptions:
     arkit_min_motion: float = 0.02
     arkit_other_weight: float = 0.1
     arkit_pair_weight: float = 30.0
+    arkit_pair_across: float = 0.1
     arkit_network_share: float = 0.5
     arkit_eye_share: float = 1.0
 
@@ -369,7 +371,7 @@ def _skin_landmarks(rig) -> np.ndarray | None:
 def _solve_arkit_weights(track, rig, landmarks: np.ndarray, prior: np.ndarray, options: RetargetOptions) -> np.ndarray:
     """(F, M) float32 morph weights of an ARKit character solved from the mapped feature
     points at ``landmarks`` (N,), ``prior`` (F, M) the curves as morph weights."""
-    solve = morph_solve(rig, landmarks, options.arkit_min_motion)
+    solve = morph_solve(rig, landmarks, options.arkit_min_motion, options.arkit_pair_across)
     point_weights = arkit_point_weights(landmarks, landmark_prior_weights(landmarks, options),
                                         options.arkit_other_weight, options.arkit_pair_weight)
     options = dataclasses.replace(options, morph_ridge=options.arkit_morph_ridge, sparsity=options.arkit_sparsity)
