@@ -378,3 +378,17 @@ def test_retarget_timing_is_measurable(rig, performance):
     best = retarget_ms_per_frame(track, rig, repeats=3)
     outside_ms = 1000.0 * (time.perf_counter() - start)
     assert outside_ms / 10 <= best * track.n_frames <= outside_ms / 3
+
+
+def test_pair_frames_weigh_a_pair_along_its_rest_direction():
+    """An expression pair's difference: its component along the rest direction in full,
+    across it scaled; a pair touching at rest (no direction) in full."""
+    from capture2face.retarget.arkit_solve import pair_frames
+
+    rest = np.array([[0.0, 1.0, 0.2], [3.0, 0.0, 0.0], [0.01, 0.0, 0.0]])
+    t = pair_frames(rest, 0.1, min_separation=0.1)
+    np.testing.assert_allclose(np.einsum("kij,kj->ki", t, rest)[:2, 0], np.linalg.norm(rest[:2], axis=1))
+    np.testing.assert_allclose(np.einsum("kij,kj->ki", t, rest)[:2, 1:], 0.0, atol=1e-12)
+    across = np.cross(rest[0], [1.0, 0.0, 0.0])  # a slide across the first pair
+    assert np.linalg.norm(t[0] @ across) == pytest.approx(0.1 * np.linalg.norm(across))
+    np.testing.assert_array_equal(t[2], np.eye(3))
