@@ -5,23 +5,31 @@ are per process; a fresh process per clip also returns its memory). One failing 
 never stops the others: its error is recorded and the batch goes on. ``OUT/batch_report.json``
 is rewritten (atomically) after every clip, so an interrupted batch still says what got
 done, and ``resume=True`` skips the clips whose outputs are complete and were made with the
-same options (a clip whose report.json options differ is run again, the entry saying why).
+same options from the same files (a clip whose report.json options differ, or whose clip,
+character or mapping file changed content, is run again, the entry saying why).
 The report keeps the entries of an earlier batch into the same folder for clips not in
 this batch (marked ``"earlier": true``); this batch's entries replace theirs.
 
 With ``ray_address`` the clips become Ray tasks (``pip install capture2face[ray]``):
 ``"local"`` starts a local Ray instance, ``"auto"`` or ``"ray://host:10001"`` joins a
-cluster whose workers have capture2face installed and can read the input paths.
+cluster whose workers have capture2face installed and can read the input paths. The
+cluster is joined before anything is written; an address where nothing listens or
+answers fails in one line within :data:`RAY_CONNECT_S` seconds.
 """
 
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import dataclasses
 import glob
 import json
+import logging
 import multiprocessing
 import os
+import socket
+import sys
+import threading
 import time
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
@@ -31,8 +39,11 @@ from tqdm import tqdm
 
 from capture2face.errors import CaptureError, install_process_defaults
 from capture2face.io.atomic import write_text_atomic
+from capture2face.io.fingerprint import changes, fingerprint
+from capture2face.io.paths import ERRORS as PATH_ERRORS
 from capture2face.io.staging import check_writable
 from capture2face.pipeline import RunOptions, options_json, outputs_complete, run
+from capture2face.pipeline.options import input_files
 from capture2face.pipeline.preflight import check_gl, check_shared
 from capture2face.runtime.cores import free_cores
 
@@ -41,6 +52,7 @@ LIST_EXTENSIONS = (".txt", ".lst")
 REPORT_NAME = "batch_report.json"
 _GLOB_CHARS = set("*?[")
 _MAX_ATTEMPTS = 2  # a clip whose worker process dies twice is marked failed
+RAY_CONNECT_S = 10.0  # --ray HOST:PORT: joined within this (the command's checks before it included: 15 s)
 
 
 @dataclasses.dataclass
@@ -75,7 +87,8 @@ def expand_inputs(inputs: Iterable[str | os.PathLike]) -> list[BatchClip]:
                 raise CaptureError(f"no file matches {text}")
             paths += [Path(m) for m in matches if not Path(m).is_dir()]
         elif p.is_file() and p.suffix.lower() in LIST_EXTENSIONS:
-            for line in p.read_text(encoding="utf-8", errors="replace").splitlines():
+            # surrogateescape: a listed name that is not UTF-8 (Latin-1 bytes) still names its file
+            for line in p.read_text(encoding="utf-8", errors="surrogateescape").splitlines():
                 line = line.split("#", 1)[0].strip()
                 if line:
                     q = Path(line)
@@ -184,13 +197,17 @@ def _option_key(name: str, value: Any) -> Any:
     return value
 
 
-def resume_check(folder: str | os.PathLike, options: Any) -> tuple[bool, str | None]:
-    """Whether ``folder`` holds a complete run made with ``options`` (skip it), and if
-    not, why it is run again (None when there is no earlier run there).
+def resume_check(folder: str | os.PathLike, options: Any, clip: str | os.PathLike | None = None
+                 ) -> tuple[bool, str | None]:
+    """Whether ``folder`` holds a complete run of ``clip`` made with ``options`` (skip it),
+    and if not, why it is run again (None when there is no earlier run there).
 
     The options stored in its report.json are compared with the requested ones, both
     normalised as report.json writes them; an option missing from an older report counts
-    as its default.
+    as its default. With ``clip``, its input files (the clip, a character file and its
+    mapping JSON) are compared with the fingerprints report.json stores (size,
+    modification time, a hash of the first and last MiB): a file replaced at the same
+    path is run again.
     """
     folder = Path(folder)
     if not (folder / "report.json").exists():
@@ -198,11 +215,27 @@ def resume_check(folder: str | os.PathLike, options: Any) -> tuple[bool, str | N
     if not outputs_complete(folder):
         return False, "outputs incomplete"
     try:
-        stored = json.loads((folder / "report.json").read_text(encoding="utf-8")).get("options")
-    except (OSError, ValueError, AttributeError):
+        stored = json.loads((folder / "report.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
         stored = None
-    if not isinstance(stored, dict):
+    if not isinstance(stored, dict) or not isinstance(stored.get("options"), dict):
         return False, "no options in its report.json"
+    changed = _changed_options(stored["options"], options)
+    if changed:
+        return False, "options changed: " + ", ".join(changed)
+    if clip is not None:
+        if not isinstance(stored.get("inputs"), dict):
+            return False, "no input fingerprints in its report.json (made by an older version)"
+        changed = [f"{role} {path} changed ({', '.join(diff)})"
+                   for role, path in input_files(clip, options).items()
+                   if (diff := changes(stored["inputs"].get(role), fingerprint(path)))]
+        if changed:
+            return False, "; ".join(changed)
+    return True, None
+
+
+def _changed_options(stored: dict, options: Any) -> list[str]:
+    """``"name old -> new"`` for each option (but :data:`_RESUME_IGNORED`) that differs."""
     wanted = options_json(options)
     defaults = options_json(RunOptions())
     changed = []
@@ -212,9 +245,7 @@ def resume_check(folder: str | os.PathLike, options: Any) -> tuple[bool, str | N
         old = stored.get(name, defaults.get(name))
         if _option_key(name, old) != _option_key(name, new):
             changed.append(f"{name} {old} -> {new}")
-    if changed:
-        return False, "options changed: " + ", ".join(changed)
-    return True, None
+    return changed
 
 
 def _failure_line(path: str, error: str | None) -> str:
@@ -262,9 +293,23 @@ def run_batch(inputs: Iterable[str | os.PathLike], out: str | os.PathLike, optio
     """
     options = options or RunOptions()
     out = Path(out)
+    if jobs is not None and int(jobs) < 1:
+        raise CaptureError(f"--jobs {jobs}: must be 1 or more (the clips run at once)")
     clips = expand_inputs(inputs)
     check_writable(out)
     _check_batch(options, progress, ray_address)
+    # Joined before anything is written: a dead address fails in one line, in seconds.
+    ray, started = _connect_ray(ray_address) if ray_address else (None, False)
+    try:
+        return _batch(clips, out, options, jobs, resume, ray_address, progress)
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def _batch(clips: list[BatchClip], out: Path, options: Any, jobs: int | None, resume: bool,
+           ray_address: str | None, progress: bool) -> dict:
+    """:func:`run_batch` once the checks passed: plan, run, report."""
     report = _Report(out, clips, options)
     todo = _plan_clips(report, clips, out, options, resume)
     bar = None
@@ -296,7 +341,7 @@ def _plan_clips(report: _Report, clips: list[BatchClip], out: Path, options: Any
     and the others say why they run again. Writes the report."""
     todo = []
     for i, c in enumerate(clips):
-        skip, why = resume_check(out / c.name, options) if resume else (False, None)
+        skip, why = resume_check(out / c.name, options, c.path) if resume else (False, None)
         if skip:
             report.entries[i].update(status="skipped", seconds=0.0, error=None)
         else:
@@ -309,14 +354,18 @@ def _plan_clips(report: _Report, clips: list[BatchClip], out: Path, options: Any
 
 def _clip_done(report: _Report, clips: list[BatchClip], bar):
     """The callback ``done(i, result)`` a finished clip ``i`` reports to: its report entry,
-    the progress bar and, for a failure, a line under the bar."""
+    the progress bar and, for a failure, a line on stderr (under the bar)."""
 
     def done(i: int, result: dict) -> None:
         report.set(i, result)
+        if result["status"] == "failed":  # on stderr, with or without the bar
+            line = _failure_line(clips[i].path, result["error"])
+            if bar is not None:
+                bar.write(line, file=sys.stderr)
+            else:
+                print(line, file=sys.stderr)
         if bar is not None:
             bar.update(1)
-            if result["status"] == "failed":
-                bar.write(_failure_line(clips[i].path, result["error"]))
 
     return done
 
@@ -378,31 +427,115 @@ def _run_pool(clips: list[BatchClip], todo: list[int], out: Path, options: Any, 
         pending = retry
 
 
-def _run_ray(clips: list[BatchClip], todo: list[int], out: Path, options: Any, address: str,
-             done) -> None:
+def _ray_endpoint(address: str) -> tuple[str, int] | None:
+    """``(host, port)`` of a ``HOST:PORT`` or ``ray://HOST[:PORT]`` address (None for
+    "auto" and "local", which name no endpoint)."""
+    if address in ("auto", "local"):
+        return None
+    client = address.startswith("ray://")
+    rest = address[len("ray://"):] if client else address
+    host, sep, port = rest.rpartition(":")
+    if not sep or not host:
+        host, port = rest, "10001" if client else "6379"
+    try:
+        return host.strip("[]"), int(port)
+    except ValueError:
+        raise CaptureError(f"--ray {address}: not an address (HOST:PORT, ray://HOST:PORT, auto or local)") from None
+
+
+def _probe(address: str, deadline: float) -> None:
+    """Refuse an address where nothing listens, or that does not answer, in one line
+    (Ray itself retries a dead address for minutes)."""
+    endpoint = _ray_endpoint(address)
+    if endpoint is None:
+        return
+    try:
+        socket.create_connection(endpoint, timeout=max(1.0, deadline - time.monotonic() - 3.0)).close()
+    except TimeoutError:
+        raise CaptureError(f"--ray {address}: no answer from {endpoint[0]}:{endpoint[1]} "
+                           f"within {RAY_CONNECT_S - 3:.0f} s; is the address right and the cluster up?") from None
+    except OSError as exc:
+        raise CaptureError(f"--ray {address}: cannot connect to {endpoint[0]}:{endpoint[1]} "
+                           f"({exc.strerror or exc}); is a Ray cluster running there (ray start --head)?") from None
+
+
+@contextlib.contextmanager
+def _stderr_muted():
+    """File descriptor 2 to /dev/null inside the block (C++ libraries write there directly).
+    Yields a dict: with ``keep`` set, fd 2 stays muted after the block (a thread that is
+    still writing there) and ``sys.stderr`` moves to the terminal's own descriptor."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    state = {"keep": False}
+    with open(os.devnull, "wb") as null:
+        os.dup2(null.fileno(), 2)
+    try:
+        yield state
+    finally:
+        if state["keep"]:
+            sys.stderr = open(saved, "w", encoding="utf-8", errors=PATH_ERRORS, buffering=1)  # noqa: SIM115
+        else:
+            os.dup2(saved, 2)
+            os.close(saved)
+
+
+def _connect_ray(address: str):
+    """``(ray, started)``: Ray connected to ``address`` ("local" starts an instance), or a
+    CaptureError naming the address within :data:`RAY_CONNECT_S` seconds."""
     try:
         import ray
     except ImportError:
         raise CaptureError("--ray needs Ray: pip install 'capture2face[ray]'") from None
-    started = False
-    if not ray.is_initialized():
-        kwargs = {"include_dashboard": False, "log_to_driver": False}
-        ray.init(address=None if address == "local" else address, **kwargs)
-        started = True
-    try:
-        # Each task is a clip; MediaPipe and the renderer use the worker's own cores.
-        task = ray.remote(num_cpus=1, max_retries=1)(_run_clip)
-        refs = {task.remote(clips[i].path, str(out.resolve()), clips[i].name, options): i for i in todo}
-        remaining = list(refs)
-        while remaining:
-            ready, remaining = ray.wait(remaining, num_returns=1)
-            for ref in ready:
-                i = refs[ref]
-                try:
-                    done(i, ray.get(ref))
-                except Exception as exc:  # noqa: BLE001 - the worker died (RayTaskError, ...)
-                    done(i, {"status": "failed", "seconds": None,
-                             "error": f"ray task failed: {exc.__class__.__name__}"})
-    finally:
-        if started:
-            ray.shutdown()
+    if ray.is_initialized():
+        return ray, False
+    if address == "local":  # nothing to reach; Ray starts its processes from this (the main) thread
+        ray.init(include_dashboard=False, log_to_driver=False)
+        return ray, True
+    deadline = time.monotonic() + RAY_CONNECT_S
+    _probe(address, deadline)
+    result: dict[str, BaseException | None] = {}
+
+    # In a thread: a deadline, and Ray leaves our SIGTERM handler alone. (Only to join a
+    # cluster: processes Ray starts from a thread die with it, PR_SET_PDEATHSIG.)
+    def connect() -> None:
+        try:
+            ray.init(address=address, include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR)
+            result["error"] = None
+        except BaseException as exc:  # noqa: BLE001 - handed to the main thread
+            result["error"] = exc
+
+    thread = threading.Thread(target=connect, name="capture2face-ray-connect", daemon=True)
+    with _stderr_muted() as muted:  # Ray's C++ client warns every second while it retries
+        thread.start()
+        thread.join(max(0.0, deadline - time.monotonic()))
+        muted["keep"] = thread.is_alive()  # given up on: it goes on retrying (and warning) until exit
+    if "error" not in result:
+        raise CaptureError(f"--ray {address}: no Ray cluster answered within {RAY_CONNECT_S:.0f} s")
+    if isinstance(result["error"], ConnectionError) and address == "auto":
+        raise CaptureError("--ray auto: no running Ray cluster found on this machine; start one "
+                           "(ray start --head), or use --ray HOST:PORT or --ray local") from None
+    if isinstance(result["error"], Exception):
+        raise CaptureError(f"--ray {address}: cannot join the cluster ({result['error']})") from None
+    if result["error"] is not None:
+        raise result["error"]
+    return ray, True
+
+
+def _run_ray(clips: list[BatchClip], todo: list[int], out: Path, options: Any, address: str,
+             done) -> None:
+    """The clips as Ray tasks (Ray joined by :func:`run_batch`)."""
+    import ray
+
+    # Each task is a clip; MediaPipe and the renderer use the worker's own cores.
+    task = ray.remote(num_cpus=1, max_retries=1)(_run_clip)
+    refs = {task.remote(clips[i].path, str(out.resolve()), clips[i].name, options): i for i in todo}
+    remaining = list(refs)
+    while remaining:
+        ready, remaining = ray.wait(remaining, num_returns=1)
+        for ref in ready:
+            i = refs[ref]
+            try:
+                done(i, ray.get(ref))
+            except Exception as exc:  # noqa: BLE001 - the worker died (RayTaskError, ...)
+                done(i, {"status": "failed", "seconds": None,
+                         "error": f"ray task failed: {exc.__class__.__name__}"})

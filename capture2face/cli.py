@@ -14,11 +14,14 @@ from pathlib import Path
 
 from capture2face import batch, bench, pipeline
 from capture2face.errors import CaptureError, exit_interrupted, install_process_defaults
+from capture2face.eval import shading
 from capture2face.eval.fidelity import evaluate_fidelity, table
 from capture2face.eval.synthetic import evaluate_synthetic, summary_line
 from capture2face.gltf import export_glb
 from capture2face.gltf.arkit_export import export_arkit_character
 from capture2face.io.atomic import write_text_atomic
+from capture2face.io.paths import readable_streams
+from capture2face.io.staging import check_output_file
 from capture2face.io.video_input import open_video
 from capture2face.models.face_model import find_face_model
 from capture2face.pipeline import RunOptions
@@ -33,7 +36,27 @@ from capture2face.tracking.landmarker import defer_pyplot
 from capture2face.tracking.overlay import write_overlay
 
 
+def _check_avatar_args(args: argparse.Namespace) -> None:
+    """``avatar``'s flags, before the avatar is built: the --export-arkit options without
+    it, and files that could not be written (a folder, a .gltf name for binary glTF)."""
+    if not args.export_arkit:
+        given = [f for f, v in (("--quantize", args.quantize), ("--skeleton", args.skeleton),
+                                ("--body", args.body), ("--naming", args.naming)) if v]
+        if given:
+            raise CaptureError(f"{', '.join(given)} only appl{'ies' if len(given) == 1 else 'y'} to "
+                               "--export-arkit GLB; add it or leave them out")
+    for flag, path in (("--export", args.export), ("--export-arkit", args.export_arkit)):
+        if path and Path(path).suffix.lower() == ".gltf":
+            raise CaptureError(f"{flag} {path}: writes binary glTF; name the file "
+                               f"{Path(path).with_suffix('.glb')}")
+        if path:
+            check_output_file(path, flag, (".glb",))
+    if args.save:
+        check_output_file(args.save, "--save", (".npz",))
+
+
 def _cmd_avatar(args: argparse.Namespace) -> int:
+    _check_avatar_args(args)
     rig = default_avatar(variant=args.variant)
     if args.maps:
         write_maps(rig, args.maps)
@@ -42,7 +65,7 @@ def _cmd_avatar(args: argparse.Namespace) -> int:
         export_glb(rig, args.export)
         print(f"wrote {args.export}")
     if args.export_arkit:
-        export_arkit_character(rig, args.export_arkit, naming=args.naming, quantize=args.quantize,
+        export_arkit_character(rig, args.export_arkit, naming=args.naming or "_L", quantize=args.quantize,
                                skeleton=args.skeleton, body=args.body)
         print(f"wrote {args.export_arkit}")
     if args.save:
@@ -80,6 +103,9 @@ def _cmd_track(args: argparse.Namespace) -> int:
     # the model exists.
     options = _track_options(args)
     check_neutral_frame(args.neutral_frame, open_video(args.clip))
+    check_output_file(args.output, "-o", protect=[args.clip])
+    if args.overlay:
+        check_output_file(args.overlay, "--overlay", (".mp4",), protect=[args.clip, args.output])
     find_face_model(args.face_model)
     track = track_clip(args.clip, options, progress=not args.quiet)
     track.save(args.output)
@@ -99,7 +125,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
         faces=args.faces, face=args.face, track_workers=args.track_workers,
     )
     opts.allow_truncated = args.allow_truncated
-    report = pipeline.run(args.clip, args.output, opts, progress=not args.quiet)
+    if args.name is not None and (not args.name.strip() or Path(args.name).name != args.name
+                                  or args.name in (".", "..") or args.name.startswith(".tmp-")):
+        raise CaptureError(f"--name {args.name!r}: must be a plain folder name (no '/', not '.' or '..')")
+    report = pipeline.run(args.clip, args.output, opts, progress=not args.quiet, name=args.name)
     for warning in report["warnings"]:  # also in report.json
         print(f"capture2face: warning: {warning}", file=sys.stderr)
     print(f"wrote {report['output_dir']} ({report['frames']} frames, {report['fps_processing']:.1f} fps)")
@@ -130,6 +159,18 @@ def _cmd_eval_fidelity(args: argparse.Namespace) -> int:
         write_text_atomic(args.json, json.dumps(result, indent=2) + "\n")
     print(table(result["clips"]))
     print(result["summary"])
+    return 0
+
+
+def _cmd_eval_shading(args: argparse.Namespace) -> int:
+    results = [shading.shading_of(path, progress=not args.quiet) for path in args.runs]
+    summary = shading.summary_line(results)
+    if args.json:
+        write_text_atomic(args.json, json.dumps({"runs": results, "summary": summary}, indent=2) + "\n")
+    for r in results:
+        print(f"{r['run']}: skin darkening p95 " + ", ".join(f"{k} {v:.1%}" for k, v in r["darkening_p95"].items())
+              + f"; mouth opening r {r['mouth_open_r']:.2f}")
+    print(summary)
     return 0
 
 
@@ -217,12 +258,12 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
 def _add_avatar_parser(sub, common: argparse.ArgumentParser) -> None:
     p = sub.add_parser("avatar", parents=[common], help="build the default avatar; write its maps or a .glb")
     p.add_argument("--maps", metavar="DIR", help="write textures and zone masks as PNGs")
-    p.add_argument("--export", metavar="GLB", help="write the avatar as glTF binary (.glb)")
+    p.add_argument("--export", metavar="GLB", help="write the avatar as binary glTF (a .glb file)")
     p.add_argument("--save", metavar="NPZ", help="write the FaceRig file")
     p.add_argument("--export-arkit", metavar="GLB",
                    help="write the avatar as a third-party ARKit character would come: head, eyes and teeth "
                         "as separate meshes with ARKit-named morphs only, no face bones, no mapping")
-    p.add_argument("--naming", default="_L", choices=["arkit", "_L", ".L", "Left_", "blendShape1."],
+    p.add_argument("--naming", default=None, choices=["arkit", "_L", ".L", "Left_", "blendShape1."],
                    help="--export-arkit: morph naming (eyeBlinkLeft, eyeBlink_L, eyeBlink.L, EyeBlink_Left, "
                         "blendShape1.eyeBlinkLeft; default _L)")
     p.add_argument("--quantize", action="store_true", help="--export-arkit: KHR_mesh_quantization (int16)")
@@ -262,7 +303,10 @@ def _add_run_parser(sub, common: argparse.ArgumentParser) -> None:
     p = sub.add_parser("run", parents=[common], help="clip -> animated, wrinkled character (video + exports)")
     p.add_argument("clip", help="the video of a face")
     p.add_argument("-o", "--output", required=True, metavar="DIR",
-                   help="output folder: the results go to DIR/<clip stem>/")
+                   help="output folder: the results go to DIR/<clip stem>/ (or DIR/NAME/ with --name)")
+    p.add_argument("--name", metavar="NAME", default=None,
+                   help="the results' folder name under DIR (default: the clip's stem); two clips of "
+                        "the same name from different folders need different names")
     p.add_argument("--neutral-frame", type=int, default=None, metavar="N", help=NEUTRAL_HELP)
     _add_run_options(p)
     p.set_defaults(func=_cmd_run)
@@ -273,6 +317,7 @@ def _add_eval_parser(sub, common: argparse.ArgumentParser) -> None:
     evals = p.add_subparsers(dest="dataset", required=True, metavar="DATASET")
     _add_eval_synthetic_parser(evals, common)
     _add_eval_fidelity_parser(evals, common)
+    _add_eval_shading_parser(evals, common)
 
 
 def _add_eval_synthetic_parser(evals, common: argparse.ArgumentParser) -> None:
@@ -296,15 +341,26 @@ def _add_eval_fidelity_parser(evals, common: argparse.ArgumentParser) -> None:
     p.set_defaults(func=_cmd_eval_fidelity)
 
 
+def _add_eval_shading_parser(evals, common: argparse.ArgumentParser) -> None:
+    p = evals.add_parser("shading", parents=[common],
+                         help="does the rendered character shade right? (tracks a run's avatar.mp4)")
+    p.add_argument("runs", nargs="+", metavar="RUN_DIR", help="`run` output folders (avatar.mp4 and track.npz)")
+    p.add_argument("--json", metavar="PATH", help="write every figure as JSON")
+    p.set_defaults(func=_cmd_eval_shading)
+
+
 def _add_batch_parser(sub, common: argparse.ArgumentParser) -> None:
     p = sub.add_parser("batch", parents=[common], help="run many clips in parallel")
     p.add_argument("inputs", nargs="+", help="clips, folders or glob patterns")
     p.add_argument("-o", "--output", required=True, metavar="DIR",
                    help="output folder: each clip goes to DIR/<clip stem>/, the report to "
                         "DIR/batch_report.json")
-    p.add_argument("--jobs", type=int, default=None, help="parallel clips (default: the cores this process may use)")
-    p.add_argument("--resume", action="store_true", help="skip clips whose outputs are complete")
-    p.add_argument("--ray", metavar="ADDRESS", default=None, help="distribute over a Ray cluster")
+    p.add_argument("--jobs", type=int, default=None,
+                   help="parallel clips, 1 or more (default: the cores this process may use)")
+    p.add_argument("--resume", action="store_true", help="skip clips whose outputs are complete and made with the same options "
+                        "from the same clip and character content")
+    p.add_argument("--ray", metavar="ADDRESS", default=None, help="distribute over a Ray cluster: local, auto (this machine's cluster), "
+                        "HOST:PORT or ray://HOST:PORT")
     _add_run_options(p)
     p.set_defaults(func=_cmd_batch)
 
@@ -352,6 +408,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     install_process_defaults()
+    readable_streams()  # a file name that is not UTF-8 prints as \xNN, never fails a command
     if argv is None:  # the process is the command (not a caller's main(args))
         defer_pyplot()  # it imports MediaPipe, never matplotlib
     try:

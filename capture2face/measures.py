@@ -36,7 +36,7 @@ import numpy as np
 
 from capture2face.errors import CaptureError
 from capture2face.maths.stats import pearson
-from capture2face.rig.arkit_names import GAZE_SCORES, arkit_morphs
+from capture2face.rig.arkit_names import GAZE_SCORES, arkit_morphs, arkit_weights
 from capture2face.rig.face_rig import landmark_points, landmark_support
 from capture2face.tracking.head_pose import head_landmarks
 
@@ -225,13 +225,9 @@ def character_measures(rig, bone_positions: np.ndarray, blend_weights: np.ndarra
 
 
 def direct_weights(rig, scores: np.ndarray, names: list[str]) -> np.ndarray:
-    """(F, M) the rig's morphs driven by the tracker's scores of the same (ARKit) name."""
-    index = {n.lower(): i for i, n in enumerate(names)}
-    out = np.zeros((len(scores), rig.n_morphs), np.float32)
-    for m, name in enumerate(rig.morph_names):
-        if name.lower() in index:
-            out[:, m] = np.clip(scores[:, index[name.lower()]], 0.0, 1.0)
-    return out
+    """(F, M) the rig's morphs driven by the tracker's scores of the same ARKit name (any
+    spelling: ``eyeBlink_L`` takes ``eyeBlinkLeft``)."""
+    return arkit_weights(list(names), np.asarray(scores, np.float32), rig.morph_names)
 
 
 # ---- figures -----------------------------------------------------------------------------
@@ -245,6 +241,12 @@ def faithful(r: float, gain: float) -> bool:
     return r >= R_MIN and GAIN_MIN <= gain <= GAIN_MAX
 
 
+def not_worse(r: float, gain: float, other_r: float, other_gain: float) -> bool:
+    """r at least as high as the other drive's, or a gain at least as close to 1 (in log
+    terms): worse means behind it on both."""
+    return bool(r >= other_r - 1e-3 or abs(np.log(max(gain, 1e-6))) <= abs(np.log(max(other_gain, 1e-6))))
+
+
 @dataclass
 class ClipFidelity:
     """One clip's measures over its tracked frames (T of them).
@@ -253,6 +255,9 @@ class ClipFidelity:
         name: clip name.
         times: (T,) seconds.
         source, character, direct: (T, 6) the measures (see module doc).
+        curves: (T, 6) the character driven by the animation's ARKit curves alone (its
+            ARKit-named morphs, bones at rest): what the retargeting must not be worse
+            than; None without curves or ARKit-named morphs.
         arkit: (T, A) ARKit curves judged, names in ``arkit_names``.
         arkit_source: which curves were judged ("animation" or "tracker").
         gaze: (T, 2, 2) the animation's eye yaw and pitch (degrees), or None.
@@ -271,34 +276,17 @@ class ClipFidelity:
     arkit_source: str
     gaze: np.ndarray | None = None
     gaze_scores: np.ndarray | None = None
+    curves: np.ndarray | None = None
     left_out: dict[str, str] = field(default_factory=dict)
 
     def figures(self) -> dict:
         """Per measure r, gain, source range, judged and faithful for the character and
-        the direct alternative; ARKit curve correlations; a summary."""
+        the direct alternative (and the curves-only drive); ARKit curve correlations; a
+        summary."""
         out: dict = {"clip": self.name, "frames": int(len(self.times)), "measures": {}, "arkit": {}}
-        judged = passed = beats = 0
         if self.left_out:
             out["left_out"] = dict(self.left_out)
-        for k, name in enumerate(MEASURES):
-            if name in self.left_out:
-                continue
-            src = self.source[:, k]
-            rng = float(src.max() - src.min()) if len(src) else 0.0
-            limit = MIN_RANGE_EYE if name in EYE_MEASURES else MIN_RANGE_IOD
-            r, g = compare(src, self.character[:, k])
-            dr, dg = compare(src, self.direct[:, k])
-            ok = faithful(r, g)
-            entry = {"range": round(rng, 4), "judged": rng >= limit, "r": round(r, 3), "gain": round(g, 3),
-                     "faithful": ok, "direct_r": round(dr, 3), "direct_gain": round(dg, 3),
-                     "direct_faithful": faithful(dr, dg)}
-            out["measures"][name] = entry
-            if entry["judged"]:
-                judged += 1
-                passed += ok
-                # Not worse than direct: r at least as high, or a gain at least as close to 1
-                # (in log terms); worse means behind it on both.
-                beats += r >= dr - 1e-3 or abs(np.log(max(g, 1e-6))) <= abs(np.log(max(dg, 1e-6)))
+        out["measures"], out["summary"] = self._measure_figures()
         brow = self.source[:, [list(MEASURES).index("brow_right"), list(MEASURES).index("brow_left")]].mean(1)
         for name, (measure, sign, goal) in ARKIT_CHECKS.items():
             if name not in self.arkit_names:
@@ -320,8 +308,35 @@ class ClipFidelity:
                 if entry["judged"]:
                     entry.update(goal=GAZE_R_GOAL, met=bool(r >= GAZE_R_GOAL))
                 out["gaze"][name] = entry
-        out["summary"] = {"judged": judged, "faithful": int(passed), "not_worse_than_direct": int(beats)}
         return out
+
+    def _measure_figures(self) -> tuple[dict, dict]:
+        measures: dict = {}
+        counts = {"judged": 0, "faithful": 0, "not_worse_than_direct": 0}
+        if self.curves is not None:
+            counts["not_worse_than_curves"] = 0
+        for k, name in enumerate(MEASURES):
+            if name in self.left_out:  # the character's landmarks for it do not move with its morph
+                continue
+            src = self.source[:, k]
+            rng = float(src.max() - src.min()) if len(src) else 0.0
+            limit = MIN_RANGE_EYE if name in EYE_MEASURES else MIN_RANGE_IOD
+            r, g = compare(src, self.character[:, k])
+            dr, dg = compare(src, self.direct[:, k])
+            entry = {"range": round(rng, 4), "judged": rng >= limit, "r": round(r, 3), "gain": round(g, 3),
+                     "faithful": faithful(r, g), "direct_r": round(dr, 3), "direct_gain": round(dg, 3),
+                     "direct_faithful": faithful(dr, dg)}
+            if self.curves is not None:
+                cr, cg = compare(src, self.curves[:, k])
+                entry.update(curves_r=round(cr, 3), curves_gain=round(cg, 3), curves_faithful=faithful(cr, cg))
+            measures[name] = entry
+            if entry["judged"]:
+                counts["judged"] += 1
+                counts["faithful"] += entry["faithful"]
+                counts["not_worse_than_direct"] += not_worse(r, g, dr, dg)
+                if self.curves is not None:
+                    counts["not_worse_than_curves"] += not_worse(r, g, cr, cg)
+        return measures, counts
 
 
 def clip_fidelity(track, animation, rig, name: str = "") -> ClipFidelity:
@@ -332,8 +347,11 @@ def clip_fidelity(track, animation, rig, name: str = "") -> ClipFidelity:
     scores = np.asarray(track.blendshapes)
     rest = np.broadcast_to(rig.bone_rest[None], (len(scores),) + rig.bone_rest.shape)  # a view, no copy
     direct = character_measures(rig, rest, direct_weights(rig, scores, track.blendshape_names))
+    curves = None
     if getattr(animation, "arkit_weights", None) is not None:
         arkit, names, which = np.asarray(animation.arkit_weights), list(animation.arkit_names), "animation"
+        if arkit_morphs(rig.morph_names):
+            curves = character_measures(rig, rest, arkit_weights(names, arkit, rig.morph_names))[keep]
     else:
         arkit, names, which = scores, list(track.blendshape_names), "tracker"
     gaze = gaze_scores = None
@@ -346,4 +364,4 @@ def clip_fidelity(track, animation, rig, name: str = "") -> ClipFidelity:
     return ClipFidelity(name=name or Path(str(track.source)).stem, times=np.asarray(track.times)[keep],
                         source=source[keep], character=character[keep], direct=direct[keep],
                         arkit=np.asarray(arkit[keep], np.float64), arkit_names=names, arkit_source=which,
-                        gaze=gaze, gaze_scores=gaze_scores, left_out=landmark_faults(rig))
+                        gaze=gaze, gaze_scores=gaze_scores, curves=curves, left_out=landmark_faults(rig))

@@ -3,6 +3,7 @@ traceback, and nothing left in the output folder. Interrupts leave nothing behin
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -287,3 +288,115 @@ def test_an_interrupt_swallowed_by_a_finalizer_is_not_lost(monkeypatch):
     assert seen == []  # swallowed quietly ...
     with pytest.raises(KeyboardInterrupt):  # ... but remembered
         errors.raise_if_interrupted()
+
+
+# ---- a mapping JSON beside the character ------------------------------------------------
+JUNK_MAPPINGS = [
+    ('{"scale": "big"}', "scale must be a number > 0, not 'big'"),
+    ('{"scale": null}', "scale must be a number > 0, not null"),
+    ('{"bones": [1]}', "bones must be an object, not list"),
+    ('{"bones": {"X": "a"}}', "bones['X'] must be a landmark index 0..477, not 'a'"),
+    ('{"landmark_vertices": [1, 2, 3]}', "landmark_vertices must be an object"),
+    ('{"landmark_vertices": {"a": 1}}', "landmark_vertices key 'a' must be a landmark index"),
+    ('{"poses": []}', "poses must be an object"),
+    ('{"poses": {"stretch": 5}}', "poses['stretch'] must be an object"),
+    ('{"wrinkle_maps": 3}', "wrinkle_maps must be an object, not 3"),
+    ('{"wrinkle_maps": {"stretch": 5}}', "wrinkle_maps['stretch'] must be a string, not 5"),
+    ('{"zone_table": 3}', "zone_table must be an object, not 3"),
+    ('{"zone_table": {"browInnerUp": [0, 0, "a", 0, 0, 0, 0, 0]}}', "zone_table['browInnerUp'] must be a list of 8"),
+    ('{"bone_groups": 5}', "bone_groups must be a list, not 5"),
+    ('[1, 2]', "must be an object"),
+]
+
+
+@pytest.fixture(scope="module")
+def arkit_glb(tmp_path_factory) -> Path:
+    from capture2face.gltf.arkit_export import export_arkit_character
+    from capture2face.rig.avatar import default_avatar
+
+    path = tmp_path_factory.mktemp("arkit") / "hero.glb"
+    export_arkit_character(default_avatar(), path)
+    return path
+
+
+@pytest.mark.parametrize("text,said", JUNK_MAPPINGS)
+def test_junk_mapping_is_named_field_by_field(arkit_glb, tmp_path, text, said):
+    from capture2face.character.load import load_character
+    from capture2face.errors import CaptureError
+
+    glb = tmp_path / "hero.glb"
+    glb.write_bytes(arkit_glb.read_bytes())
+    (tmp_path / "hero.json").write_text(text)
+    with pytest.raises(CaptureError) as err:
+        load_character(glb)
+    line = str(err.value)
+    assert "\n" not in line and str(tmp_path / "hero.json") in line and said in line, line
+    assert "malformed glTF" not in line
+
+
+def test_every_wrong_field_in_one_line(arkit_glb, tmp_path):
+    from capture2face.gltf.mapping import mapping_errors
+
+    errors = mapping_errors({"scale": -1, "bones": {"Jaw": 500, "Brow": 3}, "morphs": {"A": "notArkit"},
+                             "zone_masks": ["a.png"], "materials": {"Eye": "glass"}, "name": "ok"})
+    assert len(errors) == 5, errors
+    assert mapping_errors({"name": "x", "scale": 100.0, "head_bone": "Head", "bones": {"Jaw": 152},
+                           "bone_groups": [["Jaw"]], "landmark_vertices": {"33": 1043},
+                           "materials": {"EyeMaterial": "eye"}, "wrinkle_maps": {"stretch": "s.png"},
+                           "poses": {"stretch": {"offsets": {"Jaw": [0, 0.8, 0.1]}, "wrinkle_map": "stretch",
+                                                 "morphs": {"browInnerUp": 1.0}},
+                                     "compress": {"positions": {"Jaw": [1.1, 3.9, 5]}}},
+                           "zone_masks": ["a.png", "b.png"], "zone_table": {"browInnerUp": [-1, -1, 0, 0, 0, 0, 0, 0]},
+                           "morphs": {"Fcl_MTH_A": "jawOpen"}}) == []
+
+
+def test_junk_mapping_fails_the_run_before_tracking(arkit_glb, sample_clip, tmp_path):
+    (tmp_path / "hero.json").write_text('{"bones": {"X": "a"}, "scale": "big"}')
+    glb = tmp_path / "hero.glb"
+    glb.write_bytes(arkit_glb.read_bytes())
+    out = tmp_path / "out"
+    result = cli("run", str(sample_clip), "-o", str(out), "--character", str(glb), timeout=120)
+    assert_clean_failure(result, out, "bones['X'] must be a landmark index")
+    assert "scale must be a number" in result.stderr
+
+
+# ---- file names that are not UTF-8 ------------------------------------------------------
+def test_clip_name_not_utf8_runs_and_reports(sample_clip, tmp_path):
+    """``café.mp4`` written in Latin-1 (the bytes ``caf\\xe9``): report.html, report.json and
+    the printed line all name it, with the byte written as ``\\xe9``."""
+    clip = Path(os.fsdecode(bytes(tmp_path) + b"/caf\xe9.mp4"))
+    clip.write_bytes(sample_clip.read_bytes())
+    out = tmp_path / "out"
+    result = cli("-q", "run", str(clip), "-o", str(out), "--size", "128", "--no-audio")
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "Traceback" not in result.stderr
+    folder = out / clip.stem
+    assert "caf\\xe9" in result.stdout, result.stdout
+    report = json.loads((folder / "report.json").read_text(encoding="utf-8"))
+    assert os.fsencode(report["clip"]) == os.fsencode(clip)  # the surrogate escape round-trips
+    page = (folder / "report.html").read_text(encoding="utf-8")  # valid UTF-8 throughout
+    assert "caf\\xe9.mp4" in page
+
+
+def test_batch_of_non_utf8_names_fails_on_stderr(tmp_path):
+    """A bad clip with a Latin-1 name in a batch: its "failed" line on stderr with the
+    byte escaped, batch_report.json written and readable."""
+    bad = Path(os.fsdecode(bytes(tmp_path) + b"/na\xefve.mp4"))
+    bad.write_text("not a video\n")
+    (tmp_path / "list.txt").write_bytes(b"na\xefve.mp4\n")  # a list in Latin-1 names the same file
+    out = tmp_path / "out"
+    result = cli("-q", "batch", str(tmp_path / "list.txt"), "-o", str(out), "--jobs", "1")
+    assert result.returncode == 1, result.stderr[-2000:]
+    assert "Traceback" not in result.stderr
+    assert "failed: " not in result.stdout
+    failed = [ln for ln in result.stderr.splitlines() if ln.startswith("failed: ")]
+    assert len(failed) == 1 and "na\\xefve.mp4" in failed[0] and "not a video" in failed[0], result.stderr
+    report = json.loads((out / "batch_report.json").read_text(encoding="utf-8"))
+    assert os.fsencode(report["clips"][0]["path"]) == os.fsencode(bad)
+
+
+def test_readable_escapes_only_undecodable_bytes():
+    from capture2face.io.paths import readable
+
+    assert readable(os.fsdecode(b"caf\xe9-\xc3\xa9.mp4")) == "caf\\xe9-\u00e9.mp4"
+    assert readable("plain") == "plain"

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -131,6 +132,7 @@ def test_batch_imports_a_glb_character_once(tmp_path, monkeypatch):
     real = load.automatic_wrinkles
     monkeypatch.setattr(load, "automatic_wrinkles", lambda rig, *a, **k: built.append(1) or real(rig, *a, **k))
     monkeypatch.setattr(load, "_IMPORTED", {})
+    monkeypatch.setenv("CAPTURE2FACE_CACHE", str(tmp_path / "cache"))  # no prepared copy from another run
 
     report = run_batch([clip, tmp_path / "b.mp4"], tmp_path / "out", RunOptions(character=char, size=64, compare=False),
                        jobs=1, progress=False)
@@ -140,4 +142,115 @@ def test_batch_imports_a_glb_character_once(tmp_path, monkeypatch):
     assert len(built) == 1 and is_automatic(rig)  # the memo's rig, with its wrinkle influences
     assert load_character(char) is rig
     os.utime(char, ns=(char.stat().st_atime_ns, char.stat().st_mtime_ns + 10**9))
-    assert load_character(char) is not rig and len(built) == 2
+    assert load_character(char) is not rig and len(built) == 1  # touched, same content: the prepared copy
+    export_arkit_character(default_avatar(), char, naming="_L")  # new content
+    assert len(built) == 1 and load_character(char) is not rig and len(built) == 2
+
+
+# ---- Ray addresses that lead nowhere (issue 24) -----------------------------------------
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _one_line(result: subprocess.CompletedProcess, *said: str) -> None:
+    assert result.returncode == 2, (result.returncode, result.stderr[-2000:])
+    lines = [ln for ln in result.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("capture2face: error: "), result.stderr[-2000:]
+    assert all(s in lines[0] for s in said), lines[0]
+
+
+def test_ray_address_with_nothing_listening_is_one_line(sample_clip, tmp_path):
+    pytest.importorskip("ray")
+    address = f"127.0.0.1:{_free_port()}"
+    out = tmp_path / "out"
+    _one_line(_batch(str(sample_clip), "-o", str(out), "--ray", address), f"--ray {address}: cannot connect",
+              "Connection refused")
+    assert not out.exists()  # no batch_report.json: nothing was started
+
+
+def test_ray_address_that_never_answers_gives_up(sample_clip, tmp_path):
+    """Something listens but never speaks Ray: Ray would retry for minutes."""
+    pytest.importorskip("ray")
+    with socket.socket() as listener:
+        listener.bind(("127.0.0.1", 0))
+        listener.listen(8)
+        address = f"127.0.0.1:{listener.getsockname()[1]}"
+        out = tmp_path / "out"
+        _one_line(_batch(str(sample_clip), "-o", str(out), "--ray", address),
+                  f"--ray {address}: no Ray cluster answered within 10 s")
+    assert not out.exists()
+
+
+def test_ray_auto_without_a_cluster_names_our_flags(sample_clip, tmp_path):
+    pytest.importorskip("ray")
+    if os.environ.get("RAY_ADDRESS") or Path("/tmp/ray/ray_current_cluster").exists():
+        pytest.skip("a Ray cluster may be running here")
+    result = _batch(str(sample_clip), "-o", str(tmp_path / "out"), "--ray", "auto")
+    _one_line(result, "--ray auto: no running Ray cluster", "--ray HOST:PORT")
+    assert "--address" not in result.stderr
+
+
+@pytest.mark.parametrize("jobs", ["0", "-1"])
+def test_jobs_below_one_is_refused(sample_clip, tmp_path, jobs):
+    _one_line(_batch(str(sample_clip), "-o", str(tmp_path / "out"), "--jobs", jobs),
+              f"--jobs {jobs}: must be 1 or more")
+    assert not (tmp_path / "out").exists()
+
+
+# ---- --resume decides by content (issue 24) ---------------------------------------------
+SAMPLE = Path(__file__).resolve().parents[1] / "sample_videos" / "sample.mp4"  # 120 frames, not sample_clip's 90
+
+
+def _entry(out: Path) -> dict:
+    (entry,) = json.loads((out / "batch_report.json").read_text())["clips"]
+    return entry
+
+
+@pytest.mark.slow
+def test_resume_reruns_a_clip_or_character_replaced_at_the_same_path(sample_clip, tmp_path):
+    from capture2face.rig.avatar import default_avatar
+
+    clip, hero, out = tmp_path / "take.mp4", tmp_path / "hero.npz", tmp_path / "out"
+    shutil.copy(sample_clip, clip)
+    default_avatar().save(hero)
+    args = [str(clip), "-o", str(out), "--size", "128", "--no-audio", "--jobs", "1", "--character", str(hero)]
+    assert _batch(*args).returncode == 0
+    stored = json.loads((out / "take" / "report.json").read_text())["inputs"]
+    assert stored["clip"]["size"] == clip.stat().st_size and stored["character"]["path"] == str(hero)
+    assert _batch(*args, "--resume").returncode == 0
+    assert _entry(out)["status"] == "skipped"
+
+    shutil.copy(SAMPLE, clip)  # other content, same path
+    assert _batch(*args, "--resume").returncode == 0
+    entry = _entry(out)
+    assert entry["status"] == "ok" and entry["frames"] == 120, entry
+    assert entry["rerun"].startswith(f"clip {clip} changed (size ") and "content" in entry["rerun"], entry
+    assert json.loads((out / "take" / "report.json").read_text())["frames"] == 120
+
+    default_avatar(variant="wide").save(hero)  # the character replaced
+    assert _batch(*args, "--resume").returncode == 0
+    entry = _entry(out)
+    assert entry["status"] == "ok" and entry["rerun"].startswith(f"character {hero} changed"), entry
+    assert _batch(*args, "--resume").returncode == 0
+    assert _entry(out)["status"] == "skipped"
+
+
+def test_fingerprint_reads_the_first_and_last_mib(tmp_path):
+    from capture2face.io.fingerprint import changes, fingerprint
+
+    f = tmp_path / "big.bin"
+    data = bytearray(os.urandom(3 << 20))
+    f.write_bytes(bytes(data))
+    before = fingerprint(f)
+    data[(3 << 20) - 10] ^= 1  # in the last MiB
+    f.write_bytes(bytes(data))
+    os.utime(f, ns=(before["mtime_ns"], before["mtime_ns"]))
+    assert changes(before, fingerprint(f)) == ["content"]
+    data[-10] ^= 1
+    data[(3 << 19)] ^= 1  # the middle is not read: the modification time tells
+    f.write_bytes(bytes(data))
+    assert changes(before, fingerprint(f)) == ["modification time"]
+    assert changes(before, None) == ["gone"] and changes(None, before) == ["new"] and changes(None, None) == []
+    assert changes(before, before) == []

@@ -14,7 +14,10 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import importlib.metadata
+import os
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -318,3 +321,76 @@ def test_track_checks_the_neutral_frame_before_tracking(tmp_path, no_tracking, c
     code, err = _main(capsys, "track", str(SAMPLE), "-o", str(tmp_path / "t.npz"), "--neutral-frame", "9999")
     assert code == 2 and "outside the clip" in err and err.count("\n") == 1
     assert not (tmp_path / "t.npz").exists()
+
+
+# ---- output files checked before any work (issue 24) ----------------------------------
+def _readonly_folder(tmp_path: Path) -> Path | None:
+    """A folder this process cannot write into (root writes anywhere but sysfs)."""
+    if os.geteuid() != 0:
+        locked = tmp_path / "locked"
+        locked.mkdir()
+        locked.chmod(0o555)
+        return locked
+    try:
+        os.mkdir("/sys/capture2face-probe")
+    except OSError:
+        return Path("/sys") if os.path.isdir("/sys") else None
+    os.rmdir("/sys/capture2face-probe")
+    return None
+
+
+def _cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]), GLOG_minloglevel="2")
+    return subprocess.run([sys.executable, "-m", "capture2face", "-q", *args], capture_output=True, text=True,
+                          timeout=120, env=env, cwd=cwd, check=False)
+
+
+def _one_line(result: subprocess.CompletedProcess, *said: str) -> None:
+    assert result.returncode == 2, (result.returncode, result.stderr[-2000:])
+    lines = [ln for ln in result.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("capture2face: error: "), result.stderr[-2000:]
+    assert all(s in lines[0] for s in said), lines[0]
+    assert ".tmp-" not in lines[0]  # never the internal staging name
+
+
+@pytest.mark.parametrize("overlay,said", [
+    ("ovdir", "--overlay ovdir: is a folder"),
+    ("ov.txt", "--overlay ov.txt: the file must end in .mp4"),
+    ("READONLY/ov.mp4", "cannot write"),
+])
+def test_track_overlay_is_checked_before_tracking(tmp_path, overlay, said):
+    (tmp_path / "ovdir").mkdir()
+    if overlay.startswith("READONLY"):
+        ro = _readonly_folder(tmp_path)
+        if ro is None:
+            pytest.skip("no read-only folder to write into")
+        overlay = overlay.replace("READONLY", str(ro))
+    result = _cli("track", str(SAMPLE), "-o", "t.npz", "--overlay", overlay, cwd=tmp_path)
+    _one_line(result, said)
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name != "locked") == ["ovdir"]  # no track.npz
+
+
+@pytest.mark.parametrize("args,said", [
+    (["track", str(SAMPLE), "-o", "ovdir"], "-o ovdir: is a folder"),
+    (["avatar", "--export", "ovdir"], "--export ovdir: is a folder"),
+    (["avatar", "--export", "x.gltf"], "--export x.gltf: writes binary glTF; name the file x.glb"),
+    (["avatar", "--export-arkit", "x.gltf"], "name the file x.glb"),
+    (["avatar", "--quantize"], "--quantize only applies to --export-arkit"),
+    (["avatar", "--export", "a.glb", "--skeleton", "--body"], "--skeleton, --body only apply to --export-arkit"),
+])
+def test_output_file_mistakes_are_one_line(tmp_path, args, said):
+    (tmp_path / "ovdir").mkdir()
+    _one_line(_cli(*args, cwd=tmp_path), said)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ovdir"]
+    assert not any((tmp_path / "ovdir").iterdir())
+
+
+def test_a_failed_rename_names_the_target_not_the_temporary_file(tmp_path):
+    from capture2face.io.atomic import write_text_atomic
+
+    (tmp_path / "out").mkdir()
+    with pytest.raises(OSError) as err:
+        write_text_atomic(tmp_path / "out", "x")
+    assert err.value.filename == str(tmp_path / "out") and err.value.filename2 is None
+    assert cli.os_error_line(err.value) == f"{tmp_path / 'out'}: Is a directory"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]

@@ -106,6 +106,34 @@ def test_figures_judge_only_measures_that_move():
     assert fig["arkit"]["jawOpen"]["met"]
 
 
+def test_direct_and_curves_drives_find_morphs_in_any_spelling():
+    """A character whose morphs say ``eyeBlink_L`` (ICT, Face Cap) takes eyeBlinkLeft's
+    score; an all-zero direct drive would make 'not worse than direct' mean nothing."""
+    rig = default_avatar()
+    renamed = rig.replace(morph_names=[n.replace("Left", "_L").replace("Right", "_R") for n in rig.morph_names])
+    scores = np.array([[0.25, 0.75]])
+    w = direct_weights(renamed, scores, ["jawOpen", "eyeBlinkLeft"])
+    assert w[0, renamed.morph_names.index("eyeBlink_L")] == pytest.approx(0.75)
+    assert w[0, renamed.morph_names.index("jawOpen")] == pytest.approx(0.25)
+    assert np.count_nonzero(w) == 2
+
+
+def test_figures_compare_with_the_curves_only_drive():
+    n = 100
+    t = np.linspace(0, 2 * np.pi, n)
+    src = np.tile(np.sin(t)[:, None], (1, len(MEASURES))) * 0.1
+    curves = src * 0.5
+    curves[:, list(MEASURES).index("brow_left")] = src[:, 0] * 1.0  # the curves drive beats it here
+    character = src * 0.7
+    character[:, list(MEASURES).index("brow_left")] += np.cos(3 * t) * 0.05  # r ~0.8: behind on both
+    fid = ClipFidelity(name="x", times=t, source=src, character=character, direct=src * 0.3,
+                       arkit=np.sin(t)[:, None], arkit_names=["jawOpen"], arkit_source="animation", curves=curves)
+    fig = fid.figures()
+    assert fig["measures"]["brow_left"]["curves_faithful"] and not fig["measures"]["brow_left"]["faithful"]
+    assert fig["measures"]["mouth_open"]["curves_gain"] == pytest.approx(0.5)
+    assert fig["summary"]["not_worse_than_curves"] == fig["summary"]["judged"] - 1
+
+
 @pytest.mark.slow
 @pytest.mark.shared_clips
 def test_eval_fidelity_on_a_real_clip(tmp_path):

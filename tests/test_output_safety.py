@@ -305,3 +305,56 @@ def test_real_full_disk_is_one_line_and_leaves_nothing(sample_clip, small_tmpfs)
     _one_line_error(result, ": No space left on device")
     assert str(out) in result.stderr  # the path: the output folder at least
     assert sorted(p.relative_to(small_tmpfs).as_posix() for p in small_tmpfs.rglob("*")) == []
+
+
+# ---- two runs, one output folder (issue 24) ------------------------------------------------
+def _cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "capture2face", "-q", *args], capture_output=True, text=True,
+                          env=ENV, timeout=600, check=False)
+
+
+@pytest.mark.slow
+def test_same_named_clips_from_two_folders_do_not_replace_each_other(sample_clip, tmp_path):
+    (tmp_path / "day1").mkdir()
+    (tmp_path / "day2").mkdir()
+    shutil.copy(sample_clip, tmp_path / "day1" / "take.mp4")
+    shutil.copy(Path(__file__).resolve().parents[1] / "sample_videos" / "sample.mp4", tmp_path / "day2" / "take.mp4")
+    out = tmp_path / "out"
+    args = ["-o", str(out), "--size", "128", "--no-audio"]
+    assert _cli("run", str(tmp_path / "day1" / "take.mp4"), *args).returncode == 0
+    before = {p.name: p.stat().st_mtime_ns for p in (out / "take").iterdir()}
+    result = _cli("run", str(tmp_path / "day2" / "take.mp4"), *args)
+    _one_line_error(result, f"{out / 'take'} holds the outputs of another clip, {tmp_path / 'day1' / 'take.mp4'}")
+    assert {p.name: p.stat().st_mtime_ns for p in (out / "take").iterdir()} == before  # untouched
+    assert sorted(p.name for p in out.iterdir()) == ["take"]
+    # The same clip again replaces its own outputs; the other one goes beside it by name.
+    assert _cli("run", str(tmp_path / "day1" / "take.mp4"), *args).returncode == 0
+    assert _cli("run", str(tmp_path / "day2" / "take.mp4"), *args, "--name", "day2_take").returncode == 0
+    assert json.loads((out / "day2_take" / "report.json").read_text())["frames"] == 120
+    assert json.loads((out / "take" / "report.json").read_text())["frames"] == 90
+    assert sorted(p.name for p in out.iterdir()) == ["day2_take", "take"]
+
+
+def test_a_second_run_into_a_folder_being_written_is_refused(sample_clip, tmp_path):
+    """Another run holds OUT/<name> (its lock): a run into it fails at once in one line
+    instead of losing its work (or the other run's) at the end."""
+    out = tmp_path / "out"
+    out.mkdir()
+    lock = staging.lock_output(out / "synth_clip")
+    try:
+        result = _cli("run", str(sample_clip), "-o", str(out), "--size", "64")
+        _one_line_error(result, f"{out / 'synth_clip'}: another run is writing there (pid {os.getpid()} on ")
+        assert sorted(p.name for p in out.iterdir()) == [".capture2face-synth_clip.lock"]  # nothing of its own
+        with pytest.raises(CaptureError, match="another run is writing there"):
+            _stage(out / "synth_clip", {"avatar.mp4": "x"})
+    finally:
+        staging.unlock_output(lock)
+    assert list(out.iterdir()) == []  # released: the lock file goes with it
+    _stage(out / "synth_clip", {"avatar.mp4": "x"})
+    assert sorted(p.name for p in out.iterdir()) == ["synth_clip"]
+
+
+def test_a_lock_file_left_by_a_killed_run_does_not_block(tmp_path):
+    staging.lock_path(tmp_path / "clip").write_text('{"pid": 1, "host": "x", "started": 0}\n')  # nobody holds it
+    _stage(tmp_path / "clip", {"avatar.mp4": "x"})
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["clip"]

@@ -694,7 +694,7 @@ def test_face_skin_and_the_rest_drawn_apart_whatever_the_triangle_order(avatar):
     state = FrameState.at_pose(avatar, framing_pose(avatar, 20.0, 5.0, 0.0, 30.0), "stretch")
     opts = RenderOptions(size=256, wrinkles="auto", samples=1, influence_output=True)
     with Renderer.create_from_options(avatar, opts) as r, Renderer.create_from_options(shuffled, opts) as s:
-        assert [count for _, _, count in r._draws] == [3 * int((avatar.material[avatar.triangles[:, 2]] == 0).sum()),
+        assert [count for _, _, count, _ in r._draws] == [3 * int((avatar.material[avatar.triangles[:, 2]] == 0).sum()),
                                                        3 * int((avatar.material[avatar.triangles[:, 2]] != 0).sum())]
         image, influence = r.render_with_influence(state)
         image_s, influence_s = s.render_with_influence(state)

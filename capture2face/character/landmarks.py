@@ -62,7 +62,11 @@ SEARCH_PX = 12.0
 # A surface further than this (in inter-ocular distances) from the depth the tracker gives
 # the landmark is not the one it sees.
 DEPTH_TOL_IOD = 0.12
-SKIN_CODES = (0, 4)  # FaceRig.material: face skin, rest of the head
+# Triangles this near a landmark in the image (px) are all under it: those further than
+# BEHIND_TOL depth tolerances behind the front-most of them are hidden by it.
+SAME_PX = 0.5
+BEHIND_TOL = 0.1
+SKIN_CODES = (0,)  # FaceRig.material: the face's skin (not the rest of the head, hair, lashes)
 EYE_CODE = 1
 
 
@@ -281,10 +285,18 @@ def _expected_depth(rig: FaceRig, view: _View, hits: _Hits, rows: np.ndarray,
 
 
 def _choose(h: _Hits, n_rows: int, expect: np.ndarray | None, tol: float) -> np.ndarray:
-    """(n_rows,) index into ``h`` of each landmark's triangle (-1: none): the nearest in the
-    image among those at the expected depth, the front-most among equally near ones."""
+    """(n_rows,) index into ``h`` of each landmark's triangle (-1: none): among those at the
+    expected depth (within ``tol``), the nearest in the image, where those within
+    :data:`SAME_PX` of the landmark but behind the front-most of them count as
+    :data:`SAME_PX` further (the surface the camera sees there: on a silhouette, such as a
+    nose wing's edge, the wing, not the cheek behind it); the front-most of equally near ones."""
     ok = np.ones(len(h.row), bool) if expect is None else np.abs(h.depth - expect[h.row]) <= tol
-    score = np.where(ok, h.dist + 1e-3 * (h.depth - h.depth.min(initial=0.0)), np.inf)
+    near = ok & (h.dist <= SAME_PX)
+    front = np.full(n_rows, np.inf)
+    np.minimum.at(front, h.row[near], h.depth[near])
+    behind = near & (h.depth > front[h.row] + BEHIND_TOL * tol)
+    score = np.where(ok, h.dist + np.where(behind, SAME_PX, 0.0) + 1e-3 * (h.depth - h.depth.min(initial=0.0)),
+                     np.inf)
     order = np.lexsort((score, h.row))
     first = np.ones(len(order), bool)
     first[1:] = h.row[order][1:] != h.row[order][:-1]

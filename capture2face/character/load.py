@@ -12,6 +12,7 @@ from typing import Any
 from tqdm import tqdm
 
 from capture2face.character.auto_wrinkles import automatic_wrinkles
+from capture2face.character.prepared import load_prepared, preparation_key, prepared_dir, store_prepared
 from capture2face.errors import CaptureError
 from capture2face.gltf import import_glb
 from capture2face.measures import landmark_faults
@@ -73,7 +74,8 @@ def _file_key(path: Path) -> tuple:
 
 def _imported_character(path: Path) -> FaceRig:
     """``path`` (.glb / .gltf) imported, with the mapping JSON beside it if any, and its
-    automatic wrinkles; the same rig again while neither file changes."""
+    automatic wrinkles; the same rig again while neither file changes (in this process),
+    and from the disk cache while no file's content changes (:mod:`.prepared`)."""
     mapping = path.with_suffix(".json")
     key = (_file_key(path), _file_key(mapping))
     if key in _IMPORTED:
@@ -82,10 +84,24 @@ def _imported_character(path: Path) -> FaceRig:
             log.warning("%s", message)
         return rig
 
-    with collect_warnings() as said:
-        rig = with_automatic_wrinkles(import_glb(path, mapping if mapping.is_file() else None))
+    t = time.perf_counter()
+    content_key = preparation_key(path, mapping if mapping.is_file() else None)
+    cached = load_prepared(content_key)
+    if cached is not None:
+        rig, said = cached
+        for message in said:
+            log.warning("%s", message)
+        log.info("character %s: prepared copy read from %s in %.2f s", path.name, prepared_dir(),
+                 time.perf_counter() - t)
+    else:
+        with collect_warnings() as said:
+            rig = with_automatic_wrinkles(import_glb(path, mapping if mapping.is_file() else None))
+        said = list(said)
+        store_prepared(content_key, rig, said)
+        log.info("character %s: prepared in %.1f s (import, landmarks, baked maps; cached in %s)", path.name,
+                 time.perf_counter() - t, prepared_dir())
     _IMPORTED.clear()  # one character kept: a body .glb may be hundreds of MB
-    _IMPORTED[key] = rig, list(said)
+    _IMPORTED[key] = rig, said
     return rig
 
 

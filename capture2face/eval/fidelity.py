@@ -62,8 +62,11 @@ def summary_line(results: list[dict]) -> str:
     beats = sum(r["summary"]["not_worse_than_direct"] for r in results)
     arkit = [a for r in results for a in r["arkit"].values()]
     gaze = [g for r in results for g in r.get("gaze", {}).values() if g["judged"]]
+    with_curves = [r["summary"]["not_worse_than_curves"] for r in results if "not_worse_than_curves" in r["summary"]]
+    curves = (f", {sum(with_curves)}/{judged} not worse than the curves-only drive"
+              if len(with_curves) == len(results) and results else "")
     return (f"{len(results)} clips: {ok}/{judged} judged measures faithful (r >= {R_MIN}, gain "
-            f"{GAIN_MIN}-{GAIN_MAX}), {beats}/{judged} not worse than the direct scores; "
+            f"{GAIN_MIN}-{GAIN_MAX}), {beats}/{judged} not worse than the direct scores{curves}; "
             f"ARKit curves {sum(a['met'] for a in arkit)}/{len(arkit)} meet their r goal"
             + (f"; eye yaw {sum(g['met'] for g in gaze)}/{len(gaze)} follows eyeLookIn/Out (r >= {GAZE_R_GOAL})"
                if gaze else ""))

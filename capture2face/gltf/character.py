@@ -1,6 +1,7 @@
 """``animation.glb`` for a user's own character: their .glb as it is (every mesh,
-material, skin and extension kept) plus one glTF animation of the performance, read and
-written with pygltflib.
+material, skin and extension kept) plus one glTF animation of the performance. The JSON
+is kept as the file has it (no parser's defaults or rewrites) and the result is
+self-contained: a .gltf's buffers and images are embedded.
 
 One animation, sampled once per frame (LINEAR), all samplers sharing one time accessor:
 
@@ -19,17 +20,14 @@ glTF has no frame rate: ``animations[0].extras`` carries ``{"fps": ..., "frames"
 from __future__ import annotations
 
 import os
-import struct
-import warnings
 from pathlib import Path
 
 import numpy as np
-import pygltflib
 
 from capture2face.camera import face_centre_and_height
 from capture2face.errors import CaptureError
 from capture2face.gltf.animation_export import _frame_times
-from capture2face.gltf.container import ROOT_NODE_NAME
+from capture2face.gltf.container import ROOT_NODE_NAME, embed_resources, read_gltf_document, write_glb
 from capture2face.gltf.rig_import import (
     _find_head,
     _load_mapping,
@@ -44,55 +42,42 @@ from capture2face.rig.face_rig import FaceRig
 
 
 class _Blob:
-    """Appends accessors to the file's binary buffer (4-byte aligned views)."""
+    """Appends float accessors to the file's one binary buffer (4-byte aligned views)."""
 
-    def __init__(self, gltf: pygltflib.GLTF2):
+    def __init__(self, gltf: dict, binary: bytearray):
         self.gltf = gltf
-        self.data = bytearray(gltf.binary_blob() or b"")
-        if not gltf.buffers:
-            gltf.buffers.append(pygltflib.Buffer(byteLength=0))
+        self.data = binary
 
     def accessor(self, array: np.ndarray, gltf_type: str, minmax: bool = False) -> int:
         array = np.ascontiguousarray(array, np.float32)
         self.data.extend(b"\0" * (-len(self.data) % 4))
-        self.gltf.bufferViews.append(pygltflib.BufferView(buffer=0, byteOffset=len(self.data),
-                                                          byteLength=array.nbytes))
+        views = self.gltf.setdefault("bufferViews", [])
+        views.append({"buffer": 0, "byteOffset": len(self.data), "byteLength": array.nbytes})
         self.data.extend(array.tobytes())
         flat = array.reshape(len(array), -1)
-        acc = pygltflib.Accessor(bufferView=len(self.gltf.bufferViews) - 1, componentType=pygltflib.FLOAT,
-                                 count=len(array), type=gltf_type)
+        acc = {"bufferView": len(views) - 1, "componentType": 5126, "count": len(array), "type": gltf_type}
         if minmax:
-            acc.min = [float(v) for v in flat.min(0)]
-            acc.max = [float(v) for v in flat.max(0)]
-        self.gltf.accessors.append(acc)
-        return len(self.gltf.accessors) - 1
-
-    def finish(self) -> None:
-        self.data.extend(b"\0" * (-len(self.data) % 4))
-        self.gltf.buffers[0].byteLength = len(self.data)
-        self.gltf.buffers[0].uri = None
-        self.gltf.set_binary_blob(bytes(self.data))
+            acc["min"] = [float(v) for v in flat.min(0)]
+            acc["max"] = [float(v) for v in flat.max(0)]
+        accessors = self.gltf.setdefault("accessors", [])
+        accessors.append(acc)
+        return len(accessors) - 1
 
 
-def _load(path: Path) -> pygltflib.GLTF2:
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # dataclasses_json's notes on optional fields
-            gltf = pygltflib.GLTF2().load(str(path))
-    except (ValueError, KeyError, TypeError, AttributeError, struct.error, UnicodeDecodeError) as exc:
-        # The import read this file already; a parse failure here is its content.
-        raise CaptureError(f"{path}: not a readable glTF file ({exc.__class__.__name__}: {exc})") from None
-    if gltf is None:
-        raise CaptureError(f"{path}: not a readable glTF file")
-    if path.suffix.lower() == ".gltf":
-        gltf.convert_buffers(pygltflib.BufferFormat.BINARYBLOB)
-    return gltf
+def _load(path: Path) -> tuple[dict, bytearray]:
+    """The file's document as it is and one self-contained BIN chunk (a .gltf's buffers
+    and images, and data URIs, embedded: animation.glb is moved on its own)."""
+    gltf, binary = read_gltf_document(path)
+    binary = embed_resources(gltf, binary, str(path.parent), str(path))
+    for acc in gltf.get("accessors", []):
+        if "bufferView" not in acc:  # all-zero (sparse) accessors: byteOffset needs a view
+            acc.pop("byteOffset", None)
+    return gltf, binary
 
 
-def _world(gltf: pygltflib.GLTF2) -> tuple[list[np.ndarray], dict[int, int]]:
-    nodes = [{k: v for k, v in (("matrix", n.matrix), ("rotation", n.rotation), ("scale", n.scale),
-                                ("translation", n.translation), ("children", n.children)) if v} for n in gltf.nodes]
-    parent = {c: p for p, n in enumerate(gltf.nodes) for c in (n.children or [])}
+def _world(gltf: dict) -> tuple[list[np.ndarray], dict[int, int]]:
+    nodes = gltf.get("nodes", [])
+    parent = {c: p for p, n in enumerate(nodes) for c in (n.get("children") or [])}
     return _world_matrices(nodes), parent
 
 
@@ -104,31 +89,30 @@ def export_character_animation(source: str | os.PathLike, rig: FaceRig, animatio
     F = animation.n_frames
     if F == 0:
         raise CaptureError("the animation has no frames; nothing to export")
-    gltf = _load(source)
+    gltf, binary = _load(source)
     mapping, _ = _load_mapping(source, mapping_json)
     renames = {str(k): canonical_arkit(str(v)) for k, v in mapping.get("morphs", {}).items()}
-    blob = _Blob(gltf)
+    blob = _Blob(gltf, binary)
     times = _frame_times(animation, fps)
     samplers, channels = [], []
     t_acc = blob.accessor(times, "SCALAR", minmax=True)
 
     def channel(output: int, node: int, target: str) -> None:
-        samplers.append(pygltflib.AnimationSampler(input=t_acc, output=output, interpolation="LINEAR"))
-        channels.append(pygltflib.AnimationChannel(sampler=len(samplers) - 1,
-                                                   target=pygltflib.AnimationChannelTarget(node=node, path=target)))
+        samplers.append({"input": t_acc, "output": output, "interpolation": "LINEAR"})
+        channels.append({"sampler": len(samplers) - 1, "target": {"node": node, "path": target}})
 
     # Morph weights: per mesh node, its targets in its own order, by the import's key.
     rig_keys = {_morph_key(n, renames)[0]: m for m, n in enumerate(rig.morph_names)}
     src = {n: i for i, n in enumerate(animation.blend_names)}
     weights = np.clip(np.nan_to_num(np.asarray(animation.blend_weights, np.float32)), 0.0, 1.0)
-    for ni, node in enumerate(gltf.nodes):
-        if node.mesh is None:
+    for ni, node in enumerate(gltf.get("nodes", [])):
+        if node.get("mesh") is None:
             continue
-        mesh = gltf.meshes[node.mesh]
-        n_targets = max((len(p.targets or []) for p in mesh.primitives), default=0)
+        mesh = gltf["meshes"][node["mesh"]]
+        n_targets = max((len(p.get("targets") or []) for p in mesh.get("primitives", [])), default=0)
         if not n_targets:
             continue
-        names = (mesh.extras or {}).get("targetNames") or []
+        names = (mesh.get("extras") or {}).get("targetNames") or []
         w = np.zeros((F, n_targets), np.float32)
         for t, name in enumerate(names[:n_targets]):
             m = rig_keys.get(_morph_key(str(name), renames)[0])
@@ -140,33 +124,33 @@ def export_character_animation(source: str | os.PathLike, rig: FaceRig, animatio
     # else on a root over the scene, about the face centre.
     rot = _rotations(animation.head_pose, F)
     world, parent = _world(gltf)
-    joints = sorted({j for s in gltf.skins for j in s.joints})
-    head_k = _find_head([gltf.nodes[j].name or "" for j in joints], mapping) if joints else None
+    nodes = gltf.get("nodes", [])
+    joints = sorted({j for s in gltf.get("skins", []) for j in s.get("joints", [])})
+    head_k = _find_head([nodes[j].get("name") or "" for j in joints], mapping) if joints else None
     if head_k is not None:
         head = joints[head_k]
-        node = gltf.nodes[head]
+        node = nodes[head]
         p = nearest_rotation(world[parent[head]][:3, :3]) if head in parent else np.eye(3)
-        local = _quat_matrix(node.rotation) if node.rotation else np.eye(3)
-        if node.matrix:
-            raise CaptureError(f"{source}: the head joint '{node.name}' has a matrix transform; "
+        local = _quat_matrix(node["rotation"]) if node.get("rotation") else np.eye(3)
+        if node.get("matrix"):
+            raise CaptureError(f"{source}: the head joint '{node.get('name')}' has a matrix transform; "
                                "animated nodes need translation/rotation/scale")
         turned = np.einsum("ij,fjk,kl,lm->fim", p.T, rot, p, local)
         channel(blob.accessor(_quats(turned), "VEC4"), head, "rotation")
     else:
-        scene = gltf.scenes[gltf.scene or 0]
-        gltf.nodes.append(pygltflib.Node(name=ROOT_NODE_NAME, children=list(scene.nodes)))
-        root = len(gltf.nodes) - 1
-        scene.nodes = [root]
+        scene = gltf["scenes"][gltf.get("scene", 0)]
+        nodes.append({"name": ROOT_NODE_NAME, "children": list(scene.get("nodes", []))})
+        root = len(nodes) - 1
+        scene["nodes"] = [root]
         centre = face_centre_and_height(rig)[0] / float(mapping.get("scale", 100.0))  # rig cm -> file units
         shift = centre - np.einsum("fij,j->fi", rot, centre)
         channel(blob.accessor(_quats(rot), "VEC4"), root, "rotation")
         channel(blob.accessor(shift.astype(np.float32), "VEC3"), root, "translation")
-    gltf.animations.append(pygltflib.Animation(
-        name="performance", samplers=samplers, channels=channels,
-        extras={"fps": float(fps or animation.fps), "frames": int(F),
-                "note": "glTF keeps seconds, not frames: set the scene's frame rate to fps"}))
-    blob.finish()
-    write_bytes_atomic(path, b"".join(gltf.save_to_bytes()))
+    gltf.setdefault("animations", []).append({
+        "name": "performance", "samplers": samplers, "channels": channels,
+        "extras": {"fps": float(fps or animation.fps), "frames": int(F),
+                   "note": "glTF keeps seconds, not frames: set the scene's frame rate to fps"}})
+    write_bytes_atomic(path, write_glb(gltf, blob.data))
 
 
 def _rotations(head_pose, F: int) -> np.ndarray:

@@ -18,6 +18,7 @@ import base64
 import json
 import os
 import struct
+import urllib.parse
 import warnings
 from typing import Any
 
@@ -64,8 +65,18 @@ def encode_png(image: np.ndarray) -> bytes:
     return buf.tobytes()
 
 
+KTX2_MAGIC = b"\xabKTX 20\xbb\r\n\x1a\n"
+
+
 def decode_image(data: bytes) -> np.ndarray:
-    """PNG/JPEG bytes -> (H, W, C) uint8 RGB or RGBA (grey images become RGB)."""
+    """PNG/JPEG/WebP/KTX2 bytes -> (H, W, C) uint8 RGB or RGBA (grey images become RGB).
+
+    KTX2 (``KHR_texture_basisu``: ETC1S or UASTC Basis, the way gltfpack ``-tc`` and
+    glTF-Transform ``etc1s``/``uastc`` write it) is transcoded with the ``alktx2``
+    package (Basis Universal) when it is installed."""
+    data = bytes(data)
+    if data[:12] == KTX2_MAGIC:
+        data = _ktx2_png(data)
     image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise ValueError("undecodable image")
@@ -76,6 +87,19 @@ def decode_image(data: bytes) -> np.ndarray:
     if image.shape[2] == 4:
         return cv2.cvtColor(image, cv2.COLOR_BGRA2RGBA)
     return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
+def _ktx2_png(data: bytes) -> bytes:
+    """A KTX2 texture's first level transcoded to PNG bytes (RGBA)."""
+    try:
+        import alktx2
+    except ImportError:
+        raise ValueError("a KTX2 texture needs the alktx2 package (pip install alktx2)") from None
+    try:
+        png, _ = alktx2.decode_ktx2_to_bytes(data, format="png")
+    except (RuntimeError, ValueError) as exc:
+        raise ValueError(f"KTX2 texture not transcodable: {exc}") from None
+    return png
 
 
 class GlbBuilder:
@@ -168,15 +192,18 @@ def _plain(value):
 
 
 # Required extensions the reader honours: quantized attributes are read like any other
-# accessor (the node's transform dequantizes them); material extensions only change
+# accessor (the node's transform dequantizes them); meshopt and Draco streams are decoded
+# with their packages; KTX2 and WebP images are decoded (a texture that still cannot be
+# read is the texture code's concern, not the file's); material extensions only change
 # the shading, which the renderer does its own way.
-SUPPORTED_REQUIRED = ("KHR_mesh_quantization", "EXT_meshopt_compression", "EXT_texture_webp")
+MESHOPT_EXTENSIONS = ("EXT_meshopt_compression", "KHR_meshopt_compression")
+DRACO = "KHR_draco_mesh_compression"
+SUPPORTED_REQUIRED = ("KHR_mesh_quantization", *MESHOPT_EXTENSIONS, DRACO, "EXT_texture_webp",
+                      "KHR_texture_basisu", "KHR_texture_transform")
 SHADING_ONLY_PREFIX = "KHR_materials_"
-_HINTS = {
-    "KHR_draco_mesh_compression": "export it again without Draco compression",
-    "KHR_texture_basisu": "export it again with PNG, JPEG or WebP textures",
-}
-MESHOPT = "EXT_meshopt_compression"
+MESHOPT = MESHOPT_EXTENSIONS[0]
+# Image sources a texture may name in an extension, tried before its plain ``source``.
+TEXTURE_SOURCE_EXTENSIONS = ("EXT_texture_webp", "KHR_texture_basisu")
 
 
 def check_required_extensions(gltf: dict, path: str) -> None:
@@ -184,46 +211,67 @@ def check_required_extensions(gltf: dict, path: str) -> None:
     line naming it (instead of a confusing error about its buffers later).
 
     Read: ``KHR_mesh_quantization`` (integer attributes, dequantized by the node's
-    transform), ``EXT_meshopt_compression`` (with the ``meshoptimizer`` package),
-    ``EXT_texture_webp`` (OpenCV decodes WebP), ``KHR_materials_*`` (shading only).
+    transform), ``EXT_meshopt_compression`` / ``KHR_meshopt_compression`` (with the
+    ``meshoptimizer`` package), ``KHR_draco_mesh_compression`` (with ``DracoPy``),
+    ``EXT_texture_webp`` (OpenCV), ``KHR_texture_basisu`` (``alktx2``),
+    ``KHR_texture_transform``, ``KHR_materials_*`` (shading only).
     """
     required = [str(e) for e in gltf.get("extensionsRequired") or []]
     missing = [e for e in required if e not in SUPPORTED_REQUIRED and not e.startswith(SHADING_ONLY_PREFIX)]
     if missing:
-        hint = next((_HINTS[e] for e in missing if e in _HINTS), "")
         raise CaptureError(f"{path}: requires the glTF extension{'s' if len(missing) > 1 else ''} "
-                           f"{', '.join(missing)}, which capture2face cannot read" + (f" ({hint})" if hint else ""))
-    if MESHOPT in required:
-        _meshoptimizer(path)
+                           f"{', '.join(missing)}, which capture2face cannot read")
+    for ext in required:
+        if ext in MESHOPT_EXTENSIONS:
+            _meshoptimizer(path, ext)
+        elif ext == DRACO:
+            _dracopy(path)
 
 
-def _meshoptimizer(path: str):
+def _meshoptimizer(path: str, ext: str = MESHOPT):
     try:
         import meshoptimizer
     except ImportError:
-        raise CaptureError(f"{path}: requires the glTF extension {MESHOPT}, which needs the meshoptimizer "
+        raise CaptureError(f"{path}: requires the glTF extension {ext}, which needs the meshoptimizer "
                            "package (pip install meshoptimizer; it builds from source with a C++ compiler)") from None
     return meshoptimizer
 
 
-def _meshopt_decode(path: str, ext: dict, data: bytes) -> bytes:
-    """The bytes of an ``EXT_meshopt_compression`` buffer view: the compressed stream
-    decoded (ATTRIBUTES, TRIANGLES, INDICES), then its filter undone."""
-    mo = _meshoptimizer(path)
+def _dracopy(path: str):
+    try:
+        import DracoPy
+    except ImportError:
+        raise CaptureError(f"{path}: requires the glTF extension {DRACO}, which needs the DracoPy package "
+                           "(pip install DracoPy), or export it again without Draco compression") from None
+    return DracoPy
+
+
+def _meshopt_decode(path: str, ext: dict, data: bytes, name: str = MESHOPT) -> bytes:
+    """The bytes of a meshopt-compressed buffer view: the compressed stream decoded
+    (ATTRIBUTES, TRIANGLES, INDICES), then its filter undone. A stream that does not
+    decode (corrupt, or a codec version newer than the installed meshoptimizer) fails
+    in one line."""
+    mo = _meshoptimizer(path, name)
     count, stride = int(ext["count"]), int(ext["byteStride"])
     mode, filt = ext.get("mode", "ATTRIBUTES"), ext.get("filter", "NONE")
-    if mode == "ATTRIBUTES":
-        out = mo.decode_vertex_buffer(count, stride, data, dtype=np.dtype((np.void, stride))).view(np.uint8)
-    elif mode in ("TRIANGLES", "INDICES"):
-        decode = mo.decode_index_buffer if mode == "TRIANGLES" else mo.decode_index_sequence
-        out = np.asarray(decode(count, stride, data)).astype(np.uint16 if stride == 2 else np.uint32).view(np.uint8)
-    else:
-        raise CaptureError(f"{path}: {MESHOPT} mode '{mode}' is unknown")
+    try:
+        if mode == "ATTRIBUTES":
+            out = mo.decode_vertex_buffer(count, stride, data, dtype=np.dtype((np.void, stride))).view(np.uint8)
+        elif mode in ("TRIANGLES", "INDICES"):
+            decode = mo.decode_index_buffer if mode == "TRIANGLES" else mo.decode_index_sequence
+            # The wrapper decodes into a uint32 array whatever the index size: its first
+            # count * stride bytes are the indices, in the file's own width.
+            out = np.asarray(decode(count, stride, data)).view(np.uint8)[: count * stride]
+        else:
+            raise CaptureError(f"{path}: {name} mode '{mode}' is unknown")
+    except (RuntimeError, ValueError) as exc:
+        raise CaptureError(f"{path}: a {name} buffer view does not decode ({exc}); the file is corrupt or "
+                           "newer than the installed meshoptimizer package") from None
     if filt != "NONE":
         undo = {"OCTAHEDRAL": mo.decode_filter_oct, "QUATERNION": mo.decode_filter_quat,
                 "EXPONENTIAL": mo.decode_filter_exp}.get(filt)
         if undo is None:
-            raise CaptureError(f"{path}: {MESHOPT} filter '{filt}' is unknown")
+            raise CaptureError(f"{path}: {name} filter '{filt}' is unknown")
         out = np.asarray(undo(np.ascontiguousarray(out), count, stride)).view(np.uint8)
     return out.tobytes()
 
@@ -247,6 +295,8 @@ class GlbReader:
         check_required_extensions(self.gltf, self.path)
         self._cache: dict[int, np.ndarray] = {}
         self._decoded: dict[int, bytes] = {}
+        self._draco = _draco_accessors(self.gltf)
+        self._draco_meshes: dict[int, Any] = {}
 
     @staticmethod
     def _parse(data: bytes) -> tuple[dict, bytes]:
@@ -284,18 +334,17 @@ class GlbReader:
 
     def _uri_bytes(self, uri: str) -> bytes:
         """Bytes behind a glTF URI: a base64 data URI or a file beside the .gltf."""
-        if uri.startswith("data:"):
-            return base64.b64decode(uri.split(",", 1)[1])
-        with open(os.path.join(os.path.dirname(self.path), uri), "rb") as fh:
-            return fh.read()
+        return uri_bytes(uri, os.path.dirname(self.path), self.path)
 
     def view_bytes(self, index: int) -> tuple[bytes, int | None]:
         view = self.gltf["bufferViews"][index]
-        ext = (view.get("extensions") or {}).get(MESHOPT)
-        if ext is not None:
+        exts = view.get("extensions") or {}
+        name = next((e for e in MESHOPT_EXTENSIONS if e in exts), None)
+        if name is not None:
+            ext = exts[name]
             if index not in self._decoded:  # decompressed once per view
                 raw = self._slice(self._buffer(ext["buffer"]), ext.get("byteOffset", 0), ext["byteLength"], index)
-                self._decoded[index] = _meshopt_decode(self.path, ext, raw)
+                self._decoded[index] = _meshopt_decode(self.path, ext, raw, name)
             return self._decoded[index], ext.get("byteStride")
         return self._slice(self._buffer(view.get("buffer", 0)), view.get("byteOffset", 0), view["byteLength"],
                            index), view.get("byteStride")
@@ -332,7 +381,9 @@ class GlbReader:
         except (IndexError, KeyError, TypeError):
             raise CaptureError(f"{self.path}: accessor {index} is missing or malformed") from None
         count = int(acc["count"])
-        if "bufferView" in acc:
+        if index in self._draco:
+            out = self._draco_values(index, count, dtype, width)
+        elif "bufferView" in acc:
             out = self._read_dense(acc["bufferView"], acc.get("byteOffset", 0), count, dtype, width)
         else:
             out = np.zeros((count, width), dtype)
@@ -348,8 +399,35 @@ class GlbReader:
         if as_float and acc.get("normalized") and dtype.kind in "iu":
             scale = float(np.iinfo(dtype).max)
             out = np.maximum(out.astype(np.float32) / scale, -1.0)
+        if out.dtype.kind == "f" and not np.isfinite(out).all():
+            # A corrupt or mis-decoded stream: refuse it rather than draw garbage.
+            raise CaptureError(f"{self.path}: accessor {index} holds non-finite values (a corrupt file)")
         self._cache[key] = out
         return out
+
+    def _draco_values(self, index: int, count: int, dtype: np.dtype, width: int) -> np.ndarray:
+        """Accessor ``index`` of a ``KHR_draco_mesh_compression`` primitive: its attribute
+        (or the triangle list) from the decoded Draco mesh, decoded once per view."""
+        view, uid = self._draco[index]
+        if view not in self._draco_meshes:
+            raw, _ = self.view_bytes(view)
+            draco = _dracopy(self.path)
+            try:
+                self._draco_meshes[view] = draco.decode(raw)
+            except (draco.FileTypeException, ValueError, RuntimeError) as exc:
+                raise CaptureError(f"{self.path}: a {DRACO} stream does not decode ({exc})") from None
+        mesh = self._draco_meshes[view]
+        if uid is None:
+            values = np.asarray(mesh.faces).reshape(-1, 1)
+        else:
+            attr = mesh.get_attribute_by_unique_id(uid)
+            if attr is None:
+                raise CaptureError(f"{self.path}: {DRACO} attribute {uid} is missing from its stream")
+            values = np.asarray(attr["data"]).reshape(len(attr["data"]), -1)
+        if values.shape != (count, width):
+            raise CaptureError(f"{self.path}: {DRACO} decoded {values.shape[0]} x {values.shape[1]} values for "
+                               f"accessor {index} ({count} x {width})")
+        return values.astype(dtype)
 
     def image(self, index: int) -> np.ndarray:
         """(H, W, C) uint8 RGB(A) of image ``index`` (embedded, data URI or file beside the glTF)."""
@@ -361,15 +439,160 @@ class GlbReader:
                 data = self._uri_bytes(img["uri"])
             return decode_image(data)
         except (OSError, ValueError, KeyError) as exc:
-            raise CaptureError(f"{self.path}: image {index} is unreadable ({exc.__class__.__name__})") from None
+            raise CaptureError(f"{self.path}: image {index} is unreadable ({exc.__class__.__name__}: {exc})") from None
+
+    def texture_sources(self, texture_info: dict | None) -> list[int]:
+        """The images a textureInfo may sample, best first: those ``EXT_texture_webp`` /
+        ``KHR_texture_basisu`` name, then the plain ``source`` (their fallback)."""
+        if not texture_info:
+            return []
+        tex = self.gltf.get("textures", [])[texture_info["index"]]
+        exts = tex.get("extensions") or {}
+        sources = [int(exts[e]["source"]) for e in TEXTURE_SOURCE_EXTENSIONS if "source" in (exts.get(e) or {})]
+        return sources + ([int(tex["source"])] if tex.get("source") is not None else [])
 
     def texture_image(self, texture_info: dict | None) -> np.ndarray | None:
         """The image behind a material's textureInfo, or None."""
         if not texture_info:
             return None
-        tex = self.gltf.get("textures", [])[texture_info["index"]]
-        # EXT_texture_webp names the WebP image in its extension (OpenCV decodes it).
-        source = ((tex.get("extensions") or {}).get("EXT_texture_webp") or {}).get("source", tex.get("source"))
-        if source is None:
-            return None
-        return self.image(source)
+        sources = self.texture_sources(texture_info)
+        for k, source in enumerate(sources):
+            try:
+                return self.image(source)
+            except CaptureError:
+                if k == len(sources) - 1:
+                    raise
+        return None
+
+
+def _draco_accessors(gltf: dict) -> dict[int, tuple[int, int | None]]:
+    """accessor -> (Draco buffer view, attribute unique id; None for the indices) for
+    every primitive compressed with ``KHR_draco_mesh_compression``."""
+    out: dict[int, tuple[int, int | None]] = {}
+    for mesh in gltf.get("meshes", []):
+        for prim in mesh.get("primitives", []):
+            ext = (prim.get("extensions") or {}).get(DRACO)
+            if not ext:
+                continue
+            view = int(ext["bufferView"])
+            for semantic, uid in (ext.get("attributes") or {}).items():
+                if semantic in prim.get("attributes", {}):
+                    out[int(prim["attributes"][semantic])] = (view, int(uid))
+            if "indices" in prim:
+                out[int(prim["indices"])] = (view, None)
+    return out
+
+
+def texture_transform(texture_info: dict | None) -> tuple[int, np.ndarray]:
+    """The texture coordinate set a textureInfo samples and its ``KHR_texture_transform``
+    as a (2, 3) matrix (uv' = M @ (u, v, 1)); the identity when it has none.
+
+    glTF's order: translation * rotation * scale, the rotation matrix as the extension's
+    GLSL writes it (column-major: columns (cos, sin), (-sin, cos)); the extension's
+    ``texCoord`` overrides the textureInfo's."""
+    info = texture_info or {}
+    ext = (info.get("extensions") or {}).get("KHR_texture_transform") or {}
+    tex_coord = int(ext.get("texCoord", info.get("texCoord", 0)))
+    ox, oy = (float(v) for v in ext.get("offset", (0.0, 0.0)))
+    sx, sy = (float(v) for v in ext.get("scale", (1.0, 1.0)))
+    c, s = np.cos(float(ext.get("rotation", 0.0))), np.sin(float(ext.get("rotation", 0.0)))
+    return tex_coord, np.array([[c * sx, -s * sy, ox], [s * sx, c * sy, oy]])
+
+
+# ---- a file kept as it is: raw JSON and chunks, every resource embedded ---------------------
+_MIME_BY_SUFFIX = {".png": "image/png", ".jpg": "image/jpeg", ".jpeg": "image/jpeg", ".webp": "image/webp",
+                   ".ktx2": "image/ktx2"}
+
+
+def read_gltf_document(path: str | os.PathLike) -> tuple[dict, bytes]:
+    """(JSON document exactly as the file has it, GLB BIN chunk or b"") of a .glb or .gltf,
+    without a parser's defaults or rewrites (pygltflib merges and moves buffers)."""
+    path = os.fspath(path)
+    with open(path, "rb") as fh:
+        data = fh.read()
+    try:
+        if data[:1] == b"{":
+            return json.loads(data.decode("utf-8")), b""
+        magic, version, length = struct.unpack_from("<III", data, 0)
+        if magic != GLB_MAGIC or version != 2 or length > len(data):
+            raise ValueError("not a glTF 2 binary")
+        pos, doc, binary = 12, None, b""
+        while pos + 8 <= length:
+            size, kind = struct.unpack_from("<II", data, pos)
+            chunk = data[pos + 8: pos + 8 + size]
+            if kind == 0x4E4F534A:  # JSON
+                doc = json.loads(chunk.decode("utf-8"))
+            elif kind == 0x004E4942 and not binary:  # BIN
+                binary = bytes(chunk)
+            pos += 8 + size + (-size % 4)
+        if doc is None:
+            raise ValueError("no JSON chunk")
+        return doc, binary
+    except (ValueError, struct.error, UnicodeDecodeError) as exc:
+        raise CaptureError(f"{path}: not a readable glTF file ({exc})") from None
+
+
+def uri_bytes(uri: str, base_dir: str, path: str = "") -> bytes:
+    """Bytes behind a glTF URI: a base64 data URI or a (percent-encoded) file beside the .gltf."""
+    if uri.startswith("data:"):
+        return base64.b64decode(uri.split(",", 1)[1])
+    file = os.path.join(base_dir, urllib.parse.unquote(uri))
+    try:
+        with open(file, "rb") as fh:
+            return fh.read()
+    except OSError:
+        where = "the .gltf" if str(path).lower().endswith(".gltf") else "the file"
+        raise CaptureError(f"{path or base_dir}: '{uri}' is missing (it must lie beside {where})") from None
+
+
+def embed_resources(gltf: dict, binary: bytes, base_dir: str, path: str = "") -> bytearray:
+    """Make ``gltf`` self-contained: every buffer with a URI (a .gltf's .bin, data URIs)
+    appended to the one GLB buffer (buffer views and meshopt streams re-pointed), every
+    image with a URI stored in a buffer view. Buffers with no data and no URI (meshopt
+    fallbacks) stay. Returns the new BIN chunk; ``gltf`` is changed in place."""
+    out = bytearray(binary)
+    buffers = gltf.get("buffers", [])
+    glb_owner = 0 if binary and buffers and "uri" not in buffers[0] else None
+    place: dict[int, tuple[int, int]] = {}  # old buffer -> (new buffer, added offset)
+    kept = [{"byteLength": 0}]
+    for i, buf in enumerate(buffers):
+        if i == glb_owner:
+            place[i] = (0, 0)
+        elif "uri" in buf:
+            out.extend(b"\0" * (-len(out) % 16))
+            place[i] = (0, len(out))
+            out.extend(uri_bytes(buf["uri"], base_dir, path)[: int(buf["byteLength"])])
+        else:
+            place[i] = (len(kept), 0)
+            kept.append(buf)
+    for view in gltf.get("bufferViews", []):
+        for holder in [view] + [e for k, e in (view.get("extensions") or {}).items() if k in MESHOPT_EXTENSIONS]:
+            new, shift = place[int(holder.get("buffer", 0))]
+            holder["buffer"], holder["byteOffset"] = new, int(holder.get("byteOffset", 0)) + shift
+    for image in gltf.get("images", []):
+        if "uri" in image:
+            uri = image.pop("uri")
+            data = uri_bytes(uri, base_dir, path)
+            mime = uri[5:].split(";", 1)[0] if uri.startswith("data:") else \
+                _MIME_BY_SUFFIX.get(os.path.splitext(urllib.parse.unquote(uri))[1].lower(), "image/png")
+            out.extend(b"\0" * (-len(out) % 4))
+            gltf.setdefault("bufferViews", []).append({"buffer": 0, "byteOffset": len(out), "byteLength": len(data)})
+            out.extend(data)
+            image["bufferView"], image["mimeType"] = len(gltf["bufferViews"]) - 1, image.get("mimeType", mime)
+    kept[0]["byteLength"] = len(out)
+    gltf["buffers"] = kept
+    return out
+
+
+def write_glb(gltf: dict, binary: bytes | bytearray) -> bytes:
+    """The .glb of a JSON document and its BIN chunk (both padded to 4 bytes)."""
+    binary = bytes(binary) + b"\0" * (-len(binary) % 4)
+    if gltf.get("buffers"):
+        gltf["buffers"][0]["byteLength"] = len(binary)
+    _check_finite(gltf)
+    text = json.dumps(gltf, separators=(",", ":")).encode("utf-8")
+    text += b" " * (-len(text) % 4)
+    chunks = struct.pack("<II", len(text), 0x4E4F534A) + text
+    if binary:
+        chunks += struct.pack("<II", len(binary), 0x004E4942) + binary
+    return struct.pack("<III", GLB_MAGIC, 2, 12 + len(chunks)) + chunks

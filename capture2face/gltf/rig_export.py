@@ -24,8 +24,10 @@ What an exported .glb holds (it passes the Khronos glTF validator without errors
   A rig with turning eyes (``FaceRig.eye_centres``) gets two more joints after the
   bones, ``eye_R`` and ``eye_L`` (children of ``head``, at the eye centres): its eyeball
   vertices are skinned to them alone, so an animation turns the eyes by rotating them.
-* **Textures** (PNG): the albedo as baseColorTexture, the base normal map as
-  normalTexture; the wrinkle maps and the two RGBA zone masks as further images.
+* **Textures** (PNG): the albedo as baseColorTexture (RGBA with ``FaceRig.alpha``), the
+  base normal map as normalTexture; the wrinkle maps and the two RGBA zone masks as
+  further images. A rig with alpha modes gets one primitive per mode (and MASK cutoff),
+  on the same vertices, each with its material's ``alphaMode`` / ``alphaCutoff``.
 * **``extras.capture2face``** at the top level: everything else a FaceRig has (bone
   landmarks, groups and exact rest positions, reference poses, wrinkle-map and zone-mask
   image indices, zone table, region names, tracker landmark vertices), as JSON.
@@ -107,19 +109,19 @@ def _joint_order_check(rig: FaceRig) -> None:
 
 @dataclass
 class _Geometry:
-    """The accessors of the mesh's one primitive."""
+    """The accessors of the mesh's primitives (one per alpha group, sharing attributes)."""
 
     attributes: dict
-    indices: int
+    indices: list  # per alpha group
     targets: list
     n_region_chunks: int  # _REGIONS_0 .. _REGIONS_{n-1}
 
 
 @dataclass
 class _Textures:
-    """The skin material and the images the extras point at."""
+    """The skin materials (one per alpha group) and the images the extras point at."""
 
-    material: int
+    materials: list
     wrinkle_images: list
     zone_images: list
 
@@ -159,11 +161,25 @@ def _vertex_attributes(b: GlbBuilder, rig: FaceRig) -> tuple[dict, int]:
     return attributes, n_chunks
 
 
-def _add_geometry(b: GlbBuilder, rig: FaceRig) -> _Geometry:
-    """Vertex attributes, triangle indices and morph targets."""
+def _alpha_groups(rig: FaceRig) -> list[tuple[int, float, np.ndarray]]:
+    """(alpha mode, cutoff, triangle ids) of each material the rig needs: one opaque
+    group without ``alpha_mode``, else one per (mode, MASK cutoff) of the triangles' last
+    vertices (a triangle's mode, as the renderer draws it), opaque first."""
+    if rig.alpha_mode is None:
+        return [(0, 0.5, np.arange(len(rig.triangles)))]
+    last = rig.triangles[:, 2]
+    mode = np.asarray(rig.alpha_mode)[last].astype(np.int64)
+    cutoff = np.where(mode == 1, np.asarray(rig.alpha_cutoff, np.float32)[last], np.float32(0.5))
+    keys = sorted(set(zip(mode.tolist(), cutoff.tolist())))
+    return [(m, c, np.flatnonzero((mode == m) & (cutoff == np.float32(c)))) for m, c in keys]
+
+
+def _add_geometry(b: GlbBuilder, rig: FaceRig, groups: list) -> _Geometry:
+    """Vertex attributes, triangle indices (per alpha group) and morph targets."""
     attributes, n_chunks = _vertex_attributes(b, rig)
     indices_dtype = np.uint16 if rig.n_vertices <= 65535 else np.uint32
-    indices = b.accessor(rig.triangles.astype(indices_dtype).ravel(), ELEMENT_ARRAY_BUFFER)
+    indices = [b.accessor(rig.triangles[tris].astype(indices_dtype).ravel(), ELEMENT_ARRAY_BUFFER)
+               for _, _, tris in groups]
 
     targets = []
     for m in range(rig.n_morphs):
@@ -175,37 +191,47 @@ def _add_geometry(b: GlbBuilder, rig: FaceRig) -> _Geometry:
     return _Geometry(attributes, indices, targets, n_chunks)
 
 
-def _add_textures(b: GlbBuilder, rig: FaceRig) -> _Textures:
-    """The albedo and normal map in the skin material; wrinkle maps and zone masks as
-    further images."""
+def _add_textures(b: GlbBuilder, rig: FaceRig, groups: list) -> _Textures:
+    """The albedo (with its alpha where the rig has one) and normal map in the skin
+    material, one per alpha group; wrinkle maps and zone masks as further images."""
     sampler = b.add("samplers", dict(SAMPLER_LINEAR_CLAMP))
-    albedo_img = b.image_png(rig.albedo, "albedo")
+    albedo = rig.albedo if rig.alpha is None else np.concatenate([rig.albedo, rig.alpha[:, :, None]], axis=2)
+    albedo_img = b.image_png(albedo, "albedo")
     normal_img = b.image_png(rig.normal_map, "normal_map")
     albedo_tex = b.add("textures", {"sampler": sampler, "source": albedo_img, "name": "albedo"})
     normal_tex = b.add("textures", {"sampler": sampler, "source": normal_img, "name": "normal_map"})
-    material = b.add("materials", {
-        "name": f"{rig.name}_skin",
-        "pbrMetallicRoughness": {
-            "baseColorTexture": {"index": albedo_tex},
-            "metallicFactor": 0.0,
-            "roughnessFactor": 0.6,
-        },
-        "normalTexture": {"index": normal_tex},
-        "doubleSided": bool(rig.double_sided),
-    })
+    materials = []
+    for mode, cutoff, _ in groups:
+        material = {
+            "name": f"{rig.name}_skin" + ("", "_mask", "_blend")[mode],
+            "pbrMetallicRoughness": {
+                "baseColorTexture": {"index": albedo_tex},
+                "metallicFactor": 0.0,
+                "roughnessFactor": 0.6,
+            },
+            "normalTexture": {"index": normal_tex},
+            "doubleSided": bool(rig.double_sided),
+        }
+        if mode:
+            material["alphaMode"] = ("OPAQUE", "MASK", "BLEND")[mode]
+        if mode == 1:
+            material["alphaCutoff"] = float(cutoff)
+        materials.append(b.add("materials", material))
     wrinkle_images = [b.image_png(rig.wrinkle_maps[k], f"wrinkle_{name}")
                       for k, name in enumerate(rig.wrinkle_map_names)]
     zone_images = [b.image_png(np.ascontiguousarray(rig.zone_masks[:, :, 4 * i: 4 * i + 4]), f"zone_mask_{i}")
                    for i in range(rig.zone_masks.shape[2] // 4)]
-    return _Textures(material, wrinkle_images, zone_images)
+    return _Textures(materials, wrinkle_images, zone_images)
 
 
-def _add_mesh(b: GlbBuilder, rig: FaceRig, geometry: _Geometry, material: int) -> int:
-    """The mesh of one primitive; returns its index."""
-    primitive = {"attributes": geometry.attributes, "indices": geometry.indices, "material": material, "mode": 4}
-    mesh_obj = {"name": rig.name or "face", "primitives": [primitive]}
+def _add_mesh(b: GlbBuilder, rig: FaceRig, geometry: _Geometry, materials: list) -> int:
+    """The mesh: one primitive per alpha group, all on the same vertices; returns its index."""
+    primitives = [{"attributes": geometry.attributes, "indices": indices, "material": material, "mode": 4}
+                  for indices, material in zip(geometry.indices, materials)]
+    mesh_obj = {"name": rig.name or "face", "primitives": primitives}
     if geometry.targets:
-        primitive["targets"] = geometry.targets
+        for primitive in primitives:
+            primitive["targets"] = geometry.targets
         mesh_obj["weights"] = [0.0] * rig.n_morphs
         mesh_obj["extras"] = {"targetNames": list(rig.morph_names)}
     return b.add("meshes", mesh_obj)
@@ -286,9 +312,10 @@ def build_rig_gltf(rig: FaceRig) -> tuple[GlbBuilder, dict]:
     _joint_order_check(rig)
     b = GlbBuilder()
     # The order of these steps is the order of the buffers, images and nodes in the file.
-    geometry = _add_geometry(b, rig)
-    textures = _add_textures(b, rig)
-    mesh = _add_mesh(b, rig, geometry, textures.material)
+    groups = _alpha_groups(rig)
+    geometry = _add_geometry(b, rig, groups)
+    textures = _add_textures(b, rig, groups)
+    mesh = _add_mesh(b, rig, geometry, textures.materials)
     nodes = _add_skeleton(b, rig, mesh)
     b.gltf["extras"] = {EXTRAS_KEY: _rig_extras(rig, textures, geometry.n_region_chunks)}
     return b, nodes

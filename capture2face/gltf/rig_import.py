@@ -8,12 +8,22 @@ influences kept, renormalized; the skins' joints united by node), morph targets
 (POSITION and NORMAL deltas, names from ``mesh.extras.targetNames``): one FaceRig morph
 per name over every mesh that carries it, ARKit names matched in any spelling
 (:func:`~capture2face.rig.arkit_names.canonical_arkit`: ``eyeBlink_L`` on the head and
-``eyeBlinkLeft`` on the eyes are one morph). Textures: the albedo (baseColorTexture
-times baseColorFactor) and normal map (normalTexture) of the largest primitive's
-material; when the drawn meshes have different base-colour textures, every material's
-pair packed into one atlas (a grid of tiles of at most ``ATLAS_MAX`` px) with the UVs
-moved into their tile (UVs outside [0, 1] are clamped, not tiled; alpha is not read:
-everything draws opaque). Sparse accessors, ``byteStride``, normalized and quantized
+``eyeBlinkLeft`` on the eyes are one morph). NORMAL deltas are carried like the rest
+normals (the node's or bind pose's inverse transpose, with the rest normal's own
+normalising scale, so rest + sum w * delta normalised is glTF's morphed normal); a morph
+without them gets them derived: the welded smooth normals of the morphed shape minus
+those of the rest shape, exactly 0 wherever the morph leaves a vertex's triangles alone.
+Textures: the albedo (baseColorTexture times baseColorFactor) and normal map
+(normalTexture) of the largest primitive's material; when the drawn meshes need textures
+of their own (different base-colour textures, or a MASK / BLEND material whose alpha
+the largest's texture does not hold), every material's set packed into one atlas (a
+grid of tiles of at most ``ATLAS_MAX`` px) with the UVs moved into their tile (UVs
+outside [0, 1] are clamped, not tiled). Alpha: a MASK or BLEND material's base-colour
+alpha (texture times factor) goes to ``FaceRig.alpha``, its mode and cutoff to each of
+its vertices (``alpha_mode``, ``alpha_cutoff``); all None when every material is
+opaque. A texture that cannot be read (a codec we lack, a missing file): the material
+drawn with its base colour factor (or without its normal map), with a warning naming
+the image. Sparse accessors, ``byteStride``, normalized and quantized
 integer attributes (``KHR_mesh_quantization``) are handled; any other required
 extension is refused in one line naming it (:mod:`capture2face.gltf.container`).
 A .glb written by :func:`capture2face.gltf.export_glb` carries the rest of its
@@ -50,9 +60,11 @@ relative to the JSON file)::
       "morphs": {"Fcl_MTH_A": "jawOpen", "Fcl_EYE_Close_L": "eyeBlinkLeft"}
     }
 
-* ``materials``: material name -> "skin", "eye", "mouth" (the dark mouth cavity) or
-  "teeth" (teeth and tongue); unnamed ones are guessed from the material's name (eye,
-  iris, ... -> eye; teeth, tooth, tongue -> teeth; mouth, gum -> mouth; else skin).
+* ``materials``: material name -> "skin", "eye", "mouth" (the dark mouth cavity),
+  "teeth" (teeth and tongue) or "hair" (lashes, brows, hair cards: shaded as skin, not
+  the face); unnamed ones are guessed from the material's name (lash, brow, hair, ...
+  -> hair; eye, iris, ... -> eye; teeth, tooth, tongue -> teeth; mouth, gum -> mouth;
+  else skin).
 * ``head_bone``: the joint that becomes bone 0 ``head`` (default: a joint named ``head``,
   else a synthetic root bone that takes the weight nothing else has).
 * ``bones``: joint name -> MediaPipe landmark index (0-477) the bone follows.
@@ -96,15 +108,21 @@ from capture2face.gltf.container import (
     EXTRAS_KEY,
     GlbReader,
     decode_image,
+    texture_transform,
 )
+from capture2face.gltf.mapping import check_mapping
 from capture2face.rig.arkit_names import arkit_morphs, canonical_arkit
 from capture2face.rig.avatar import default_avatar
 from capture2face.rig.face_rig import REGION_NAMES, ZONE_NAMES, FaceRig
 from capture2face.rig.mesh_ops import uv_tangents, vertex_normals
+from capture2face.runtime.log import log
 
 N_LANDMARKS = 478
 DEFAULT_TEXTURE_SIZE = 256
-MATERIAL_CODES = {"skin": 0, "eye": 1, "mouth": 2, "teeth": 3}
+MATERIAL_CODES = {"skin": 0, "eye": 1, "mouth": 2, "teeth": 3, "hair": 4}
+# Lashes, brows and hair cards: drawn as skin, not as an eye (no glossy highlight on
+# lashes named "EyeLashes"), never the face's skin (no landmarks, no wrinkles).
+_HAIR_WORDS = ("lash", "brow", "hair", "beard", "moustache", "mustache")
 _EYE_WORDS = ("eye", "iris", "cornea", "sclera", "pupil")
 _TEETH_WORDS = ("teeth", "tooth", "tongue")
 _MOUTH_WORDS = ("mouth", "gum")
@@ -153,8 +171,7 @@ def _load_mapping(glb: Path, mapping_json) -> tuple[dict, Path]:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise CaptureError(f"{path}: not a readable mapping JSON ({exc})") from None
-    if not isinstance(data, dict):
-        raise CaptureError(f"{path}: the mapping JSON must be an object")
+    check_mapping(data, path)  # the schema (capture2face.gltf.mapping), before anything is imported
     return data, path.parent
 
 
@@ -212,9 +229,9 @@ def _triangles(r: GlbReader, prim: dict, n_vertices: int) -> np.ndarray:
 
 
 def _material_code(g: dict, prim: dict, mapping: dict, mesh_name: str = "") -> int:
-    """0 skin, 1 eye, 2 mouth: the mapping's word for the material, else its name's,
-    else the mesh's name's (characters often share one material between face, eyes and
-    teeth, in meshes named after them)."""
+    """0 skin, 1 eye, 2 mouth, 3 teeth, 4 hair: the mapping's word for the material, else
+    its name's, else the mesh's name's (characters often share one material between face,
+    eyes and teeth, in meshes named after them)."""
     name = str(g.get("materials", [])[prim["material"]].get("name", "")) if "material" in prim else ""
     given = mapping.get("materials", {})
     if name in given:
@@ -223,6 +240,8 @@ def _material_code(g: dict, prim: dict, mapping: dict, mesh_name: str = "") -> i
             raise CaptureError(f"mapping: material '{name}' must be one of {sorted(MATERIAL_CODES)}")
         return code
     for text in (name.lower(), str(mesh_name).lower()):
+        if any(w in text for w in _HAIR_WORDS):
+            return 4
         if any(w in text for w in _EYE_WORDS):
             return 1
         if any(w in text for w in _TEETH_WORDS):
@@ -265,12 +284,13 @@ def _primitive_blocks(r: GlbReader, mesh: dict, mapping: dict) -> tuple[dict[int
         if key not in blocks:
             order.append(key)
             blocks[key] = {"prim": prim, "n": len(pos), "tris": [], "material": np.zeros(len(pos), np.uint8),
-                           "gltf_material": np.full(len(pos), -1, np.int64), "tri_count": 0}
+                           "gltf_material": np.full(len(pos), -1, np.int64), "tri_count": 0, "uv_parts": []}
         blk = blocks[key]
         tris = _triangles(r, prim, len(pos))
         blk["tris"].append(tris)
         code = _material_code(g, prim, mapping, mesh.get("name", ""))
         used = np.unique(tris)
+        blk["uv_parts"].append((prim, used))
         if code:
             blk["material"][used] = code
         blk["gltf_material"][used] = prim.get("material", -1)
@@ -292,13 +312,34 @@ def _attribute(r: GlbReader, prim: dict, name: str, as_float: bool = True) -> np
     return None
 
 
+def _texture_uvs(r: GlbReader, blk: dict) -> np.ndarray | None:
+    """(n, 2) UVs of a block as its base colour textures sample them: per primitive, the
+    texture's coordinate set with its ``KHR_texture_transform`` applied (gltfpack's
+    quantized UVs rely on it) at the vertices the primitive draws; TEXCOORD_0 as stored
+    where a primitive has no base colour texture."""
+    uv = _attribute(r, blk["prim"], "TEXCOORD_0")
+    materials = r.gltf.get("materials", [])
+    for prim, used in blk["uv_parts"]:
+        mat = materials[prim["material"]] if "material" in prim else {}
+        info = (mat.get("pbrMetallicRoughness") or {}).get("baseColorTexture")
+        if not info:
+            continue
+        tex_coord, m = texture_transform(info)
+        src = _attribute(r, prim, f"TEXCOORD_{tex_coord}")
+        if src is None:
+            continue
+        uv = np.array(src, np.float64) if uv is None else np.array(uv, np.float64)
+        uv[used] = src[used].astype(np.float64) @ m[:, :2].T + m[:, 2]
+    return uv
+
+
 def _block_arrays(r: GlbReader, key: int, blk: dict, offset: int) -> dict:
     """One block's vertex arrays (None where its primitive lacks the attribute), its
     triangles shifted by ``offset``, and its morph target deltas."""
     prim, n = blk["prim"], blk["n"]
     out = {"pos": r.accessor(key).astype(np.float64)}
     out["nrm"] = _attribute(r, prim, "NORMAL")
-    out["uv"] = _attribute(r, prim, "TEXCOORD_0")
+    out["uv"] = _texture_uvs(r, blk)
     out["tan"] = _attribute(r, prim, "TANGENT")
     j = [_attribute(r, prim, f"JOINTS_{s}", as_float=False) for s in range(2)]
     w = [_attribute(r, prim, f"WEIGHTS_{s}") for s in range(2)]
@@ -441,6 +482,8 @@ def _build(r: GlbReader, glb: Path, mapping: dict, mapping_dir: Path, ours: dict
         region_names=list(REGION_NAMES), region_weights=np.zeros((len(REGION_NAMES), V), np.float32),
         head_weights=_head_weights(skin_joints, skin_weights, skel),
         double_sided=_double_sided(r.gltf, surf),
+        alpha=tex["alpha"], alpha_mode=None if tex["alpha_modes"] is None else tex["alpha_modes"][0],
+        alpha_cutoff=None if tex["alpha_modes"] is None else tex["alpha_modes"][1],
         overlay_vertices=_overlays(g, picked, surf),
     )
     if ours:
@@ -591,12 +634,15 @@ def _surface(r: GlbReader, picked: list[int], world, skel: dict, mapping: dict, 
         lin = to_scene[:3, :3]
         normal_rows = np.linalg.inv(lin)  # normals as rows: (inv(lin)^T n)^T = n^T inv(lin)
         pos = m["pos"] @ lin.T + to_scene[:3, 3]
+        weld = _welding(pos, m["tris"])
         if m["nrm"] is not None and np.isfinite(m["nrm"]).all():
             normals = m["nrm"] @ normal_rows
         else:
-            computed = vertex_normals(pos, m["tris"])
+            computed = _welded_normals(pos, weld)
             normals = computed if m["nrm"] is None else np.where(np.isfinite(m["nrm"]), m["nrm"] @ normal_rows, computed)
-        normals = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+        # A file's NORMAL deltas go through the same transform and the same normalising scale.
+        normal_scale = 1.0 / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+        normals = normals * normal_scale
         uvs = m["uv"] if m["uv"] is not None else np.zeros((len(pos), 2))
         if m["tan"] is not None and np.isfinite(m["tan"]).all():
             t = m["tan"][:, :3] @ lin.T
@@ -608,11 +654,7 @@ def _surface(r: GlbReader, picked: list[int], world, skel: dict, mapping: dict, 
         if m["joints"] is not None and ni in skel["node_joint_map"]:
             remap = skel["node_joint_map"][ni]
             bones = skel["joint_to_bone"][remap[np.clip(m["joints"], 0, len(remap) - 1)]]
-        mnrm = m["mnrm"] @ normal_rows
-        missing = ~np.isfinite(mnrm).all(axis=(1, 2))
-        for k in np.flatnonzero(missing):  # per morph without NORMAL deltas: from the morphed shape
-            mnrm[k] = np.where(np.isfinite(mnrm[k]), mnrm[k],
-                               vertex_normals(pos + m["mpos"][k] @ lin.T, m["tris"]) - normals)
+        mnrm = _morph_normal_deltas(m["mnrm"] @ normal_rows * normal_scale, m["mpos"] @ lin.T, pos, weld)
         parts.append({
             "pos": pos * scale, "normals": normals, "tangents": tangents, "uv": uvs, "tris": m["tris"] + offset,
             "material": m["material"], "gltf_material": m["gltf_material"], "bones": bones, "weights": m["weights"],
@@ -647,6 +689,45 @@ def _surface(r: GlbReader, picked: list[int], world, skel: dict, mapping: dict, 
         "weights": parts[0]["weights"] if single else None,
         "largest_material": max(parts, key=lambda p: p["tri_count"])["largest_material"],
     }
+
+
+def _welding(pos: np.ndarray, tris: np.ndarray) -> dict:
+    """One mesh's vertices welded by position (UV seams closed): ``ids`` (n,) weld id of
+    each vertex, ``first`` (W,) a vertex of each id, ``tris`` (T, 3) over weld ids."""
+    ids = _weld(pos)
+    first = np.unique(ids, return_index=True)[1]
+    return {"ids": ids, "first": first, "tris": ids[tris]}
+
+
+def _welded_normals(pos: np.ndarray, weld: dict) -> np.ndarray:
+    """(n, 3) smooth unit normals of positions ``pos`` (n, 3), welded (no seam at UV splits)."""
+    return vertex_normals(pos[weld["first"]], weld["tris"])[weld["ids"]]
+
+
+def _morph_normal_deltas(given: np.ndarray, deltas: np.ndarray, pos: np.ndarray, weld: dict) -> np.ndarray:
+    """(K, n, 3) normal deltas of one mesh's K morphs in scene space: the file's NORMAL
+    deltas (``given``, NaN where it has none), else derived from the position deltas
+    ``deltas`` (K, n, 3) at rest positions ``pos`` (n, 3): the welded smooth normals of the
+    morphed shape minus those of the rest shape, computed the same way, so they cancel
+    wherever the morph leaves a vertex's triangles alone; the delta is exactly 0 there."""
+    out = np.array(given, np.float64)
+    missing = ~np.isfinite(out).all(axis=(1, 2))
+    if not missing.any():
+        return out
+    ids, wtris = weld["ids"], weld["tris"]
+    n_weld = len(weld["first"])
+    rest = vertex_normals(pos[weld["first"]], wtris)
+    for k in np.flatnonzero(missing):
+        moved = np.zeros(n_weld, bool)
+        moved[ids[np.abs(deltas[k]).max(axis=1) > 0]] = True
+        touched = np.zeros(n_weld, bool)  # every vertex of a triangle that moved
+        touched[wtris[moved[wtris].any(axis=1)]] = True
+        derived = np.zeros((n_weld, 3))
+        if touched.any():
+            morphed = vertex_normals((pos + deltas[k])[weld["first"]], wtris)
+            derived[touched] = morphed[touched] - rest[touched]
+        out[k] = np.where(np.isfinite(out[k]), out[k], derived[ids])
+    return out
 
 
 # ---- skin -----------------------------------------------------------------------------
@@ -737,6 +818,7 @@ def _morphs(surf: dict, mapping: dict, scale: float) -> tuple[list[str], np.ndar
 # ---- textures -------------------------------------------------------------------------
 ATLAS_MAX = 2048  # atlas side (px): 2048^2 keeps the wrinkle and zone maps at ~90 MB
 _ATLAS_PAD = 2  # texels between a tile's UV square and its edge (filtering stays inside)
+ALPHA_MODES = {"OPAQUE": 0, "MASK": 1, "BLEND": 2}
 
 
 def _srgb_encode(linear: np.ndarray) -> np.ndarray:
@@ -747,47 +829,146 @@ def _srgb_decode(srgb: np.ndarray) -> np.ndarray:
     return np.where(srgb <= 0.04045, srgb / 12.92, np.power((srgb + 0.055) / 1.055, 2.4))
 
 
-def _material_albedo(r: GlbReader, mat: dict, size: tuple[int, int] | None) -> np.ndarray:
-    """(H, W, 3) uint8 sRGB base colour of a material: its texture times its factor, or
-    the factor alone (``size``, default 256²)."""
+class _TextureReader:
+    """A material's textures, each image decoded once; an image that cannot be read (a
+    codec we lack, a missing file) is None, with one warning naming it."""
+
+    def __init__(self, r: GlbReader):
+        self.r = r
+        self._images: dict = {}
+
+    def _source(self, info: dict) -> object:
+        return next(iter(self.r.texture_sources(info)), None)
+
+    def get(self, info: dict | None, material: dict, role: str) -> np.ndarray | None:
+        """The image behind textureInfo ``info`` of ``material`` (``role``: what is drawn
+        without it), or None."""
+        if not info:
+            return None
+        source = self._source(info)
+        if source not in self._images:
+            try:
+                self._images[source] = self.r.texture_image(info)
+            except CaptureError as exc:
+                self._images[source] = None
+                image = self.r.gltf.get("images", [])[source] if isinstance(source, int) else {}
+                label = image.get("name") or image.get("uri") or image.get("mimeType") or "unnamed"
+                log.warning("%s (image '%s'); material '%s' is drawn %s", exc, str(label)[:80],
+                            material.get("name", "unnamed"), role)
+        return self._images[source]
+
+    def base_colour(self, mat: dict) -> np.ndarray | None:
+        return self.get(mat.get("pbrMetallicRoughness", {}).get("baseColorTexture"), mat,
+                        "with its base colour factor instead")
+
+    def normal(self, mat: dict) -> np.ndarray | None:
+        return self.get(mat.get("normalTexture"), mat, "without its normal map")
+
+
+def _alpha_mode(mat: dict) -> int:
+    """0 OPAQUE, 1 MASK, 2 BLEND (glTF's ``alphaMode``; unknown words are opaque)."""
+    return ALPHA_MODES.get(str(mat.get("alphaMode", "OPAQUE")).upper(), 0)
+
+
+def _material_albedo(tr: _TextureReader, mat: dict, size: tuple[int, int] | None,
+                     keep_alpha: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W, 3) uint8 sRGB base colour of a material (its texture times its factor, or
+    the factor alone: ``size``, default 256²) and (H, W) uint8 its alpha (the texture's
+    alpha times the factor's; 255 for an OPAQUE material, which glTF draws without it,
+    unless ``keep_alpha``)."""
     pbr = mat.get("pbrMetallicRoughness", {})
-    factor = np.asarray(pbr.get("baseColorFactor", [1.0, 1.0, 1.0, 1.0])[:3], np.float64)
-    image = r.texture_image(pbr.get("baseColorTexture"))
+    factor4 = np.asarray(pbr.get("baseColorFactor", [1.0, 1.0, 1.0, 1.0]), np.float64)
+    factor = factor4[:3]
+    opaque = _alpha_mode(mat) == 0 and not keep_alpha
+    image = tr.base_colour(mat)
     if image is None:
         if "baseColorFactor" not in pbr:
             factor = np.array([0.8, 0.55, 0.45])  # a mid skin tone where nothing is said
         colour = (np.clip(_srgb_encode(np.clip(factor, 0, 1)), 0, 1) * 255 + 0.5).astype(np.uint8)
-        return np.broadcast_to(colour, (size or (DEFAULT_TEXTURE_SIZE, DEFAULT_TEXTURE_SIZE)) + (3,)).copy()
-    image = _fit(image, image.shape[:2] if size is None else size)
+        shape = size or (DEFAULT_TEXTURE_SIZE, DEFAULT_TEXTURE_SIZE)
+        alpha = 255 if opaque or len(factor4) < 4 else int(np.clip(factor4[3], 0, 1) * 255 + 0.5)
+        return np.broadcast_to(colour, shape + (3,)).copy(), np.full(shape, alpha, np.uint8)
+    shape = image.shape[:2] if size is None else size
+    alpha = np.full(shape, 255, np.uint8)
+    if not opaque:
+        if image.shape[2] == 4:
+            alpha = _fit(image[:, :, 3:], shape, 1)[:, :, 0]
+        if len(factor4) >= 4 and factor4[3] != 1.0:
+            alpha = (alpha * np.clip(factor4[3], 0, 1) + 0.5).astype(np.uint8)
+    image = _fit(image, shape)
     if np.allclose(factor, 1.0):
-        return image
+        return image, alpha
     lin = _srgb_decode(image.astype(np.float64) / 255.0) * factor
-    return (np.clip(_srgb_encode(np.clip(lin, 0, 1)), 0, 1) * 255 + 0.5).astype(np.uint8)
+    return (np.clip(_srgb_encode(np.clip(lin, 0, 1)), 0, 1) * 255 + 0.5).astype(np.uint8), alpha
+
+
+def _needs_atlas(r: GlbReader, used: list[int], largest: int | None) -> bool:
+    """The drawn materials need a texture of their own each: two or more base-colour
+    textures, or a MASK / BLEND material whose alpha the largest material's texture
+    does not hold (another texture, none, or another alpha factor)."""
+    materials = r.gltf.get("materials", [])
+
+    def key(i):
+        pbr = materials[i].get("pbrMetallicRoughness", {})
+        # The image it samples (a WebP / KTX2 one named by an extension counts: a file
+        # from gltfpack -tw or glTF-Transform webp has no plain source).
+        source = next(iter(r.texture_sources(pbr.get("baseColorTexture"))), None)
+        return source, (list(pbr.get("baseColorFactor", [1.0] * 4)) + [1.0])[3]
+
+    sources = {key(i)[0] for i in used if key(i)[0] is not None}
+    if len(sources) >= 2:
+        return True
+    clear = [i for i in used if _alpha_mode(materials[i])]
+    return len(used) >= 2 and any(largest is None or key(i) != key(largest) for i in clear)
+
+
+def _alpha_modes(g: dict, surf: dict) -> tuple[np.ndarray, np.ndarray] | None:
+    """(V,) uint8 alpha mode and (V,) float32 MASK cutoff of each vertex (its material's);
+    None when every drawn material is opaque."""
+    materials = g.get("materials", [])
+    used = [int(i) for i in np.unique(surf["gltf_material"]) if i >= 0]
+    if not any(_alpha_mode(materials[i]) for i in used):
+        return None
+    mode = np.zeros(surf["n_vertices"], np.uint8)
+    cutoff = np.full(surf["n_vertices"], 0.5, np.float32)
+    for i in used:
+        sel = surf["gltf_material"] == i
+        mode[sel] = _alpha_mode(materials[i])
+        cutoff[sel] = float(materials[i].get("alphaCutoff", 0.5))
+    return mode, cutoff
 
 
 def _textures(r: GlbReader, surf: dict, mapping: dict, mapping_dir: Path, ours: dict | None) -> dict:
-    """Albedo and normal map (one texture set: the drawn materials packed into an atlas
-    when they have different base-colour textures, UVs moved into each material's tile),
-    wrinkle maps and zone masks at the albedo's size."""
+    """Albedo, its alpha (None where every material is opaque) and normal map (one
+    texture set: the drawn materials packed into an atlas when they need textures of
+    their own, UVs moved into each material's tile), wrinkle maps and zone masks at the
+    albedo's size."""
     g = r.gltf
     materials = g.get("materials", [])
+    tr = _TextureReader(r)
     uvs = surf["uv"].astype(np.float32)
     used = sorted(int(i) for i in np.unique(surf["gltf_material"]) if i >= 0)
-    textured = {}
-    for i in used:
-        info = materials[i].get("pbrMetallicRoughness", {}).get("baseColorTexture")
-        if info:
-            textured[i] = g["textures"][info["index"]].get("source")
-    if len(set(textured.values())) >= 2:
-        albedo, normal_map, uvs = _atlas(r, surf, used, materials)
+    if _needs_atlas(r, used, surf["largest_material"]):
+        albedo, alpha, normal_map, uvs = _atlas(tr, surf, used, materials)
     else:
         index = surf["largest_material"]
         mat = materials[index] if index is not None else {}
-        albedo = _material_albedo(r, mat, None)
+        # One texture for every material: its alpha is also the MASK / BLEND ones'.
+        albedo, alpha = _material_albedo(tr, mat, None, keep_alpha=True)
         size = albedo.shape[:2]
-        normal_map = r.texture_image(mat.get("normalTexture"))
+        normal_map = tr.normal(mat)
         normal_map = _flat_normals(size) if normal_map is None else _fit(normal_map, size)
+    modes = _alpha_modes(g, surf)
     size = albedo.shape[:2]
+    out = {"albedo": albedo, "alpha": None if modes is None else alpha, "alpha_modes": modes,
+           "normal_map": normal_map, "uvs": uvs}
+    out.update(_detail_maps(r, size, mapping, mapping_dir, ours))
+    return out
+
+
+def _detail_maps(r: GlbReader, size: tuple[int, int], mapping: dict, mapping_dir: Path, ours: dict | None) -> dict:
+    """Wrinkle maps (the file's own or the mapping's, flat "stretch" / "compress" where
+    missing) and zone masks, at the albedo's ``size``."""
     if ours:
         wrinkle_names = [w["name"] for w in ours["wrinkle_maps"]]
         wrinkle_maps = [_fit(r.image(w["image"]), size) for w in ours["wrinkle_maps"]]
@@ -808,8 +989,7 @@ def _textures(r: GlbReader, surf: dict, mapping: dict, mapping_dir: Path, ours: 
             zone_masks = np.concatenate([_fit(_read_image_file(mapping_dir / f), size, 4) for f in files], 2)
         else:
             zone_masks = np.zeros(size + (8,), np.uint8)
-    return {"albedo": albedo, "normal_map": normal_map, "uvs": uvs, "wrinkle_names": wrinkle_names,
-            "wrinkle_maps": wrinkle_maps, "zone_masks": zone_masks}
+    return {"wrinkle_names": wrinkle_names, "wrinkle_maps": wrinkle_maps, "zone_masks": zone_masks}
 
 
 def _flat_normals(size: tuple[int, int]) -> np.ndarray:
@@ -818,24 +998,26 @@ def _flat_normals(size: tuple[int, int]) -> np.ndarray:
     return flat
 
 
-def _atlas(r: GlbReader, surf: dict, used: list[int], materials: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Every drawn material's base colour and normal map in one square grid of tiles, and
-    the UVs moved into their material's tile (clamped to the tile: tiling UVs outside
-    [0, 1] are not repeated).
+def _atlas(tr: _TextureReader, surf: dict, used: list[int], materials: list
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every drawn material's base colour, alpha and normal map in one square grid of
+    tiles, and the UVs moved into their material's tile (clamped to the tile: tiling UVs
+    outside [0, 1] are not repeated).
 
     Returns:
-        albedo (A, A, 3), normal map (A, A, 3), uvs (V, 2) float32.
+        albedo (A, A, 3), alpha (A, A), normal map (A, A, 3), uvs (V, 2) float32.
     """
     slots = used + ([-1] if (surf["gltf_material"] < 0).any() else [])
     cols = int(np.ceil(np.sqrt(len(slots))))
     rows = -(-len(slots) // cols)
     largest = 0
     for i in used:
-        img = r.texture_image(materials[i].get("pbrMetallicRoughness", {}).get("baseColorTexture"))
+        img = tr.base_colour(materials[i])
         if img is not None:
             largest = max(largest, *img.shape[:2])
     tile = int(min(max(largest, 64), ATLAS_MAX // cols))
     albedo = np.zeros((rows * tile, cols * tile, 3), np.uint8)
+    alpha = np.full((rows * tile, cols * tile), 255, np.uint8)
     normal = np.empty((rows * tile, cols * tile, 3), np.uint8)
     normal[:] = (128, 128, 255)
     uvs = np.clip(surf["uv"], 0.0, 1.0)
@@ -844,14 +1026,15 @@ def _atlas(r: GlbReader, surf: dict, used: list[int], materials: list) -> tuple[
     for s, i in enumerate(slots):
         row, col = divmod(s, cols)
         mat = materials[i] if i >= 0 else {}
-        albedo[row * tile:(row + 1) * tile, col * tile:(col + 1) * tile] = _material_albedo(r, mat, (tile, tile))
-        nmap = r.texture_image(mat.get("normalTexture"))
+        cell = np.s_[row * tile:(row + 1) * tile, col * tile:(col + 1) * tile]
+        albedo[cell], alpha[cell] = _material_albedo(tr, mat, (tile, tile))
+        nmap = tr.normal(mat)
         if nmap is not None:
-            normal[row * tile:(row + 1) * tile, col * tile:(col + 1) * tile] = _fit(nmap, (tile, tile))
+            normal[cell] = _fit(nmap, (tile, tile))
         sel = surf["gltf_material"] == i
         out[sel, 0] = (col + _ATLAS_PAD / tile + uvs[sel, 0] * inner) / cols
         out[sel, 1] = (row + _ATLAS_PAD / tile + uvs[sel, 1] * inner) / rows
-    return albedo, normal, out.astype(np.float32)
+    return albedo, alpha, normal, out.astype(np.float32)
 
 
 def _weld(vertices: np.ndarray) -> np.ndarray:

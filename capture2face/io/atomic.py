@@ -12,6 +12,8 @@ import tempfile
 from pathlib import Path
 from typing import Iterator
 
+from capture2face.io.paths import ERRORS as PATH_ERRORS
+
 # mkstemp creates files readable by the owner only; outputs get the usual permissions.
 _UMASK = os.umask(0)
 os.umask(_UMASK)
@@ -37,7 +39,11 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
         yield tmp_path
         if tmp_path.exists():
             os.chmod(tmp_path, FILE_MODE)
-        os.replace(tmp_path, path)
+        try:
+            os.replace(tmp_path, path)
+        except OSError as exc:  # "out: Is a directory", not the temporary name beside it
+            exc.filename, exc.filename2 = str(path), None
+            raise
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
@@ -49,4 +55,6 @@ def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> None:
 
 
 def write_text_atomic(path: str | os.PathLike, text: str) -> None:
-    write_bytes_atomic(path, text.encode("utf-8"))
+    """``text`` as UTF-8; the undecodable bytes of a file name it mentions (surrogate
+    escapes) as ``\\xNN`` (:mod:`capture2face.io.paths`)."""
+    write_bytes_atomic(path, text.encode("utf-8", PATH_ERRORS))

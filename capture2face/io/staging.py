@@ -31,6 +31,11 @@ incomplete, and the next run into it, which takes the journal's files as its own
 replaces them. An exception (a full disk, SIGINT, SIGTERM) before step 2 leaves the
 folder as it was; one from a failing rename in step 3 leaves the state a crash would.
 
+One run at a time per output folder: a run holds ``OUT/.capture2face-<name>.lock``
+(``flock``, released however the process ends; the file is removed with the lock) from
+before its staging folder is made until its files are moved in; a second run into the
+same folder is refused at once in one line, rather than one of them losing its work.
+
 Staging folders record their owner (``.owner``: pid, host, start time). A run removes the
 staging folders that a killed run left in ``OUT`` (owner process gone, started before this
 run; or, from versions that wrote no owner, untouched for :data:`UNOWNED_STALE_S`) and
@@ -41,6 +46,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import fcntl
 import json
 import logging
 import os
@@ -52,9 +58,10 @@ from pathlib import Path
 from typing import Collection, Iterable, Iterator
 
 from capture2face.errors import CaptureError
-from capture2face.io.atomic import DIR_MODE, write_text_atomic
+from capture2face.io.atomic import DIR_MODE, FILE_MODE, write_text_atomic
 
 STAGING_PREFIX = ".tmp-"
+LOCK_PREFIX = ".capture2face-"
 OWNER_FILE = ".owner"
 JOURNAL = ".capture2face-run.json"
 MANIFEST = "report.json"
@@ -291,25 +298,101 @@ def staged_folder(final: str | os.PathLike, known: Collection[str],
         raise CaptureError(f"cannot write outputs to {final}: it is a file, not a folder")
     started = time.time()
     created = _make_parents(final.parent)
-    clean_stale_staging(final.parent, now=started)
+    tmp = lock = None
+    ok = False
+    try:
+        lock = lock_output(final)  # a second run into the same folder is refused, not silently lost
+        clean_stale_staging(final.parent, now=started)
+        tmp = _make_staging(final, started)
+        yield tmp
+        _commit(tmp, final, known, protect)
+        ok = True
+    except BaseException as exc:
+        if isinstance(exc, OSError) and exc.filename is None and exc.errno in _NO_ROOM:
+            exc.filename = str(final)  # a write by fd (pwrite, an encoder): name the folder
+        raise
+    finally:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+        if lock is not None:
+            unlock_output(lock)
+        if not ok:
+            _remove_empty(created)
+
+
+def _make_staging(final: Path, started: float) -> Path:
+    """A new staging folder for ``final`` in its parent, with its ``.owner``."""
     try:
         tmp = Path(tempfile.mkdtemp(prefix=f"{STAGING_PREFIX}{final.name}-", dir=final.parent))
     except OSError as exc:
-        _remove_empty(created)
         raise CaptureError(f"cannot write to output folder {final.parent}: {exc.strerror or exc}") from None
     try:
         os.chmod(tmp, DIR_MODE)  # mkdtemp made it owner-only
         (tmp / OWNER_FILE).write_text(json.dumps({"pid": os.getpid(), "host": socket.gethostname(),
                                                   "started": started}) + "\n", encoding="utf-8")
-        yield tmp
-        _commit(tmp, final, known, protect)
-    except BaseException as exc:
-        if isinstance(exc, OSError) and exc.filename is None and exc.errno in _NO_ROOM:
-            exc.filename = str(final)  # a write by fd (pwrite, an encoder): name the folder
+    except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
-        _remove_empty(created)
         raise
-    shutil.rmtree(tmp, ignore_errors=True)
+    return tmp
+
+
+# ---- one run per output folder ------------------------------------------------------------
+def lock_path(final: str | os.PathLike) -> Path:
+    """The lock file of the output folder ``final`` (beside it, in its parent)."""
+    final = Path(final)
+    return final.parent / f"{LOCK_PREFIX}{final.name}.lock"
+
+
+def lock_output(final: str | os.PathLike) -> tuple[int, Path]:
+    """Hold the output folder ``final`` for this run (an advisory ``flock`` on its lock
+    file, released by :func:`unlock_output` or when the process ends, however it ends).
+
+    Raises:
+        CaptureError: another live run holds it (its pid, host and start time named).
+    """
+    path = lock_path(final)
+    while True:
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, FILE_MODE)
+        except OSError as exc:
+            raise CaptureError(f"cannot write to output folder {path.parent}: {exc.strerror or exc}") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            holder = _read_json(path)
+            os.close(fd)
+            raise CaptureError(f"{final}: another run is writing there{_holder(holder)}; wait for it to "
+                               "finish, or choose another output folder") from None
+        try:
+            same = os.path.samestat(os.fstat(fd), os.stat(path))
+        except FileNotFoundError:
+            same = False  # its holder removed it between our open and our lock: take the new one
+        if same:
+            break
+        os.close(fd)
+    os.ftruncate(fd, 0)
+    os.write(fd, (json.dumps({"pid": os.getpid(), "host": socket.gethostname(), "started": time.time()})
+                  + "\n").encode("utf-8"))
+    return fd, path
+
+
+def _holder(info) -> str:
+    if not isinstance(info, dict):
+        return ""
+    try:
+        when = time.strftime("%H:%M:%S", time.localtime(float(info["started"])))
+        return f" (pid {int(info['pid'])} on {info['host']}, since {when})"
+    except (KeyError, TypeError, ValueError):
+        return ""
+
+
+def unlock_output(lock: tuple[int, Path]) -> None:
+    """Release :func:`lock_output`'s lock and remove its file (while still held, so that
+    no other run is holding a lock on a file that is gone)."""
+    fd, path = lock
+    with contextlib.suppress(FileNotFoundError):
+        os.unlink(path)
+    os.close(fd)
 
 
 def check_writable(folder: str | os.PathLike) -> None:
@@ -327,3 +410,26 @@ def check_writable(folder: str | os.PathLike) -> None:
         raise CaptureError(f"cannot write to output folder {folder}: {exc.strerror or exc}") from None
     finally:
         _remove_empty(created)
+
+
+def check_output_file(path: str | os.PathLike, flag: str, suffixes: Iterable[str] = (),
+                      protect: Iterable[str | os.PathLike] = ()) -> None:
+    """Fail early (before any slow work) when the file ``path`` (given as ``flag``) could not
+    be written: it is a folder, its suffix is not one of ``suffixes`` (any when empty), it
+    is a protected file (the source clip), or its folder cannot be created or written.
+
+    Creates nothing that outlives the call.
+    """
+    path = Path(path)
+    suffixes = tuple(suffixes)
+    if path.is_dir():
+        example = path / f"out{suffixes[0]}" if suffixes else path / "out"
+        raise CaptureError(f"{flag} {path}: is a folder; give the file to write (e.g. {example})")
+    if suffixes and path.suffix.lower() not in suffixes:
+        raise CaptureError(f"{flag} {path}: the file must end in {' or '.join(suffixes)}")
+    if _same_file(path, [Path(p) for p in protect]):
+        raise CaptureError(f"{flag} {path}: is the source clip or another output; choose another file name")
+    try:
+        check_writable(path.parent)
+    except CaptureError as exc:
+        raise CaptureError(f"{flag} {path}: {exc}") from None

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, fields
+from pathlib import Path
 from typing import Any
 
 from capture2face.errors import CaptureError
@@ -111,3 +112,16 @@ def options_json(options: RunOptions) -> dict:
         out[f.name] = v
     return out
 
+
+
+def input_files(clip: str | os.PathLike, options: RunOptions) -> dict[str, str | None]:
+    """The files a run's result depends on, by role: ``clip``, and for a character file
+    ``character`` and (.glb / .gltf) ``mapping``, the JSON beside it, which need not exist.
+    A built-in avatar or a FaceRig object has none."""
+    files: dict[str, str | None] = {"clip": os.fspath(clip)}
+    character = options.character
+    if isinstance(character, (str, os.PathLike)) and Path(character).is_file():
+        files["character"] = os.fspath(character)
+        if Path(character).suffix.lower() in (".glb", ".gltf"):
+            files["mapping"] = os.fspath(Path(character).with_suffix(".json"))
+    return files

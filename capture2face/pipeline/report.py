@@ -6,6 +6,7 @@ import json
 import os
 from pathlib import Path
 
+from capture2face.errors import CaptureError
 from capture2face.pipeline.options import RunOptions
 
 
@@ -18,6 +19,32 @@ def outputs_complete(folder: str | os.PathLike) -> bool:
         return False
     names = report.get("outputs") or []
     return bool(names) and all((folder / name).is_file() and (folder / name).stat().st_size > 0 for name in names)
+
+
+def check_same_clip(final: str | os.PathLike, clip: dict | None) -> None:
+    """Refuse to replace the outputs of another clip that has the same name
+    (``day1/take.mp4`` and ``day2/take.mp4`` both go to ``OUT/take``).
+
+    ``clip`` is this run's clip fingerprint (:func:`capture2face.io.fingerprint.fingerprint`);
+    the one in ``final``'s report.json is compared: the same path, or the same content
+    (a clip that was moved), may replace its outputs.
+
+    Raises:
+        CaptureError: ``final`` holds the outputs of a clip at another path with other content.
+    """
+    try:
+        stored = json.loads((Path(final) / "report.json").read_text(encoding="utf-8"))
+        old = stored["inputs"]["clip"]
+        old_path = old["path"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return  # no earlier run (or one that stored no fingerprint): nothing to tell apart
+    if clip is None or old_path == clip["path"]:
+        return
+    if old.get("size") == clip["size"] and old.get("sha256") == clip["sha256"]:
+        return
+    raise CaptureError(f"{final} holds the outputs of another clip, {old_path}; to keep both, choose another "
+                       "output folder (run: or another folder name, --name NAME); to replace them, delete "
+                       f"{final} first")
 
 
 def track_warnings(track, options: RunOptions | None = None) -> list[str]:

@@ -37,13 +37,14 @@ import numpy as np
 
 from capture2face.errors import CaptureError, raise_if_interrupted
 from capture2face.io.atomic import write_text_atomic
+from capture2face.io.fingerprint import fingerprint
 from capture2face.io.staging import check_output_folder, staged_folder
 from capture2face.io.video_input import watch_damage
 from capture2face.measures import clip_fidelity
-from capture2face.pipeline.options import OUTPUT_FILES, RunOptions, options_json
+from capture2face.pipeline.options import OUTPUT_FILES, RunOptions, input_files, options_json
 from capture2face.pipeline.preflight import preflight
 from capture2face.pipeline.render_pass import render_stage
-from capture2face.pipeline.report import track_warnings
+from capture2face.pipeline.report import check_same_clip, track_warnings
 from capture2face.pipeline.report_html import poster_frames, write_report_html
 from capture2face.pipeline.stages import (
     export_stage,
@@ -131,7 +132,10 @@ def _run(clip, out_dir, options: RunOptions, progress: bool, name: str | None, w
     # Bad input fails here, before anything is written or tracked: options and limits, the
     # clip, the neutral frame, the face model, a drivable character, the GL context.
     info, rig = preflight(clip, options, progress=progress)
+    # What the result is made from (report.json's "inputs"; batch --resume compares them).
+    inputs = {role: fingerprint(path) for role, path in input_files(clip, options).items()}
     final = Path(out_dir) / (name or Path(clip).stem)
+    check_same_clip(final, inputs["clip"])  # day1/take.mp4 never silently replaces day2/take.mp4's
     seconds: dict[str, float] = {"checks": time.perf_counter() - t_start}  # the default avatar's first build too
     # Only the run's own files in ``final`` are replaced; the clip itself is never touched.
     outputs = [f for f in OUTPUT_FILES if f != "compare.mp4" or options.compare]
@@ -162,6 +166,7 @@ def _run(clip, out_dir, options: RunOptions, progress: bool, name: str | None, w
 
         seconds["total"] = time.perf_counter() - t_start
         report = _report(clip, final, rig, track, info, options, outputs, seconds, list(warnings), fidelity)
+        report["inputs"] = inputs
         # report.html shows the seconds up to here; report.json adds its own and the total.
         t = time.perf_counter()
         write_report_html(tmp / "report.html", report, track, animation,

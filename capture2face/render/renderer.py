@@ -10,7 +10,10 @@ Wrinkle maps are uploaded as Jimenez's partial derivatives, two maps per RGBA16F
 the ``auto`` driver adds one texture fetch per pixel. A frame is two draws: the face skin
 with its normal and wrinkle maps, then everything else (eyes, mouth, the head beyond the
 face) with a program compiled without them, since a software GL runs every side of a
-branch and would run the maps' code for every pixel. The influence view can come out of
+branch and would run the maps' code for every pixel. A rig with glTF alpha modes
+(``FaceRig.alpha_mode``) adds those two draws again for its MASK triangles (discarded
+below the cutoff) and then for its BLEND ones (blended, depth not written, sorted back
+to front each frame). The influence view can come out of
 the shaded draw itself (``influence_output``: a second colour attachment), so a
 compare video costs one rasterization per frame, not two. Images are rasterized with the
 projection's y flipped, so GL's bottom-up rows read back top-down without a copy.
@@ -52,6 +55,8 @@ _UNIT_ALBEDO, _UNIT_NORMAL, _UNIT_WRINKLE, _UNIT_MASK0, _UNIT_MASK1 = range(5)
 _GL_SRGB8_ALPHA8 = 0x8C43
 _UNIT_SCENE = 0  # FXAA pass
 _FLIP_Y = np.diag([1.0, -1.0, 1.0, 1.0])
+# Shader defines of each glTF alpha mode (FaceRig.alpha_mode: 0 OPAQUE, 1 MASK, 2 BLEND).
+_ALPHA_DEFINES = {0: (), 1: (("ALPHA_MASK", 1), ("MIP_SCALE", 0.25)), 2: (("ALPHA_BLEND", 1),)}
 
 
 @dataclass
@@ -235,9 +240,13 @@ class Renderer:
             (f"BLEND_{opts.normal_blend.upper()}", 1), (f"VIEW_{opts.view.upper()}", 1),
         ) + ((("INFLUENCE_OUTPUT", 1),) if self._influence_output else ())
         # Two programs: the face skin's with its normal and wrinkle maps, and one without
-        # them for the eyes, mouth and the head beyond the face.
-        self._programs = tuple(program("face.vert", "face.frag", face_defines + (("FACE_SKIN", skin),))
-                               for skin in (1, 0))
+        # them for the eyes, mouth and the head beyond the face; each again for MASK and
+        # BLEND materials where the rig has them (glTF's alpha modes).
+        modes = [0] if self.rig.alpha_mode is None else sorted(int(m) for m in np.unique(self.rig.alpha_mode))
+        self._programs_by = {(skin, mode): program("face.vert", "face.frag", face_defines + (("FACE_SKIN", skin),)
+                                                    + _ALPHA_DEFINES[mode])
+                             for mode in modes for skin in (1, 0)}
+        self._programs = tuple(self._programs_by.values())
 
     def _setup_mesh(self) -> None:
         rig, ctx = self.rig, self.ctx
@@ -256,24 +265,40 @@ class Renderer:
             (f4(rig.uvs), "2f", "in_uv"),
             (f4(rig.material), "1f", "in_material"),
         ]
-        # The face skin's triangles first, then the rest, each run drawn with its program.
-        # A triangle's material is its last vertex's (GL's provoking vertex for the flat
-        # varying).
-        skin = np.asarray(rig.material)[rig.triangles[:, 2]] == 0
-        triangles = np.concatenate([rig.triangles[skin], rig.triangles[~skin]])
-        index = self._keep(ctx.buffer(np.ascontiguousarray(triangles, np.int32).tobytes()))
-        n_skin = int(skin.sum())
-        runs = ((0, n_skin), (n_skin, len(triangles) - n_skin))
-        self._draws = [(self._keep(ctx.vertex_array(prog, bufs, index_buffer=index, index_element_size=4,
-                                                    skip_errors=True)), 3 * first, 3 * count)
-                       for prog, (first, count) in zip(self._programs, runs) if count]
+        if rig.alpha_cutoff is not None:
+            bufs.append((f4(rig.alpha_cutoff), "1f", "in_alpha_cutoff"))
+        # Opaque, then MASK, then BLEND triangles (glTF draws blended ones over the rest);
+        # in each, the face skin's first, then the rest, each run drawn with its program.
+        # A triangle's material and alpha mode are its last vertex's (GL's provoking
+        # vertex for the flat varyings).
+        last = rig.triangles[:, 2]
+        skin = np.where(np.asarray(rig.material)[last] == 0, 1, 0)
+        mode = np.zeros(len(last), np.int64) if rig.alpha_mode is None else np.asarray(rig.alpha_mode, np.int64)[last]
+        keys = list(self._programs_by)  # (skin, mode): by mode, skin first
+        lookup = np.zeros((2, 3), np.int64)
+        for k, (s, m) in enumerate(keys):
+            lookup[s, m] = k
+        group = lookup[skin, mode]
+        order = np.argsort(group, kind="stable")
+        triangles = np.ascontiguousarray(rig.triangles[order], np.int32)
+        self._index = index = self._keep(ctx.buffer(triangles.tobytes()))
+        counts = np.bincount(group, minlength=len(keys))
+        firsts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        self._draws = [(self._keep(ctx.vertex_array(self._programs_by[key], bufs, index_buffer=index,
+                                                    index_element_size=4, skip_errors=True)),
+                        3 * int(first), 3 * int(count), key[1])
+                       for key, first, count in zip(keys, firsts, counts) if count]
+        # BLEND runs are sorted back to front each frame: (first triangle, its triangles).
+        self._blend_runs = [(int(first), triangles[first:first + count]) for key, first, count
+                            in zip(keys, firsts, counts) if count and key[1] == 2]
         self._positions = None  # this frame's deformed positions, for the FXAA scissor box
 
     def _setup_textures(self, shade_wrinkles: bool) -> None:
         rig, ctx = self.rig, self.ctx
         # Colour and normal maps (row 0 = top = v 0, the glTF convention, uploaded as is).
+        albedo = rig.albedo if rig.alpha is None else np.concatenate([rig.albedo, rig.alpha[:, :, None]], axis=2)
         self._textures = [
-            (self._image_texture(rig.albedo, internal_format=_GL_SRGB8_ALPHA8), _UNIT_ALBEDO),
+            (self._image_texture(albedo, internal_format=_GL_SRGB8_ALPHA8), _UNIT_ALBEDO),
             (self._image_texture(rig.normal_map), _UNIT_NORMAL),
         ]
         if shade_wrinkles and len(rig.wrinkle_map_names):
@@ -407,6 +432,11 @@ class Renderer:
             vertices[:, 6:10] = (np.maximum(-amount, 0.0) * self._slots["stretch"]
                                  + np.maximum(amount, 0.0) * self._slots["compress"])
         self._frame_buffer.write(vertices)
+        for first, tris in self._blend_runs:
+            # Farthest first (camera space z: the camera looks down -z).
+            depth = positions[tris].sum(1) @ pose[2, :3].astype(np.float32)
+            self._index.write(np.ascontiguousarray(tris[np.argsort(depth, kind="stable")]).tobytes(),
+                              offset=12 * first)
 
     # ---- public API -------------------------------------------------------------------
     @property
@@ -438,8 +468,17 @@ class Renderer:
             ctx.front_face = "cw"
             ctx.cull_face = "back"
             ctx.enable(moderngl.CULL_FACE)
-        for vao, first, count in self._draws:
+        for vao, first, count, mode in self._draws:
+            if mode == 2:  # BLEND: over what is drawn, without hiding what comes after
+                ctx.enable(moderngl.BLEND)
+                ctx.blend_func = moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA
+                self._target.depth_mask = False
+                self._target.use()
             vao.render(moderngl.TRIANGLES, vertices=count, first=first)
+        if not self._target.depth_mask:
+            self._target.depth_mask = True
+            self._target.use()
+            ctx.disable(moderngl.BLEND)
         ctx.disable(moderngl.CULL_FACE)
         if self._target is not self._single:
             ctx.copy_framebuffer(self._single, self._target)  # MSAA resolve, every attachment

@@ -114,6 +114,14 @@ class FaceRig:
             as glTF renders single-sided materials; the built-in avatar is closed and wound
             consistently (the back of its head never shows), and culling halves what a
             software renderer rasterizes.
+        alpha: (H, W) uint8 base-colour alpha (glTF: the texture's alpha times the factor's),
+            read where ``alpha_mode`` says MASK or BLEND; None: every vertex opaque.
+        alpha_mode: (V,) uint8 glTF alpha mode of each vertex's material: 0 OPAQUE, 1 MASK
+            (drawn where alpha >= ``alpha_cutoff``: lashes, hair cards), 2 BLEND (blended
+            over what is behind, after the opaque geometry: lenses, glass); a triangle's is
+            its last vertex's, as for ``material``. None with ``alpha``.
+        alpha_cutoff: (V,) float32 MASK cutoff of each vertex's material (glTF's
+            ``alphaCutoff``, default 0.5). None with ``alpha``.
     """
 
     name: str
@@ -152,6 +160,9 @@ class FaceRig:
     eye_centres: np.ndarray | None = None
     eye_vertex_side: np.ndarray | None = None
     double_sided: bool = True
+    alpha: np.ndarray | None = None
+    alpha_mode: np.ndarray | None = None
+    alpha_cutoff: np.ndarray | None = None
     landmark_faces: np.ndarray | None = None
     landmark_bary: np.ndarray | None = None
     overlay_vertices: np.ndarray | None = None

@@ -5,7 +5,9 @@
 // the maps out of their program makes their pixels ~25% cheaper),
 // N_MAPS (wrinkle maps, <= 4), SHADE_WRINKLES (0: weights only feed the
 // influence output), BLEND_PD | BLEND_OAT, DRIVER_*, VIEW_SHADED | VIEW_INFLUENCE,
-// INFLUENCE_OUTPUT (shaded view: the influence view also goes to colour attachment 1).
+// INFLUENCE_OUTPUT (shaded view: the influence view also goes to colour attachment 1),
+// ALPHA_MASK | ALPHA_BLEND (glTF's alpha modes: discard below the cutoff | blend by the
+// base colour's alpha; neither: opaque).
 #include "normal_blend.glsl"
 #include "color.glsl"
 
@@ -38,6 +40,9 @@ in vec4 v_tangent;
 in vec2 v_uv;
 in vec4 v_map_weight;
 flat in int v_material;
+#ifdef ALPHA_MASK
+flat in float v_alpha_cutoff;
+#endif
 
 layout(location = 0) out vec4 f_color;
 #if defined(INFLUENCE_OUTPUT) && !defined(VIEW_INFLUENCE)
@@ -134,7 +139,30 @@ vec3 skin_diffuse(float ndotl) {
     return max((vec3(ndotl) + wrap) / (1.0 + wrap), 0.0);
 }
 
+// The base colour's alpha where the material reads it (MASK, BLEND), else 1.
+float base_alpha() {
+#if defined(ALPHA_MASK) || defined(ALPHA_BLEND)
+    float alpha = texture(u_albedo, v_uv).a;
+#ifdef ALPHA_MASK
+#ifdef MIP_SCALE
+    // Mip levels average thin cards' (lashes') alpha below the cutoff: scale it up by
+    // the level sampled (Castano's coverage-preserving idea, as a per-pixel scale).
+    vec2 texel = v_uv * vec2(textureSize(u_albedo, 0));
+    vec2 dx = dFdx(texel), dy = dFdy(texel);
+    alpha *= 1.0 + MIP_SCALE * max(0.5 * log2(max(dot(dx, dx), dot(dy, dy))), 0.0);
+#endif
+    if (alpha < v_alpha_cutoff) discard;
+    return 1.0;
+#else
+    return alpha;
+#endif
+#else
+    return 1.0;
+#endif
+}
+
 void main() {
+    float alpha = base_alpha();
     vec3 ng = normalize(v_normal);
     vec3 l = u_light_direction;
     vec3 lf = u_fill_direction;
@@ -146,10 +174,10 @@ void main() {
 #endif
 
 #ifdef VIEW_INFLUENCE
-    f_color = influence_color(ng, l, w);
+    f_color = vec4(influence_color(ng, l, w).rgb, alpha);
 #else
 #ifdef INFLUENCE_OUTPUT
-    f_influence = influence_color(ng, l, w);
+    f_influence = vec4(influence_color(ng, l, w).rgb, alpha);
 #endif
     vec3 n = ng;
 #if FACE_SKIN  // the head beyond the face (4) has a flat normal map
@@ -171,6 +199,6 @@ void main() {
     float hemi = 0.6 + 0.4 * n.y;
     vec3 radiance = albedo * (u_light_color * diffuse + u_fill_color * max(dot(n, lf), 0.0) + u_ambient * hemi)
                   + u_light_color * specular;
-    f_color = vec4(linear_to_srgb(aces_film(radiance)), 1.0);
+    f_color = vec4(linear_to_srgb(aces_film(radiance)), alpha);
 #endif
 }

@@ -1,0 +1,102 @@
+"""``capture2face eval shading``: does a rendered character shade right and perform what the
+actor performs? Judged on the output video alone, the way a viewer sees it.
+
+A ``run`` folder's avatar.mp4 is tracked with the clips' tracker; in every frame with a
+face, the skin's brightness is sampled in discs on the cheeks and the chin (landmark
+positions in the video). A shading fault (normals turned by combined morphs) darkens or
+the discs as the face moves; the figure is each disc's 95th percentile of its darkening,
+``max(0, 1 - brightness / its median frame)`` (one-sided: the head turning under the
+light also brightens and darkens a disc by a few percent, a shading fault only darkens),
+judged on the mean over the discs. The mouth opening measured in
+that tracked video (:func:`~capture2face.measures.source_measures`) is compared with the
+source clip's (the run's track.npz): a character whose mouth does not open on screen fails
+it whatever its animation says.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from capture2face.errors import CaptureError
+from capture2face.io.video_input import iter_frames
+from capture2face.maths.stats import pearson
+from capture2face.measures import MEASURES, source_measures
+from capture2face.pipeline import RunOptions, track_stage
+from capture2face.tracking.track import Track
+
+# Disc centres (MediaPipe landmarks) and their radius in inter-ocular distances.
+PATCHES = {"cheek_right": 205, "cheek_left": 425, "chin": 199}
+PATCH_RADIUS_IOD = 0.08
+BRIGHTNESS_GOAL = 0.03  # p95 darkening from the disc's median frame, mean over the discs
+MOUTH_R_GOAL = 0.85
+
+
+def _luminance(rgb: np.ndarray) -> np.ndarray:
+    return rgb.astype(np.float32) @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+
+
+def patch_brightness(video: str | os.PathLike, track: Track) -> np.ndarray:
+    """(F, P) mean luminance (0-255) of each of :data:`PATCHES` in each frame of ``video``
+    (NaN where ``track`` has no face)."""
+    names = list(PATCHES.values())
+    out = np.full((track.n_frames, len(names)), np.nan, np.float32)
+    for f, (_, rgb) in enumerate(iter_frames(video, max_frames=track.n_frames)):
+        if not track.presence[f]:
+            continue
+        px = np.asarray(track.landmarks_px[f], np.float64)
+        radius = PATCH_RADIUS_IOD * np.linalg.norm(px[33] - px[263])
+        for k, lm in enumerate(names):
+            out[f, k] = _disc_mean(rgb, px[lm], radius)
+    return out
+
+
+def _disc_mean(rgb: np.ndarray, centre: np.ndarray, radius: float) -> float:
+    """Mean luminance of the pixels of ``rgb`` (H, W, 3) within ``radius`` of ``centre``."""
+    x0, y0 = np.maximum(np.floor(centre - radius).astype(int), 0)
+    x1, y1 = np.minimum(np.ceil(centre + radius).astype(int) + 1, [rgb.shape[1], rgb.shape[0]])
+    if x1 <= x0 or y1 <= y0:
+        return np.nan
+    yy, xx = np.mgrid[y0:y1, x0:x1]
+    disc = (xx - centre[0]) ** 2 + (yy - centre[1]) ** 2 <= radius ** 2
+    return float(_luminance(rgb[y0:y1, x0:x1][disc]).mean()) if disc.any() else np.nan
+
+
+def darkening(brightness: np.ndarray) -> np.ndarray:
+    """(P,) the 95th percentile over frames of ``max(0, 1 - b / median(b))`` per patch."""
+    rel = np.clip(1.0 - brightness / np.nanmedian(brightness, axis=0), 0.0, None)
+    return np.nanpercentile(rel, 95, axis=0)
+
+
+def shading_of(run_dir: str | os.PathLike, progress: bool = False) -> dict:
+    """The figures of one ``run`` folder (it needs avatar.mp4 and track.npz)."""
+    folder = Path(run_dir)
+    video, source = folder / "avatar.mp4", folder / "track.npz"
+    if not video.is_file() or not source.is_file():
+        raise CaptureError(f"{folder}: not a run folder with avatar.mp4 and track.npz")
+    with tempfile.TemporaryDirectory(prefix="capture2face-shading-") as work:
+        seen = track_stage(video, RunOptions(), progress=progress, workdir=work)
+    actor = Track.load(source)
+    brightness = patch_brightness(video, seen)
+    dark = darkening(brightness)
+    mouth = list(MEASURES).index("mouth_open")
+    n = min(actor.n_frames, seen.n_frames)
+    r = pearson(source_measures(actor)[:n, mouth], source_measures(seen)[:n, mouth])
+    return {
+        "run": folder.name,
+        "frames_with_face": int(np.count_nonzero(seen.presence)),
+        "darkening_p95": {name: float(d) for name, d in zip(PATCHES, dark)},
+        "darkening_p95_mean": float(dark.mean()),
+        "mouth_open_r": float(r),
+        "met": bool(dark.mean() <= BRIGHTNESS_GOAL and r >= MOUTH_R_GOAL),
+    }
+
+
+def summary_line(results: list[dict]) -> str:
+    worst = max((r["darkening_p95_mean"] for r in results), default=float("nan"))
+    return (f"{len(results)} runs: {sum(r['met'] for r in results)}/{len(results)} shade right and open the "
+            f"mouth (cheeks and chin darken by at most {BRIGHTNESS_GOAL:.0%} at p95, worst {worst:.1%}; "
+            f"mouth opening r >= {MOUTH_R_GOAL})")

@@ -1,0 +1,55 @@
+"""``eval shading``: the skin's darkening in a rendered video, sampled where the tracker sees
+the cheeks and the chin."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from capture2face.errors import CaptureError
+from capture2face.eval import shading
+from capture2face.io.video_output import VideoWriter
+
+
+def test_darkening_counts_dark_frames_only():
+    b = np.full((100, 2), 100.0)
+    b[:10, 0] = 80.0  # 10 % of frames 20 % darker: the 95th percentile sees them
+    b[:10, 1] = 130.0  # brighter frames are not a shading fault
+    np.testing.assert_allclose(shading.darkening(b), [0.2, 0.0], atol=1e-6)
+    b[:3, 0] = 80.0
+    b[3:10, 0] = 100.0  # 3 % of frames: below the 95th percentile
+    np.testing.assert_allclose(shading.darkening(b)[0], 0.0, atol=1e-6)
+
+
+def test_patch_brightness_samples_each_disc_where_the_landmarks_are(tmp_path):
+    """A video whose left half darkens over time, landmarks on both halves: the disc on the
+    left follows it, the one on the right stays, frames without a face are NaN."""
+    n, size = 12, (160, 120)
+    levels = np.linspace(200, 100, n)
+    video = tmp_path / "avatar.mp4"
+    with VideoWriter(video, 30, size, crf=0) as out:
+        for level in levels:
+            frame = np.full((size[1], size[0], 3), 180, np.uint8)
+            frame[:, :80] = int(level)
+            out.write(frame)
+    px = np.zeros((n, 478, 2))
+    px[:, 33], px[:, 263] = (30, 40), (130, 40)  # IOD 100 px: discs of 8 px
+    px[:, shading.PATCHES["cheek_right"]] = (40, 80)  # left half
+    px[:, shading.PATCHES["cheek_left"]] = (120, 80)  # right half
+    px[:, shading.PATCHES["chin"]] = (120, 100)
+    presence = np.ones(n, bool)
+    presence[5] = False
+    track = SimpleNamespace(n_frames=n, presence=presence, landmarks_px=px)
+    b = shading.patch_brightness(video, track)
+    assert np.isnan(b[5]).all() and not np.isnan(np.delete(b, 5, 0)).any()
+    got = np.delete(b[:, 0], 5)
+    assert np.corrcoef(got, np.delete(levels, 5))[0, 1] > 0.99
+    assert abs(got[0] - got[-1] - 100) < 6  # luminance of grey = its level (H.264 rounding)
+    assert np.nanstd(b[:, 1]) < 1.5 and abs(np.nanmean(b[:, 1]) - 180) < 3
+
+
+def test_a_folder_without_avatar_video_is_refused(tmp_path):
+    with pytest.raises(CaptureError, match="avatar.mp4 and track.npz"):
+        shading.shading_of(tmp_path)
