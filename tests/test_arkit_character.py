@@ -82,6 +82,7 @@ def test_quantized_character_reads_within_its_step(tmp_path, avatar):
 
 
 def test_arkit_character_is_driven_by_the_arkit_curves(tmp_path, avatar):
+    # Imported without its landmarks cast (no automatic wrinkles): the curves drive it.
     from capture2face.retarget import retarget
     from capture2face.retarget.arkit import arkit_curves
 
@@ -105,6 +106,92 @@ def test_arkit_character_is_driven_by_the_arkit_curves(tmp_path, avatar):
     assert np.corrcoef(drop, truth["jawOpen"])[0, 1] > 0.95
     assert drop.max() > 0.8 * np.linalg.norm(rig.morph_positions[jaw, v])  # a full opening reaches ~1
     np.testing.assert_array_equal(anim.bone_positions, np.repeat(rig.bone_rest[None], track.n_frames, 0))
+
+
+def _with_landmarks(rig, avatar):
+    """The imported avatar with the avatar's own landmark vertices and one automatic
+    feature bone (as :mod:`capture2face.character.auto_wrinkles` gives an imported ARKit
+    character, without its front view tracked): the Dutreve path of an ARKit character."""
+    from capture2face.rig.feature_points import AUTO_PREFIX
+
+    order = part_order(avatar)
+    inv = np.empty(len(order), np.int64)
+    inv[order] = np.arange(len(order))
+    lv = np.where(avatar.landmark_vertices >= 0, inv[avatar.landmark_vertices.clip(0)], -1).astype(np.int32)
+    rest = rig.vertices[lv[105]]
+    return rig.replace(
+        landmark_vertices=lv, bone_names=rig.bone_names + [AUTO_PREFIX + "brow"],
+        bone_rest=np.concatenate([rig.bone_rest, rest[None]]).astype(np.float32),
+        bone_parents=np.r_[rig.bone_parents, 0].astype(np.int32), bone_landmarks=np.r_[rig.bone_landmarks, 105].astype(np.int32),
+        bone_groups=np.r_[rig.bone_groups, rig.bone_groups.max() + 1].astype(np.int32),
+        pose_bones=np.concatenate([rig.pose_bones, np.repeat(rest[None, None], len(rig.pose_bones), 0)], 1).astype(np.float32))
+
+
+def _performed_track(rig, by: dict[str, int], truth: dict[str, np.ndarray], scores: dict[str, np.ndarray]):
+    """A track whose landmarks are ``rig``'s own landmark points under the ``truth`` morph
+    weights (F,) by ARKit name (an actor with the character's face: the weights to find),
+    with MediaPipe-like ``scores`` (the others 0)."""
+    from test_arkit import FPS
+
+    from capture2face.rig.face_rig import landmark_points
+    from capture2face.tracking.track import Track
+
+    frames = len(next(iter(truth.values())))
+    w = np.zeros((frames, rig.n_morphs))
+    for name, curve in truth.items():
+        w[:, by[name]] = curve
+    verts = rig.vertices + np.einsum("fm,mvc->fvc", w, rig.morph_positions)
+    lm = landmark_points(rig, verts).astype(np.float32)  # (F, 478, 3)
+    s = np.zeros((frames, len(NAMES)), np.float32)
+    for name, curve in scores.items():
+        s[:, NAMES.index(name)] = curve
+    return Track(times=np.arange(frames) / FPS, landmarks_px=np.zeros((frames, 478, 2), np.float32),
+                 landmarks_depth=np.zeros((frames, 478), np.float32), landmarks_head=lm,
+                 presence=np.ones(frames, bool), interpolated=np.zeros(frames, bool), held=np.zeros(frames, bool),
+                 blendshapes=s, blendshape_names=NAMES, head_pose=np.tile(np.eye(4, dtype=np.float32), (frames, 1, 1)),
+                 neutral_frame=0, width=64, height=64, fps=FPS)
+
+
+def test_arkit_character_is_retargeted_from_the_feature_points(tmp_path, avatar):
+    """Dutreve's retargeting onto an ARKit character: its morph weights are solved, bounded
+    to [0, 1], from the feature points; the ARKit curves are the prior and drive what the
+    points cannot see; Animation.arkit_weights keeps the curves."""
+    from capture2face.retarget import RetargetOptions, retarget
+    from capture2face.retarget.arkit import arkit_curves
+
+    path = tmp_path / "head.glb"
+    export_arkit_character(avatar, path, naming="_L")
+    rig = _with_landmarks(import_glb(path), avatar)
+    assert drive_mode(rig) == "arkit"
+    by = _by_arkit(rig)
+    k = np.arange(120)
+    jaw, blink, brow, wide = (np.clip(1 - np.abs(k - c) / 12, 0, 1) for c in (25, 55, 80, 100))
+    truth = {"jawOpen": 0.8 * jaw, "eyeBlinkRight": blink, "browInnerUp": 0.7 * brow, "noseSneerLeft": 0.6 * wide}
+    puff = np.clip(np.sin(k / 20), 0, 1)
+    scores = {"jawOpen": 0.1 + 0.35 * jaw,  # underrated and resting above 0, as MediaPipe's are
+              "eyeBlinkRight": 0.1 + 0.6 * blink, "browInnerUp": 0.05 + 0.3 * brow,
+              "mouthSmileLeft": 0.9 * jaw,  # a score the geometry does not show
+              "cheekPuff": puff}  # a score the points cannot see
+    track = _performed_track(rig, by, truth, scores)
+    curves = arkit_curves(track)
+    anim = retarget(track, rig, RetargetOptions(depth_motion=1.0))  # a perfect actor: its depth is kept whole
+    only = retarget(track, rig, RetargetOptions(solve_blend_weights=False))  # the curves alone
+    w = anim.blend_weights
+    assert w.min() >= 0.0 and w.max() <= 1.0
+    np.testing.assert_array_equal(anim.arkit_weights, curves)  # livelink.csv's ARKit meaning
+    np.testing.assert_array_equal(anim.bone_positions, np.repeat(rig.bone_rest[None], len(k), 0))
+    # The solved weights are the performed ones (the curves are not: the sneer has no
+    # score at all, and the scores smile where the face does not).
+    for name, curve in truth.items():
+        assert np.abs(w[:, by[name]] - curve).max() < 0.2, name
+    assert np.abs(w[:, by["jawOpen"]] - truth["jawOpen"]).max() < 0.05
+    assert np.abs(only.blend_weights[:, by["noseSneerLeft"]] - truth["noseSneerLeft"]).max() > 0.5
+    assert only.blend_weights[:, by["mouthSmileLeft"]].max() > 0.8 and w[:, by["mouthSmileLeft"]].max() < 0.2
+    others = [m for a, m in by.items() if a not in truth and a not in scores]
+    assert w[:, others].max() < 0.3 and w[:, others].mean() < 0.02
+    # What the points cannot see takes its curve (cheekPuff: curve-only whatever it moves).
+    np.testing.assert_allclose(w[:, by["cheekPuff"]], curves[:, NAMES.index("cheekPuff")], atol=1e-6)
+    assert w[:, by["cheekPuff"]].max() > 0.9
 
 
 def test_head_joint_turns_the_head_and_not_the_body(tmp_path, avatar):

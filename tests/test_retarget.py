@@ -151,6 +151,61 @@ def test_linear_solver_matches_bounded_least_squares():
     assert (x_true[:, 3 * nb:] > 1).any() and (x_true[:, 3 * nb:] < 0).any()  # bounds were active
 
 
+def test_linear_solver_prior_and_rigid_unknowns_match_bounded_least_squares():
+    """With unbounded rigid unknowns before the morphs and a prior s_i (x_i - p_fi)^2 (an
+    ARKit character's curves), the solve still equals a generic bounded minimiser."""
+    rng = np.random.default_rng(1)
+    n_pts, nr, nm, frames = 12, 2, 4, 10
+    a = rng.normal(size=(3 * n_pts, nr + nm))
+    model = LinearRigModel(rest=np.zeros((n_pts, 3)), matrix=a, free_bones=np.zeros(0, np.int64),
+                           morphs=np.arange(nm), n_rigid=nr)
+    x_true = np.c_[rng.normal(size=(frames, nr)), rng.uniform(-0.3, 1.3, (frames, nm))]
+    pts = (x_true @ a.T).reshape(frames, n_pts, 3) + rng.normal(0, 0.2, (frames, n_pts, 3))
+    strength = np.r_[np.zeros(nr), 3.0, 0.0, 300.0, 1.0]
+    prior = np.c_[np.zeros((frames, nr)), rng.uniform(0, 1, (frames, nm))]
+    ridge, temporal = 1e-3, 0.2
+    solver = LinearSolver(model, ridge=ridge, temporal=temporal, tolerance=1e-10, iterations=5000,
+                          prior_strength=strength)
+    x = solver.solve(pts, prior=prior)
+    scale = np.linalg.norm(a, axis=0)
+
+    def objective(flat):
+        z = flat.reshape(frames, -1)
+        r = (z / scale) @ a.T - pts.reshape(frames, -1)
+        return 0.5 * ((r**2).sum() + ridge * (z**2).sum() + temporal * ((z[1:] - z[:-1]) ** 2).sum()
+                      + (strength * (z / scale - prior) ** 2).sum())
+
+    bounds = [(0, scale[j]) if j >= nr else (None, None) for f in range(frames) for j in range(nr + nm)]
+    ref = minimize(objective, np.zeros(frames * (nr + nm)), bounds=bounds, method="L-BFGS-B",
+                   options={"maxiter": 50000, "ftol": 1e-15, "gtol": 1e-10})
+    np.testing.assert_allclose(x, ref.x.reshape(frames, -1) / scale, atol=1e-4)
+    assert x[:, nr:].min() >= 0.0 and x[:, nr:].max() <= 1.0 and x[:, :nr].min() < 0.0  # rigid: unbounded
+    # The strong prior holds its morph near its values; without a prior the fit drifts away.
+    free = LinearSolver(model, ridge=ridge, temporal=temporal, tolerance=1e-10, iterations=5000).solve(pts)
+    assert np.abs(x[:, nr + 2] - prior[:, nr + 2]).mean() < 0.3 * np.abs(free[:, nr + 2] - prior[:, nr + 2]).mean()
+
+
+def test_steadied_map_keeps_the_neutral_and_blends_the_motion():
+    """SteadiedMap: the neutral lands on the target's exactly; share 1 is the network,
+    share 0 the similarity of the two neutrals (a scaled, turned copy of the motion)."""
+    from capture2face.maths.rotations import rotation_ypr
+    from capture2face.retarget.arkit_solve import SteadiedMap, similarity
+
+    rng = np.random.default_rng(2)
+    src = rng.normal(size=(40, 3)) * [7, 9, 4]
+    rot = rotation_ypr(np.array([10.0, -5.0, 3.0]))
+    tgt = 1.3 * src @ rot.T + [1, 2, 3] + rng.normal(0, 0.3, src.shape)  # another face: a similar one, reshaped
+    net = fit_feature_map(src, tgt, kernel="cubic")
+    s, r = similarity(src, tgt)
+    assert abs(s - 1.3) < 0.05 and np.abs(r - rot).max() < 0.05
+    motion = src + rng.normal(0, 0.2, src.shape)
+    for share in (0.0, 0.5, 1.0):
+        m = SteadiedMap(net, np.full(len(src), share))
+        np.testing.assert_allclose(m(src), tgt, atol=1e-9)
+        expect = share * net(motion) + (1 - share) * (tgt + s * (motion - src) @ r.T)
+        np.testing.assert_allclose(m(motion[None])[0], expect, atol=1e-9)
+
+
 # ---- retarget ---------------------------------------------------------------------------
 
 def _bone_error_iod(anim, bones, rig):
@@ -323,3 +378,17 @@ def test_retarget_timing_is_measurable(rig, performance):
     best = retarget_ms_per_frame(track, rig, repeats=3)
     outside_ms = 1000.0 * (time.perf_counter() - start)
     assert outside_ms / 10 <= best * track.n_frames <= outside_ms / 3
+
+
+def test_pair_frames_weigh_a_pair_along_its_rest_direction():
+    """An expression pair's difference: its component along the rest direction in full,
+    across it scaled; a pair touching at rest (no direction) in full."""
+    from capture2face.retarget.arkit_solve import pair_frames
+
+    rest = np.array([[0.0, 1.0, 0.2], [3.0, 0.0, 0.0], [0.01, 0.0, 0.0]])
+    t = pair_frames(rest, 0.1, min_separation=0.1)
+    np.testing.assert_allclose(np.einsum("kij,kj->ki", t, rest)[:2, 0], np.linalg.norm(rest[:2], axis=1))
+    np.testing.assert_allclose(np.einsum("kij,kj->ki", t, rest)[:2, 1:], 0.0, atol=1e-12)
+    across = np.cross(rest[0], [1.0, 0.0, 0.0])  # a slide across the first pair
+    assert np.linalg.norm(t[0] @ across) == pytest.approx(0.1 * np.linalg.norm(across))
+    np.testing.assert_array_equal(t[2], np.eye(3))

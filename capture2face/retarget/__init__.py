@@ -8,7 +8,9 @@
    smoothness term (:mod:`capture2face.retarget.solve`). A character whose mesh has no
    per-landmark vertices (an imported one with only bone landmarks) takes the network's
    output at the bone landmarks as bone positions, and MediaPipe's scores as the weights
-   of its ARKit-named morphs.
+   of its ARKit-named morphs. An ARKit character (morphs, no face bones) has its morph
+   weights solved from its landmark points, with the clip's ARKit curves as the prior
+   (:mod:`capture2face.retarget.arkit_solve`).
 3. Wrinkle influences (Dutreve 2009 §5.1-5.2) and zone weights
    (:mod:`capture2face.rig.influences`).
 

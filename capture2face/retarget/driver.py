@@ -4,6 +4,7 @@ and morph weights window by window, and evaluates wrinkle influences and zone we
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 
@@ -14,6 +15,7 @@ from capture2face.errors import CaptureError
 from capture2face.retarget import gaze
 from capture2face.retarget.animation import Animation
 from capture2face.retarget.arkit import arkit_curves
+from capture2face.retarget.arkit_solve import EYE_CONTOURS, CurveShifted, SteadiedMap, arkit_point_weights, morph_solve
 from capture2face.retarget.rbf import FeatureMap, fit_feature_map
 from capture2face.retarget.solve import LinearSolver, linear_rig_model
 from capture2face.retarget.windows import MappedPoints, SpilledMedian, frame_windows
@@ -63,6 +65,17 @@ class RetargetOptions:
         eye_radius_iod: the actor's distance from eye centre to iris in inter-ocular
             distances, which turns the irises' motion into angles
             (:func:`capture2face.retarget.gaze.eye_rotation`); a human's by default.
+        arkit_prior: an ARKit character (:mod:`capture2face.retarget.arkit_solve`): weight
+            (cm^2, the fit's units) of |w - curve|^2 pulling each solved morph towards its
+            ARKit curve.
+        arkit_morph_ridge, arkit_sparsity: ``morph_ridge`` and ``sparsity`` of its solve.
+        arkit_min_motion: a morph moving no landmark by more than this (inter-ocular
+            distances) takes its curve.
+        arkit_other_weight: a-priori weight of the landmarks off the features' contours.
+        arkit_pair_weight: a-priori weight of each expression pair's difference.
+        arkit_pair_across: its weight across the pair's rest direction against along it.
+        arkit_network_share, arkit_eye_share: the network's share of the mapped motion (the
+            rest: the faces' similarity), off the eyes and on their lids.
     """
 
     kernel: str = "cubic"
@@ -86,6 +99,15 @@ class RetargetOptions:
     window_frames: int = 1000
     window_overlap: int = 100
     eye_radius_iod: float = gaze.HUMAN_RADIUS_IOD
+    arkit_prior: float = 0.1
+    arkit_morph_ridge: float = 0.001
+    arkit_sparsity: float = 0.0
+    arkit_min_motion: float = 0.02
+    arkit_other_weight: float = 0.1
+    arkit_pair_weight: float = 30.0
+    arkit_pair_across: float = 0.1
+    arkit_network_share: float = 0.5
+    arkit_eye_share: float = 1.0
 
 
 def shared_blendshapes(morph_names: list[str], blendshape_names: list[str]) -> list[tuple[int, int]]:
@@ -154,10 +176,44 @@ def _fit_network(track, rig, landmarks, target, options: RetargetOptions) -> Fea
     )
 
 
-def _joint_solver(model, options: RetargetOptions, landmark_weights, morph_ridge: float, sparsity: float) -> LinearSolver:
+def _joint_solver(model, options: RetargetOptions, landmark_weights, morph_ridge: float, sparsity: float,
+                  prior_strength: np.ndarray | None = None) -> LinearSolver:
     return LinearSolver(model, ridge=options.ridge, temporal=options.temporal_smoothness,
                         morph_ridge=morph_ridge, sparsity=sparsity,
-                        axis_weights=(1.0, 1.0, options.depth_weight), landmark_weights=landmark_weights)
+                        axis_weights=(1.0, 1.0, options.depth_weight), landmark_weights=landmark_weights,
+                        prior_strength=prior_strength)
+
+
+def solve_windows(mapped, model, point_weights: np.ndarray, options: RetargetOptions, neutral: int | None,
+                  prior: np.ndarray | None = None, prior_strength: np.ndarray | None = None):
+    """Yield (window, x (k, n)) for every window of ``mapped``: the joint solve of the
+    :class:`~capture2face.retarget.solve.LinearRigModel`'s unknowns, after the reliability
+    passes (which fit without the prior).
+
+    Args:
+        mapped: target feature points by window (:class:`MappedPoints` or alike).
+        point_weights: (N,) a-priori weight of each feature point
+            (:func:`landmark_prior_weights`).
+        prior: (F, n) values the unknowns are pulled towards with ``prior_strength`` (n,).
+    """
+    prior_w = np.asarray(point_weights, np.float64)
+    lw = prior_w
+    # Reliability passes fit with weak morph priors: their residual is what the rig
+    # cannot explain (tracker error), not motion the priors hold back, so a
+    # perfect track keeps uniform weights. A short ADMM is enough for residuals (the
+    # unbounded fit is worse: negative morphs soak up the tracker's error).
+    for _ in range(options.reweight_iterations):
+        solver = _joint_solver(model, options, lw, morph_ridge=1e-4, sparsity=0.0)
+        solver.iterations = RELIABILITY_ADMM_ITERATIONS
+        with SpilledMedian(len(prior_w)) as r2:
+            for w in mapped.windows:
+                pts = mapped.read(w)
+                r2.add(_residual2(model, solver.solve(pts, pin=w.pin(neutral))[w.own], pts[w.own]))
+            lw = prior_w * _reliability(r2.median(), options.reweight_floor)
+    solver = _joint_solver(model, options, lw, options.morph_ridge, options.sparsity, prior_strength)
+    for w in mapped.windows:
+        yield w, solver.solve(mapped.read(w), pin=w.pin(neutral),
+                              prior=None if prior is None else prior[w.start:w.stop])
 
 
 class _Blend:
@@ -202,24 +258,8 @@ def solve_bones_weights(mapped: MappedPoints, rig, landmarks: np.ndarray, per_ve
     vertices = np.asarray(rig.landmark_vertices)[landmarks]
     if options.joint_solve:
         model = linear_rig_model(rig, vertices, solve_morphs=solve_w)
-        prior_w = landmark_prior_weights(landmarks, options)
-        lw = prior_w
-        # Reliability passes fit with weak morph priors: their residual is what the rig
-        # cannot explain (tracker error), not motion the priors hold back, so a
-        # perfect track keeps uniform weights. A short ADMM is enough for residuals (the
-        # unbounded fit is worse: negative morphs soak up the tracker's error).
-        for _ in range(options.reweight_iterations):
-            solver = _joint_solver(model, options, lw, morph_ridge=1e-4, sparsity=0.0)
-            solver.iterations = RELIABILITY_ADMM_ITERATIONS
-            with SpilledMedian(len(landmarks)) as r2:
-                for w in mapped.windows:
-                    pts = mapped.read(w)
-                    r2.add(_residual2(model, solver.solve(pts, pin=w.pin(neutral))[w.own], pts[w.own]))
-                lw = prior_w * _reliability(r2.median(), options.reweight_floor)
-        solver = _joint_solver(model, options, lw, options.morph_ridge, options.sparsity)
         nb = model.n_bone_vars
-        for w in mapped.windows:
-            x = solver.solve(mapped.read(w), pin=w.pin(neutral))
+        for w, x in solve_windows(mapped, model, landmark_prior_weights(landmarks, options), options, neutral):
             bones = np.repeat(rest[None], len(x), 0)
             bones[:, model.free_bones] += x[:, :nb].reshape(len(x), -1, 3)
             weights = None
@@ -300,17 +340,56 @@ def _retarget(track, rig, options: RetargetOptions) -> Animation:
 
 
 def _retarget_arkit(track, rig, options: RetargetOptions) -> Animation:
-    """A character without face bones: its ARKit-named morphs (any spelling, on every
-    mesh that has them) take the clip's ARKit curves, which already have ARKit meaning
-    (:func:`~capture2face.retarget.arkit.arkit_curves`); bones stay at rest (the head
-    rotation is the animation's head pose)."""
+    """A character without face bones: its morph weights are solved from the feature
+    points, with the clip's ARKit curves (which already have ARKit meaning,
+    :func:`~capture2face.retarget.arkit.arkit_curves`) as the prior and as the weights of
+    what the points cannot see (:mod:`capture2face.retarget.arkit_solve`); without
+    landmark points on its skin (or ``solve_blend_weights`` off) its ARKit-named morphs
+    take the curves. Bones stay at rest (the head rotation is the animation's head pose)."""
     curves = arkit_curves(track)
     weights = arkit_weights(list(track.blendshape_names), curves, rig.morph_names)
+    landmarks = _skin_landmarks(rig)
+    if options.solve_blend_weights and landmarks is not None:
+        weights = _solve_arkit_weights(track, rig, landmarks, weights, options)
     bones = np.repeat(rig.bone_rest[None].astype(np.float32), track.n_frames, 0)
     # Automatic feature points (character.auto_wrinkles) measure the influences where the
     # morphs carry them; as bones they stay at rest (the morphs deform the face).
     return _animation(track, rig, bones, weights, curves, options,
                       influence_bones=_per_frame(lambda w: feature_positions(rig, w), weights))
+
+
+def _skin_landmarks(rig) -> np.ndarray | None:
+    """(N,) the tracker landmarks on the rig's skin, or None when it has too few of them
+    (a character imported without its landmarks cast)."""
+    try:
+        landmarks, _, per_vertex = feature_correspondence(rig)
+    except CaptureError:
+        return None
+    return landmarks if per_vertex else None
+
+
+def _solve_arkit_weights(track, rig, landmarks: np.ndarray, prior: np.ndarray, options: RetargetOptions) -> np.ndarray:
+    """(F, M) float32 morph weights of an ARKit character solved from the mapped feature
+    points at ``landmarks`` (N,), ``prior`` (F, M) the curves as morph weights."""
+    solve = morph_solve(rig, landmarks, options.arkit_min_motion, options.arkit_pair_across)
+    point_weights = arkit_point_weights(landmarks, landmark_prior_weights(landmarks, options),
+                                        options.arkit_other_weight, options.arkit_pair_weight)
+    options = dataclasses.replace(options, morph_ridge=options.arkit_morph_ridge, sparsity=options.arkit_sparsity)
+    network = SteadiedMap(_fit_network(track, rig, landmarks, solve.model.rest[:len(landmarks)], options),
+                          np.where(np.isin(landmarks, EYE_CONTOURS), options.arkit_eye_share, options.arkit_network_share))
+    windows = frame_windows(track.n_frames, options.window_frames, options.window_overlap)
+    weights = np.zeros_like(prior)
+    weights[:, solve.fixed] = prior[:, solve.fixed]
+    solved, nf = solve.model.morphs, solve.model.n_free_vars
+    strength = np.zeros(solve.model.matrix.shape[1])
+    strength[nf:] = options.arkit_prior
+    prior_x = np.zeros((track.n_frames, len(strength)), np.float32)
+    prior_x[:, nf:] = prior[:, solved]
+    with MappedPoints(track.landmarks_head, network, landmarks, windows, 1 + options.reweight_iterations) as mapped:
+        for w, x in solve_windows(CurveShifted(mapped, solve, prior), solve.model, point_weights, options,
+                                  track.neutral_frame, prior=prior_x, prior_strength=strength):
+            weights[w.start:w.stop, solved] += (w.fade[:, None] * x[:, nf:]).astype(np.float32)
+    return weights
 
 
 def _gaze(track, options: RetargetOptions) -> np.ndarray | None:

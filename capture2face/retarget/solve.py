@@ -9,6 +9,9 @@ so the retargeted feature points are *linear* in the unknowns x = (t_1..t_{B-1},
 
     min_x |A x - b_f|^2_W + ridge |x|^2 + temporal |x_f - x_{f-1}|^2,   0 <= w <= 1
 
+optionally with a prior, ``sum_i s_i (x_i - p_fi)^2`` (per-unknown strengths s, per-frame
+values p: an ARKit character's morphs pulled towards the clip's ARKit curves),
+
 over all frames of a window at once (W: per-feature-point reliability weights; windows:
 :mod:`capture2face.retarget.windows`). Why jointly rather than "bone = its mapped landmark": a bone's
 landmark vertex moves by sum_i W_vi t_i, not by its own t_i, so copying landmark motion
@@ -41,16 +44,24 @@ class LinearRigModel:
             xyz interleaved per bone), then morph weights of ``morphs``).
         free_bones: (Bf,) indices of the bones solved for.
         morphs: (Ms,) indices of the morphs solved for.
+        n_rigid: unbounded unknowns between the bones' and the morphs' (an ARKit
+            character's residual head motion, :mod:`capture2face.retarget.arkit_solve`).
     """
 
     rest: np.ndarray
     matrix: np.ndarray
     free_bones: np.ndarray
     morphs: np.ndarray
+    n_rigid: int = 0
 
     @property
     def n_bone_vars(self) -> int:
         return 3 * len(self.free_bones)
+
+    @property
+    def n_free_vars(self) -> int:
+        """Unknowns without bounds (bones, then rigid motion); the morphs' follow."""
+        return self.n_bone_vars + self.n_rigid
 
 
 def linear_rig_model(rig, vertices: np.ndarray, solve_morphs: bool = True) -> LinearRigModel:
@@ -97,6 +108,7 @@ class LinearSolver:
     rho: float = 1.0
     iterations: int = 200
     tolerance: float = 1e-3
+    prior_strength: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self._cache: dict = {}
@@ -111,9 +123,11 @@ class LinearSolver:
         self.a = a / self.scale
         n = a.shape[1]
         self.bounded = np.zeros(n, bool)
-        self.bounded[self.model.n_bone_vars:] = True
+        self.bounded[self.model.n_free_vars:] = True
         ridge = np.full(n, self.ridge)
         ridge[self.bounded] = self.ridge if self.morph_ridge is None else self.morph_ridge
+        if self.prior_strength is not None:  # s (x - p)^2 = (s / scale^2) (z - p scale)^2
+            ridge = ridge + np.asarray(self.prior_strength, np.float64) / self.scale**2
         gram = self.a.T @ self.a + np.diag(ridge)
         # Unconstrained factorisation and the ADMM one (rho only on bounded unknowns).
         self.eig_free = np.linalg.eigh(gram)
@@ -149,13 +163,15 @@ class LinearSolver:
             y[:, pin] = 0.0
         return u @ y
 
-    def solve(self, points: np.ndarray, pin: int | None = None) -> np.ndarray:
+    def solve(self, points: np.ndarray, pin: int | None = None, prior: np.ndarray | None = None) -> np.ndarray:
         """Unknowns for every frame.
 
         Args:
             points: (F, N, 3) target feature points.
             pin: a frame whose unknowns are held at exactly 0 (the neutral frame: rest
                 bones, no morphs), whatever the smoothness term says.
+            prior: (F, n) values the unknowns are pulled towards with ``prior_strength``
+                (None: towards 0, i.e. no prior).
         Returns:
             (F, n) x = bone translations (cm) then morph weights in [0, 1].
         """
@@ -164,6 +180,8 @@ class LinearSolver:
         rhs = self.a.T @ b  # (n, F)
         # L1 prior on the (non-negative) morph weights: a constant pull towards 0.
         rhs[self.bounded] -= self.sparsity
+        if prior is not None and self.prior_strength is not None:
+            rhs += (np.asarray(self.prior_strength, np.float64) / self.scale)[:, None] * np.asarray(prior, np.float64).T
         z = self._solve(self.eig_free, rhs, pin)
         if self.bounded.any() and self._violates(z):
             z = self._admm(rhs, z, pin)

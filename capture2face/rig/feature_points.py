@@ -55,3 +55,18 @@ def feature_positions(rig: FaceRig, blend_weights: np.ndarray) -> np.ndarray:
         deltas = deltas.reshape(rig.n_morphs, -1).astype(np.float32)
     out[:, auto] += (weights @ deltas).reshape(len(weights), len(auto), 3)
     return out
+
+
+def landmark_basis(rig: FaceRig, landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where the rig's tracker landmarks sit and how its morphs move them: the linear model
+    an ARKit character's morph weights are solved through.
+
+    Args:
+        landmarks: (N,) tracker landmark indices (each with a vertex on the rig).
+    Returns:
+        rest (N, 3) float64 positions and deltas (M, N, 3) float64 per morph target.
+    """
+    verts, bary, _ = landmark_support(rig, landmarks)  # on their triangles (or vertices)
+    rest = landmark_points(rig, rig.vertices.astype(np.float64), landmarks)
+    deltas = np.einsum("mnjc,nj->mnc", rig.morph_positions[:, verts].astype(np.float64), bary)
+    return rest, deltas

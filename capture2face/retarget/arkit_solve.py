@@ -1,0 +1,244 @@
+"""Dutreve's retargeting onto an ARKit character (ARKit-named morphs, no face bones).
+
+The feature-point network maps the actor's landmarks onto the character's landmark points
+(as for any rig); the character's morph weights are then solved, bounded to [0, 1], so
+that its landmark points follow the mapped ones (:mod:`capture2face.retarget.solve`,
+morphs only: the model is :func:`~capture2face.rig.feature_points.landmark_basis`).
+
+The clip's ARKit curves (:func:`~capture2face.retarget.arkit.arkit_curves`) are the prior:
+
+* morphs the feature points cannot see take their curve as it is (:data:`CURVE_ONLY`: the
+  cheeks' puff, the lips' roll, the tongue, the eyes' look morphs, whose lid motion is
+  the gaze's and not an expression; and any morph that moves no landmark by more than
+  ``min_motion`` inter-ocular distances); their motion is taken off the mapped points
+  before the solve, so the solved morphs explain only the rest;
+* the solved morphs are pulled towards their curves, ``strength |w - curve|^2`` (in
+  the fit's units, cm^2): where several morphs could explain the same landmark motion
+  (a smile or a cheek squint), the one the tracker's scores name wins.
+
+What is fitted: the landmark points, those on the features' contours
+(:data:`FEATURE_CONTOURS`) weighing most, and the differences of the
+:data:`EXPRESSION_PAIRS` (lids, lips, mouth corners, brows against the eyes), whose motion
+a morph basis shaped for the whole face would otherwise trade for the many points around
+them. Six unbounded unknowns take the rigid head motion that the pose removal leaves in
+the landmarks (:func:`rigid_columns`: the default avatar's bones follow it, no morph
+can); they are solved and dropped. The network's output is steadied by the two faces'
+similarity (:class:`SteadiedMap`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from capture2face.retarget.solve import LinearRigModel
+from capture2face.rig.arkit_names import arkit_morphs
+from capture2face.rig.feature_points import landmark_basis
+
+#: ARKit morphs driven by their curves alone: the tracker's landmarks do not show them
+#: (a puffed cheek, a rolled lip, the tongue) or show them as something else (the eyes'
+#: look morphs move the lids with the gaze).
+CURVE_ONLY = frozenset({
+    "cheekPuff", "tongueOut", "mouthRollLower", "mouthRollUpper",
+    "eyeLookDownLeft", "eyeLookDownRight", "eyeLookInLeft", "eyeLookInRight",
+    "eyeLookOutLeft", "eyeLookOutRight", "eyeLookUpLeft", "eyeLookUpRight",
+})
+
+
+#: MediaPipe's contours of the features (lips, eyes, brows, the nose's wings): the points an
+#: expression moves (the rest, the cheeks, forehead and silhouette, carry the tracker's
+#: noise as much).
+FEATURE_CONTOURS = np.array([
+    61, 146, 91, 181, 84, 17, 314, 405, 321, 375, 291, 185, 40, 39, 37, 0, 267, 269, 270, 409,  # outer lips
+    78, 95, 88, 178, 87, 14, 317, 402, 318, 324, 308, 191, 80, 81, 82, 13, 312, 311, 310, 415,  # inner lips
+    263, 249, 390, 373, 374, 380, 381, 382, 362, 466, 388, 387, 386, 385, 384, 398,  # left eye
+    33, 7, 163, 144, 145, 153, 154, 155, 133, 246, 161, 160, 159, 158, 157, 173,  # right eye
+    276, 283, 282, 295, 285, 300, 293, 334, 296, 336, 46, 53, 52, 65, 55, 70, 63, 105, 66, 107,  # brows
+    48, 64, 98, 102, 240, 278, 294, 327, 331, 460,  # the nose's wings (a sneer)
+])
+#: The eyes' contours (both lids): their motion is the network's (:class:`SteadiedMap`).
+EYE_CONTOURS = FEATURE_CONTOURS[40:72]
+#: Landmark pairs whose relative motion is an expression: the lids apart (three columns per
+#: eye), the inner lips apart (three columns), the mouth's corners, each brow (inner, middle,
+#: outer) against its eye's corners. Fitted as extra points (the pair's difference), so a
+#: global morph basis does not trade them for the many points around them.
+EXPRESSION_PAIRS = np.array([
+    (159, 145), (158, 153), (160, 144), (386, 374), (385, 380), (387, 373),
+    (13, 14), (82, 87), (312, 317), (61, 291),
+    (105, 33), (107, 133), (70, 33), (334, 263), (336, 362), (300, 263),
+])
+
+
+#: Inter-ocular distances: a pair closer at rest is fitted in full (:func:`pair_frames`).
+MIN_PAIR_SEPARATION = 0.1
+
+
+@dataclass
+class MorphSolve:
+    """The linear model of an ARKit character's landmark points.
+
+    Attributes:
+        model: rest (N, 3) and d(points)/d(w) of the solved morphs (``model.morphs``).
+        fixed: (Mf,) morphs that take their curve (:data:`CURVE_ONLY`, or moving no
+            landmark; a morph without an ARKit name has a curve of 0).
+        fixed_deltas: (Mf, N, 3) their landmark deltas.
+        pairs: (K, 2) slots (into the N landmarks) of the :data:`EXPRESSION_PAIRS` the rig
+            has: the model's points are the N landmarks, then the K differences.
+        pair_frames: (K, 3, 3) each difference's operator (:func:`pair_frames`), or None.
+    """
+
+    model: LinearRigModel
+    fixed: np.ndarray
+    fixed_deltas: np.ndarray
+    pairs: np.ndarray
+    pair_frames: np.ndarray | None = None
+
+    def points(self, landmark_points: np.ndarray) -> np.ndarray:
+        """(..., N + K, 3) the model's points of (..., N, 3) landmark points."""
+        a, b = self.pairs[:, 0], self.pairs[:, 1]
+        diff = landmark_points[..., a, :] - landmark_points[..., b, :]
+        if self.pair_frames is not None:
+            diff = np.einsum("kij,...kj->...ki", self.pair_frames, diff)
+        return np.concatenate([landmark_points, diff], -2)
+
+
+def pair_frames(rest_diff: np.ndarray, across: float, min_separation: float) -> np.ndarray:
+    """(K, 3, 3) operators taking a pair's difference (K pairs, ``rest_diff`` (K, 3) at
+    rest) to (its component along its rest direction, ``across`` times the two across it);
+    the identity for a pair closer than ``min_separation`` at rest (touching lips: no
+    direction to speak of).
+
+    A pair's separation is the expression (the lids', a brow's height above its eye, the
+    mouth's width); how its two points slide across each other is where a character's
+    morphs and the tracker's landmarks disagree most (an ICT head's blink moves its upper
+    lid's landmark sideways against the lower's), and fitting it in full held the
+    separations back (brow and eye gains 0.64-0.79 instead of 0.8-1.1 on the ICT heads)."""
+    dist = np.linalg.norm(rest_diff, axis=1, keepdims=True)
+    u = rest_diff / np.maximum(dist, 1e-9)
+    helper = np.where(np.abs(u[:, [0]]) < 0.9, np.array([1.0, 0, 0]), np.array([0, 1.0, 0]))
+    v = np.cross(u, helper)
+    v /= np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-9)
+    w = np.cross(u, v)
+    frames = np.stack([u, across * v, across * w], 1)
+    frames[dist[:, 0] < min_separation] = np.eye(3)
+    return frames
+
+
+def expression_pairs(landmarks: np.ndarray) -> np.ndarray:
+    """(K, 2) slots into ``landmarks`` (N,) of the :data:`EXPRESSION_PAIRS` it holds."""
+    slot = {int(l): i for i, l in enumerate(landmarks)}
+    return np.array([(slot[a], slot[b]) for a, b in EXPRESSION_PAIRS if a in slot and b in slot], np.int64).reshape(-1, 2)
+
+
+def arkit_point_weights(landmarks: np.ndarray, landmark_weights: np.ndarray, other: float, pair: float) -> np.ndarray:
+    """(N + K,) a-priori weights of the model's points: ``landmark_weights`` (N,) times
+    ``other`` off the :data:`FEATURE_CONTOURS`, then ``pair`` for each expression pair."""
+    w = np.where(np.isin(landmarks, FEATURE_CONTOURS), 1.0, other) * landmark_weights
+    return np.concatenate([w, np.full(len(expression_pairs(landmarks)), pair)])
+
+
+def morph_solve(rig, landmarks: np.ndarray, min_motion: float, across: float = 1.0) -> MorphSolve:
+    """Split the rig's morphs into solved and curve-only ones at ``landmarks`` (N,).
+
+    Args:
+        min_motion: inter-ocular distances; a morph whose largest landmark motion is below
+            it is curve-only.
+        across: weight (of the residual, not squared) of an expression pair's difference
+            across its rest direction against along it (:func:`pair_frames`).
+    """
+    rest, deltas = landmark_basis(rig, landmarks)
+    motion = np.linalg.norm(deltas, axis=2).max(1) if len(landmarks) else np.zeros(rig.n_morphs)
+    named = arkit_morphs(rig.morph_names)
+    fixed = np.array([named.get(m) in CURVE_ONLY or motion[m] < min_motion * rig.interocular()
+                      for m in range(rig.n_morphs)], bool)
+    # Only ARKit morphs are solved: others (visemes, a character's extras) have no curve to
+    # say which of two look-alike shapes is meant, and stay 0.
+    solved = np.flatnonzero(~fixed & np.isin(np.arange(rig.n_morphs), list(named)))
+    pairs = expression_pairs(landmarks)
+    out = MorphSolve(model=None, fixed=np.flatnonzero(fixed), fixed_deltas=deltas[fixed],
+                     pairs=pairs, pair_frames=pair_frames(rest[pairs[:, 0]] - rest[pairs[:, 1]], across,
+                                                        MIN_PAIR_SEPARATION * rig.interocular()))
+    n = len(landmarks)
+    columns = np.concatenate([rigid_columns(rest), deltas[solved].reshape(len(solved), -1).T], 1)  # (3N, 6 + Ms)
+    # Each column is a motion of the N points: its pair differences follow from it.
+    matrix = np.moveaxis(out.points(np.moveaxis(columns.reshape(n, 3, -1), -1, 0)), 0, -1).reshape(-1, columns.shape[1])
+    out.model = LinearRigModel(rest=out.points(rest), matrix=matrix, free_bones=np.zeros(0, np.int64),
+                               morphs=solved, n_rigid=6)
+    return out
+
+
+def rigid_columns(rest: np.ndarray) -> np.ndarray:
+    """(3N, 6) d(points)/d(translation, small rotation about the centroid) of ``rest``
+    (N, 3): the head motion the pose removal leaves in the landmarks, which no morph
+    explains (the default avatar's bones follow it; here it is solved and dropped)."""
+    p = rest - rest.mean(0)
+    n = len(p)
+    cols = np.zeros((n, 3, 6))
+    cols[:, :, :3] = np.eye(3)
+    for k in range(3):  # d(omega x p)/d(omega_k) = e_k x p
+        cols[:, :, 3 + k] = np.cross(np.eye(3)[k], p)
+    return cols.reshape(3 * n, 6)
+
+
+def similarity(source: np.ndarray, target: np.ndarray) -> tuple[float, np.ndarray]:
+    """Scale and rotation (3, 3) of the least-squares similarity from ``source`` (N, 3) onto
+    ``target`` (N, 3) (Umeyama)."""
+    a, b = source - source.mean(0), target - target.mean(0)
+    u, sv, vt = np.linalg.svd(b.T @ a)
+    d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
+    return float((sv * np.diag(d)).sum() / max((a * a).sum(), 1e-12)), u @ d @ vt
+
+
+class SteadiedMap:
+    """The feature-point network, its motion blended with a similarity's: ``share`` of each
+    frame's motion away from the neutral as the network maps it, the rest as the whole
+    face's similarity (scale and rotation from the actor's neutral onto the character's)
+    carries it. The neutral still lands on the character's neutral exactly.
+
+    Why: the network's local stretch comes from where the landmarks sit on the character,
+    which on a third-party head is a cast (:mod:`capture2face.character.landmarks`), not a
+    hand-placed correspondence: a landmark row cast a little closer to its neighbours
+    shrinks the motion between them (brows rose 0.66 as much as the actor's on an ICT head).
+    The similarity keeps motion in proportion to the face's size; the network keeps what
+    the character's shape says (a wider eye closes over a longer way).
+
+    Args:
+        network: :class:`~capture2face.retarget.rbf.FeatureMap`.
+        share: the network's share of the motion (1: the network alone).
+    """
+
+    def __init__(self, network, share):
+        self.network, self.share = network, np.asarray(share, np.float64)[..., None]
+        self.scale, self.rotation = similarity(network.source_neutral, network.target_neutral)
+
+    def __call__(self, source_points: np.ndarray) -> np.ndarray:
+        pts = np.asarray(source_points, np.float64)
+        mapped = self.network(pts)
+        if np.all(self.share >= 1.0):
+            return mapped
+        rigid = self.network.target_neutral + self.scale * (pts - self.network.source_neutral) @ self.rotation.T
+        return self.share * mapped + (1.0 - self.share) * rigid
+
+
+class CurveShifted:
+    """Mapped feature points with the curve-only morphs' motion taken off, by window.
+
+    Args:
+        mapped: :class:`~capture2face.retarget.windows.MappedPoints`.
+        solve: the :class:`MorphSolve`.
+        prior: (F, M) the curves as morph weights.
+    """
+
+    def __init__(self, mapped, solve: MorphSolve, prior: np.ndarray):
+        self.mapped, self.solve, self.prior = mapped, solve, prior
+        self.windows, self.frames = mapped.windows, mapped.frames
+
+    def read(self, w) -> np.ndarray:
+        """(k, N + K, 3) the model's points of the window's frames."""
+        pts = self.mapped.read(w)
+        d = self.solve.fixed_deltas
+        if len(d):
+            shift = (self.prior[w.start:w.stop, self.solve.fixed].astype(np.float64) @ d.reshape(len(d), -1))
+            pts = pts - shift.reshape(pts.shape)
+        return self.solve.points(pts)
