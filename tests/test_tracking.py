@@ -433,3 +433,31 @@ def test_head_motion_alone_barely_moves_head_coordinates(synth_head_only):
     iod = np.linalg.norm(truth.landmarks_head[0, EYES[0]] - truth.landmarks_head[0, EYES[1]])
     moved = np.linalg.norm(head - np.median(head, axis=0), axis=-1) / iod
     assert np.median(moved) <= 0.01
+
+
+def test_still_images_are_landmarked_each_on_its_own():
+    """IMAGE mode (a character's front views): an image's landmarks do not depend on the
+    image before it, and follow the face when it moves; VIDEO mode pulled a mouth-open
+    view's lips towards the closed mouth tracked just before."""
+    from capture2face.camera import framing_pose
+    from capture2face.render import FrameState, Renderer, RenderOptions
+    from capture2face.rig.avatar import default_avatar
+
+    rig = default_avatar()
+    opts = RenderOptions(size=384, wrinkles="off")
+    pose = framing_pose(rig, fov_y_degrees=opts.fov_y_degrees)
+    opened = np.zeros(rig.n_morphs, np.float32)
+    opened[rig.morph_index("jawOpen")] = 1.0
+    with Renderer(rig, opts) as renderer:
+        rest = renderer.render(FrameState(rig.bone_rest.copy(), np.zeros(rig.n_morphs, np.float32), pose))
+        mouth = renderer.render(FrameState(rig.bone_rest.copy(), opened, pose))
+    shifted = np.roll(mouth, 6, axis=1)  # the face 6 px to the right
+    with FaceLandmarker.create_from_options(LandmarkerOptions(num_faces=1, still_images=True)) as lm:
+        alone = lm.detect(mouth, 0.0).landmarks_px
+    with FaceLandmarker.create_from_options(LandmarkerOptions(num_faces=1, still_images=True)) as lm:
+        lm.detect(rest, 0.0)
+        after_rest = lm.detect(mouth, 0.0).landmarks_px
+        moved = lm.detect(shifted, 0.0).landmarks_px
+    np.testing.assert_allclose(after_rest, alone, atol=1e-3)
+    assert abs(np.median(moved[:, 0] - alone[:, 0]) - 6.0) < 0.5
+    assert np.linalg.norm(alone[14] - alone[13]) > 10.0  # the open mouth seen open

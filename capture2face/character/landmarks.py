@@ -2,6 +2,11 @@
 tracked with the clips' tracker, each landmark cast onto the skin's surface (a point on a
 triangle, barycentric).
 
+* **Steady**: each view is tracked as still images (MediaPipe's IMAGE mode: VIDEO mode's
+  smoothing pulled the mouth-open view's lips towards the closed mouth before it), nine
+  times, shifted by up to a pixel, and each landmark is the median: one image's landmarks
+  move by tenths of a pixel with any change of its pixels, so the same face from another
+  tool (quantized positions) would land a millimetre elsewhere.
 * **Skin only**: the landmarks land on skin triangles (irises on the eyes), never on
   eyeballs, teeth, the mouth cavity, or see-through overlays in front of the face (lash and
   hair cards, glasses: ``FaceRig.overlay_vertices``).
@@ -57,6 +62,8 @@ OPENED_VIEWS = (
     (("eyeWideLeft", "eyeWideRight"), {"eye_right": EYELIDS_RIGHT, "eye_left": EYELIDS_LEFT}, (1.0,), False,
      "eyes opened by eyeWide (eyelids)"),
 )
+# Shifts (px) of each tracked view: the landmarks are the median over them (_steady_landmarks).
+JITTER_PX = tuple((dx, dy) for dx in (-1.0, 0.0, 1.0) for dy in (-1.0, 0.0, 1.0))
 # Search radius (px) around a landmark for triangles to land on.
 SEARCH_PX = 12.0
 # A surface further than this (in inter-ocular distances) from the depth the tracker gives
@@ -117,7 +124,7 @@ def find_surface_landmarks(rig: FaceRig) -> SurfaceLandmarks:
     pose = framing_pose(rig, fov_y_degrees=fov)
     by_name = {a: m for m, a in arkit_morphs(rig.morph_names).items()}
     with Renderer(rig, opts) as renderer, \
-            FaceLandmarker.create_from_options(LandmarkerOptions(num_faces=1)) as landmarker:
+            FaceLandmarker.create_from_options(LandmarkerOptions(num_faces=1, still_images=True)) as landmarker:
         rest = _tracked_view(renderer, landmarker, rig, pose)
         if rest is None:
             raise CaptureError(f"character '{rig.name}': the tracker finds no face in its front view")
@@ -154,12 +161,32 @@ def _tracked_view(renderer: Renderer, landmarker, rig: FaceRig, pose: np.ndarray
     0, or None where the tracker finds no face."""
     weights = np.zeros(rig.n_morphs, np.float32)
     weights[list(morphs)] = weight
-    obs = landmarker.detect(renderer.render(FrameState(rig.bone_rest.copy(), weights, pose)), 0.0)
-    if obs is None:
+    found = _steady_landmarks(landmarker, renderer.render(FrameState(rig.bone_rest.copy(), weights, pose)))
+    if found is None:
         return None
     verts, normals = deform(rig, rig.bone_rest, weights)
-    return _View(np.asarray(verts, np.float64), np.asarray(normals, np.float64), pose, obs.landmarks_px.astype(np.float64),
-                 obs.depth.astype(np.float64))
+    return _View(np.asarray(verts, np.float64), np.asarray(normals, np.float64), pose, *found)
+
+
+def _steady_landmarks(landmarker, image: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(L, 2) landmarks (px) and (L,) relative depths of ``image``, each the median over the
+    image shifted by :data:`JITTER_PX` (shifts undone), or None where the tracker finds no
+    face in most of them (``landmarker``: still-image mode)."""
+    import cv2
+
+    px, depth = [], []
+    for dx, dy in JITTER_PX:
+        shift = np.float32([[1, 0, dx], [0, 1, dy]])
+        moved = image if dx == dy == 0 else cv2.warpAffine(image, shift, image.shape[1::-1],
+                                                           flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        obs = landmarker.detect(moved, 0.0)
+        if obs is None:
+            continue
+        px.append(obs.landmarks_px.astype(np.float64) - (dx, dy))
+        depth.append(obs.depth.astype(np.float64))
+    if len(px) * 2 <= len(JITTER_PX):  # a face in fewer than half of them: none
+        return None
+    return np.median(px, axis=0), np.median(depth, axis=0)
 
 
 def _cast_view(rig: FaceRig, view: _View, fov_y_degrees: float) -> SurfaceLandmarks:

@@ -66,6 +66,9 @@ class LandmarkerOptions:
         probe_every, settle_frames: see the module docstring.
         min_detection_confidence, min_presence_confidence, min_tracking_confidence:
             MediaPipe's thresholds.
+        still_images: each image on its own (MediaPipe's IMAGE mode): no tracking from
+            the image before, none of VIDEO mode's smoothing, which pulls an image's
+            landmarks towards the previous image's (renders of a character, not a clip).
     """
 
     face_model: str | os.PathLike | None = None
@@ -77,6 +80,7 @@ class LandmarkerOptions:
     min_detection_confidence: float = 0.5
     min_presence_confidence: float = 0.5
     min_tracking_confidence: float = 0.5
+    still_images: bool = False
 
     def validate(self) -> None:
         """The face choice: one line ``CaptureError`` each, named after the command line's
@@ -188,7 +192,7 @@ def _mediapipe_landmarker(model, options: LandmarkerOptions, num_faces: int):
 
     mp_options = vision.FaceLandmarkerOptions(
         base_options=BaseOptions(model_asset_path=str(model)),
-        running_mode=vision.RunningMode.VIDEO,
+        running_mode=vision.RunningMode.IMAGE if options.still_images else vision.RunningMode.VIDEO,
         num_faces=num_faces,
         min_face_detection_confidence=options.min_detection_confidence,
         min_face_presence_confidence=options.min_presence_confidence,
@@ -270,6 +274,12 @@ class FaceLandmarker:
         self._last_ms = ms
         image = mp.Image(image_format=mp.ImageFormat.SRGB, data=np.ascontiguousarray(rgb))
         h, w = rgb.shape[:2]
+        if self.options.still_images:
+            result = self._lm.detect(image)
+            norms = self._norms(result)
+            self.n_faces_max = max(self.n_faces_max, len(norms))
+            k = self._choose(norms, w, h) if norms else None
+            return None if k is None else self._observation(result, norms, w, h, k)
         if self._use_single:
             self.prepare()
             result = self._single.detect_for_video(image, ms)
