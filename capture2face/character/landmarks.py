@@ -3,7 +3,7 @@ tracked with the clips' tracker, each landmark cast onto the skin's surface (a p
 triangle, barycentric).
 
 * **Steady**: each view is tracked as still images (MediaPipe's IMAGE mode: VIDEO mode's
-  smoothing pulled the mouth-open view's lips towards the closed mouth before it), nine
+  smoothing pulled the mouth-open view's lips towards the closed mouth before it), 25
   times, shifted by up to a pixel, and each landmark is the median: one image's landmarks
   move by tenths of a pixel with any change of its pixels, so the same face from another
   tool (quantized positions) would land a millimetre elsewhere.
@@ -63,7 +63,7 @@ OPENED_VIEWS = (
      "eyes opened by eyeWide (eyelids)"),
 )
 # Shifts (px) of each tracked view: the landmarks are the median over them (_steady_landmarks).
-JITTER_PX = tuple((dx, dy) for dx in (-1.0, 0.0, 1.0) for dy in (-1.0, 0.0, 1.0))
+JITTER_PX = tuple((dx, dy) for dx in (-1.0, -0.5, 0.0, 0.5, 1.0) for dy in (-1.0, -0.5, 0.0, 0.5, 1.0))
 # Search radius (px) around a landmark for triangles to land on.
 SEARCH_PX = 12.0
 # A surface further than this (in inter-ocular distances) from the depth the tracker gives
