@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 
 SHARED_CLIPS = Path(__file__).resolve().parents[2] / "shared" / "clips"
+SHARED_CHARACTERS = Path(__file__).resolve().parents[2] / "shared" / "characters"
 
 
 def shared_clip(name: str) -> Path:
@@ -14,6 +15,15 @@ def shared_clip(name: str) -> Path:
     path = SHARED_CLIPS / name
     if not path.is_file():
         pytest.skip(f"{path} not present (real clips live in ../shared/clips)")
+    return path
+
+
+def shared_character(name: str) -> Path:
+    """A third-party head from ../shared/characters (ICT-FaceKit); skips the test when it
+    is absent."""
+    path = SHARED_CHARACTERS / name
+    if not path.is_file():
+        pytest.skip(f"{path} not present (third-party heads live in ../shared/characters)")
     return path
 
 

@@ -9,10 +9,10 @@ import json
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import shared_character
 from test_arkit import NAMES, synthetic_track
 
 from capture2face.errors import CaptureError
@@ -585,10 +585,7 @@ def test_a_scanned_head_is_framed_on_its_face_not_its_bust():
     from capture2face.camera import face_centre_and_height
     from capture2face.pipeline import load_character
 
-    path = Path(__file__).resolve().parents[2] / "shared" / "characters" / "ict-a.glb"
-    if not path.is_file():
-        pytest.skip(f"{path} not present (the shared characters live in ../shared/characters)")
-    rig = load_character(path)
+    rig = load_character(shared_character("ict-a.glb"))
     centre, height = face_centre_and_height(rig)
     _, default_height = face_centre_and_height(default_avatar())
     assert 0.8 * default_height < height < 1.2 * default_height, (height, default_height)

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pygltflib
 import pytest
+from conftest import shared_character
 
 from capture2face import default_avatar
 from capture2face.camera import framing_pose
@@ -25,7 +26,6 @@ from capture2face.rig.deform import deform
 from capture2face.rig.face_rig import FaceRig
 from capture2face.rig.mesh_ops import vertex_normals
 
-ICT_A = Path(__file__).resolve().parents[2] / "shared" / "characters" / "ict-a.glb"
 # An open "O" with raised brows and half-closed lids: the frame that turned Ready Player
 # Me's lower face dark red-brown when its derived morph normals were wrong.
 COMBO = {"jawOpen": 0.87, "browInnerUp": 1.0, "browOuterUpLeft": 0.8, "browOuterUpRight": 0.8,
@@ -33,9 +33,7 @@ COMBO = {"jawOpen": 0.87, "browInnerUp": 1.0, "browOuterUpLeft": 0.8, "browOuter
 
 
 def _variant(tmp_path_factory, name: str, change) -> Path:
-    if not ICT_A.is_file():
-        pytest.skip(f"{ICT_A} not present (the shared characters live in ../shared/characters)")
-    gltf = pygltflib.GLTF2().load(str(ICT_A))
+    gltf = pygltflib.GLTF2().load(str(shared_character("ict-a.glb")))
     change(gltf)
     path = tmp_path_factory.mktemp("ict") / name
     gltf.save(str(path))
@@ -51,9 +49,7 @@ def _strip_morph_normals(gltf) -> None:
 
 @pytest.fixture(scope="module")
 def ict(tmp_path_factory) -> FaceRig:
-    if not ICT_A.is_file():
-        pytest.skip(f"{ICT_A} not present (the shared characters live in ../shared/characters)")
-    return import_glb(ICT_A)
+    return import_glb(shared_character("ict-a.glb"))
 
 
 @pytest.fixture(scope="module")

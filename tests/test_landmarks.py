@@ -5,7 +5,6 @@ check that the fidelity pairs move with their morphs (capture2face.measures.land
 from __future__ import annotations
 
 import logging
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -22,21 +21,12 @@ from capture2face.pipeline.report_html import _fidelity_tables
 from capture2face.rig.arkit_names import arkit_morphs
 from capture2face.rig.avatar import default_avatar
 from capture2face.rig.face_rig import FaceRig, landmark_points
+from tests.conftest import shared_character
 from tests.test_arkit import synthetic_track
-
-SHARED_CHARACTERS = Path(__file__).resolve().parents[2] / "shared" / "characters"
-
-
-def _shared_path(name: str) -> Path:
-    """A third-party head from ../shared/characters; skips the test when it is absent."""
-    path = SHARED_CHARACTERS / name
-    if not path.is_file():
-        pytest.skip(f"{path} not present (third-party heads live in ../shared/characters)")
-    return path
 
 
 def _shared_character(name: str) -> FaceRig:
-    return load_character(_shared_path(name))
+    return load_character(shared_character(name))
 
 
 @pytest.fixture(scope="module", params=["ict-a.glb", "ict-b.glb"])
@@ -204,7 +194,7 @@ def test_clip_fidelity_of_a_failing_character_leaves_the_measure_out():
 def test_lash_cards_taken_for_skin_are_still_never_landed_on():
     """An importer may take an eyelash mesh for skin: its vertices, marked as an overlay (alpha
     MASK), still take no landmark, and the lids stay on the lids."""
-    rig = import_glb(_shared_path("ict-a.glb"))
+    rig = import_glb(shared_character("ict-a.glb"))
     lashes = rig.overlay_vertices
     assert lashes is not None and lashes.sum() > 1000  # the EyeLashes mesh (MASK): 1368 vertices
     material = rig.material.copy()
@@ -232,7 +222,7 @@ def test_overlays_are_alpha_cards_and_named_meshes_never_the_skin():
 def test_lids_are_cast_again_with_eye_wide_only_where_the_rest_view_fails(monkeypatch):
     """With its left blink zeroed, a head's left lids fail the check at rest: they (and only
     they) are cast again in the eyeWide view; the inner lips once, in the jawOpen 0.5 view."""
-    rig = import_glb(_shared_path("ict-a.glb"))
+    rig = import_glb(shared_character("ict-a.glb"))
     blink = next(i for i, a in arkit_morphs(rig.morph_names).items() if a == "eyeBlinkLeft")
     mpos = rig.morph_positions.copy()
     mpos[blink] = 0.0
