@@ -342,7 +342,7 @@ def test_every_wrong_field_in_one_line(arkit_glb, tmp_path):
     assert len(errors) == 5, errors
     assert mapping_errors({"name": "x", "scale": 100.0, "head_bone": "Head", "bones": {"Jaw": 152},
                            "bone_groups": [["Jaw"]], "landmark_vertices": {"33": 1043},
-                           "materials": {"EyeMaterial": "eye"}, "wrinkle_maps": {"stretch": "s.png"},
+                           "materials": {"EyeMaterial": "eye", "Lashes": "hair"}, "wrinkle_maps": {"stretch": "s.png"},
                            "poses": {"stretch": {"offsets": {"Jaw": [0, 0.8, 0.1]}, "wrinkle_map": "stretch",
                                                  "morphs": {"browInnerUp": 1.0}},
                                      "compress": {"positions": {"Jaw": [1.1, 3.9, 5]}}},

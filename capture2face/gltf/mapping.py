@@ -10,7 +10,7 @@ The schema is the one :mod:`capture2face.gltf.rig_import` and docs/characters.md
     bones              {joint name: landmark index 0..477}
     bone_groups        [[joint name, ...], ...]
     landmark_vertices  {"landmark index 0..477": vertex index >= 0}
-    materials          {material name: "skin" | "eye" | "mouth" | "teeth"}
+    materials          {material name: "skin" | "eye" | "mouth" | "teeth" | "hair"}
     wrinkle_maps       {map name: image path}
     poses              {pose name: {"offsets": {joint: [x, y, z]}, "positions": {joint: [x, y, z]},
                                     "wrinkle_map": map name, "morphs": {morph name: number}}}
@@ -37,7 +37,7 @@ from capture2face.rig.face_rig import ZONE_NAMES
 from capture2face.runtime.log import log
 
 N_LANDMARKS = 478
-MATERIALS = ("skin", "eye", "mouth", "teeth")
+MATERIALS = ("skin", "eye", "mouth", "teeth", "hair")  # rig_import.MATERIAL_CODES
 POSE_KEYS = ("offsets", "positions", "wrinkle_map", "morphs")
 
 # A check returns None when the value is fine, else what it should be ("a number > 0").
