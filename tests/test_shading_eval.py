@@ -23,6 +23,25 @@ def test_darkening_counts_dark_frames_only():
     np.testing.assert_allclose(shading.darkening(b)[0], 0.0, atol=1e-6)
 
 
+def test_darkening_takes_out_the_light_that_follows_the_head():
+    """A patch whose brightness follows the head's yaw (turned away from the light) and
+    that also darkens by 15 % in 8 % of frames (a shading fault): with the rotations, only
+    the fault is left; without them, the turn counts as darkening too."""
+    from capture2face.maths.rotations import rotation_ypr
+
+    rng = np.random.default_rng(0)
+    n = 400
+    yaw = 25.0 * np.sin(np.linspace(0, 6 * np.pi, n))
+    rot = rotation_ypr(np.stack([yaw, rng.normal(0, 3, n), np.zeros(n)], 1))
+    lit = 150.0 + 40.0 * rot[:, 0, 2]  # diffuse light: linear in the rotation
+    fault = np.zeros(n)
+    fault[rng.choice(n, 32, replace=False)] = 1.0
+    b = np.stack([lit * (1.0 - 0.15 * fault), lit], 1)
+    plain, turned = shading.darkening(b), shading.darkening(b, rot)
+    assert turned[1] < 0.002 < 0.05 < plain[1]  # the turn alone: nothing left
+    assert 0.12 < turned[0] < 0.18  # the fault is still seen
+
+
 def test_patch_brightness_samples_each_disc_where_the_landmarks_are(tmp_path):
     """A video whose left half darkens over time, landmarks on both halves: the disc on the
     left follows it, the one on the right stays, frames without a face are NaN."""

@@ -5,9 +5,11 @@ A ``run`` folder's avatar.mp4 is tracked with the clips' tracker; in every frame
 face, the skin's brightness is sampled in discs on the cheeks and the chin (landmark
 positions in the video). A shading fault (normals turned by combined morphs) darkens or
 the discs as the face moves; the figure is each disc's 95th percentile of its darkening,
-``max(0, 1 - brightness / its median frame)`` (one-sided: the head turning under the
-light also brightens and darkens a disc by a few percent, a shading fault only darkens),
-judged on the mean over the discs. The mouth opening measured in
+``max(0, 1 - brightness / its median frame)``, judged on the mean over the discs. The head
+turning under the light also lights a disc differently (a cheek turned away darkens by
+5-10 %): a rigid patch's diffuse light is linear in the head rotation's nine entries, so
+that part (a least-squares fit over the frames) is taken out first; what is left is the
+shading that expressions change. One-sided: a shading fault darkens. The mouth opening measured in
 that tracked video (:func:`~capture2face.measures.source_measures`) is compared with the
 source clip's (the run's track.npz): a character whose mouth does not open on screen fails
 it whatever its animation says.
@@ -23,6 +25,7 @@ import numpy as np
 
 from capture2face.errors import CaptureError
 from capture2face.io.video_input import iter_frames
+from capture2face.maths.rotations import rotation_part
 from capture2face.maths.stats import pearson
 from capture2face.measures import MEASURES, source_measures
 from capture2face.pipeline import RunOptions, track_stage
@@ -65,10 +68,31 @@ def _disc_mean(rgb: np.ndarray, centre: np.ndarray, radius: float) -> float:
     return float(_luminance(rgb[y0:y1, x0:x1][disc]).mean()) if disc.any() else np.nan
 
 
-def darkening(brightness: np.ndarray) -> np.ndarray:
-    """(P,) the 95th percentile over frames of ``max(0, 1 - b / median(b))`` per patch."""
-    rel = np.clip(1.0 - brightness / np.nanmedian(brightness, axis=0), 0.0, None)
+def darkening(brightness: np.ndarray, rotations: np.ndarray | None = None) -> np.ndarray:
+    """(P,) the 95th percentile over frames of ``max(0, 1 - b / median(b))`` per patch of
+    ``brightness`` (F, P), with what is linear in the head's ``rotations`` (F, 3, 3) taken
+    out first when given."""
+    b = np.asarray(brightness, np.float64)
+    if rotations is not None:
+        b = b - _lighting(b, rotations)
+    rel = np.clip(1.0 - b / np.nanmedian(b, axis=0), 0.0, None)
     return np.nanpercentile(rel, 95, axis=0)
+
+
+def _lighting(brightness: np.ndarray, rotations: np.ndarray) -> np.ndarray:
+    """(F, P) the part of ``brightness`` that the head rotation explains, about its median
+    pose (zero there): a least-squares fit on the rotations' nine entries per patch."""
+    x = np.asarray(rotations, np.float64).reshape(len(rotations), 9)
+    x = x - np.median(x, axis=0)
+    out = np.zeros_like(brightness)
+    for k in range(brightness.shape[1]):
+        ok = np.isfinite(brightness[:, k])
+        if ok.sum() < 30:  # too few frames to tell the light from the face
+            continue
+        design = np.column_stack([x[ok], np.ones(ok.sum())])
+        coef = np.linalg.lstsq(design, brightness[ok, k], rcond=None)[0]
+        out[:, k] = x @ coef[:9]
+    return out
 
 
 def shading_of(run_dir: str | os.PathLike, progress: bool = False) -> dict:
@@ -81,9 +105,9 @@ def shading_of(run_dir: str | os.PathLike, progress: bool = False) -> dict:
         seen = track_stage(video, RunOptions(), progress=progress, workdir=work)
     actor = Track.load(source)
     brightness = patch_brightness(video, seen)
-    dark = darkening(brightness)
-    mouth = list(MEASURES).index("mouth_open")
     n = min(actor.n_frames, seen.n_frames)
+    dark = darkening(brightness[:n], rotation_part(np.asarray(actor.head_pose)[:n]))
+    mouth = list(MEASURES).index("mouth_open")
     r = pearson(source_measures(actor)[:n, mouth], source_measures(seen)[:n, mouth])
     return {
         "run": folder.name,
