@@ -15,11 +15,14 @@ from capture2face.character.load import load_character
 from capture2face.errors import CaptureError
 from capture2face.io.atomic import atomic_path
 from capture2face.measures import (
+    AT_REST_P99_GOAL,
     GAIN_MAX,
     GAIN_MIN,
     GAZE_R_GOAL,
+    LEVEL_TOL,
     MEASURES,
     R_MIN,
+    WRINKLE_R_GOAL,
     ClipFidelity,
     clip_fidelity,
 )
@@ -69,7 +72,22 @@ def summary_line(results: list[dict]) -> str:
             f"{GAIN_MIN}-{GAIN_MAX}), {beats}/{judged} not worse than the direct scores{curves}; "
             f"ARKit curves {sum(a['met'] for a in arkit)}/{len(arkit)} meet their r goal"
             + (f"; eye yaw {sum(g['met'] for g in gaze)}/{len(gaze)} follows eyeLookIn/Out (r >= {GAZE_R_GOAL})"
-               if gaze else ""))
+               if gaze else "") + _levels_and_wrinkles(results))
+
+
+def _levels_and_wrinkles(results: list[dict]) -> str:
+    """The summary line's clauses on rest levels and wrinkles (clips that have them)."""
+    levels = [v for r in results for v in r.get("levels", {}).values()]
+    wrinkles = [r["wrinkles"] for r in results if "wrinkles" in r]
+    out = ""
+    if levels:
+        out += (f"; levels: {sum(v['met'] for v in levels)}/{len(levels)} brow and mouth rests within "
+                f"{LEVEL_TOL} IOD of the actor's")
+    if wrinkles:
+        out += (f"; wrinkles: {sum(w['met'] for w in wrinkles)}/{sum(w['judged'] for w in wrinkles)} checks met "
+                f"(r >= {WRINKLE_R_GOAL} with the brows' raise and lowering, glabella compress p99 < "
+                f"{AT_REST_P99_GOAL} where they never lower)")
+    return out
 
 
 def table(results: list[dict]) -> str:
