@@ -105,6 +105,32 @@ def table(results: list[dict]) -> str:
             cells.append(f"{m['r']:.2f} / {m['gain']:.2f}{mark} ({m['direct_r']:.2f} / {m['direct_gain']:.2f})"
                          if m["judged"] else f"— ({m['range']:.3f})")
         lines.append(f"| {res['clip']} | " + " | ".join(cells) + " |")
+    extra = wrinkle_table(results)
+    return "\n".join(lines) + (f"\n\n{extra}" if extra else "")
+
+
+def _check_cell(entry: dict, key: str, fmt: str) -> str:
+    mark = (" ✓" if entry["met"] else " ✗") if entry.get("judged", True) and "met" in entry else ""
+    return f"{entry[key]:{fmt}}{mark}" if entry.get("judged", True) else f"— ({entry[key]:{fmt}})"
+
+
+def wrinkle_table(results: list[dict]) -> str:
+    """Levels and wrinkles per clip (Markdown): the character's brow and lip offsets from the
+    actor's at the actor's rest (IOD), r of forehead stretch / glabella compress with the
+    brows' raise / lowering (— and the motion's 99th percentile where too small to judge),
+    and glabella compress's 99th percentile where browDown never reaches 0.1."""
+    rows = [r for r in results if "wrinkles" in r or "levels" in r]
+    if not rows:
+        return ""
+    lines = ["| clip | brow level | lip level | forehead stretch r | glabella compress r | glabella p99 (unfrowned) |",
+             "|---|---|---|---|---|---|"]
+    for res in rows:
+        lv, w = res.get("levels", {}), res.get("wrinkles", {})
+        cells = [_check_cell(lv[k], "offset", "+.3f") if k in lv else "" for k in ("brows", "mouth")]
+        cells += [_check_cell(w[k], "r" if w[k]["judged"] else "amount", ".2f" if w[k]["judged"] else ".3f")
+                  if k in w else "" for k in ("forehead_stretch", "glabella_compress")]
+        cells.append(_check_cell(w["glabella_unfrowned"], "p99", ".2f") if "glabella_unfrowned" in w else "")
+        lines.append(f"| {res['clip']} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
