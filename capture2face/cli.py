@@ -31,6 +31,7 @@ from capture2face.render.renderer import WRINKLE_DRIVERS
 from capture2face.rig.avatar import default_avatar
 from capture2face.rig.maps import write_maps
 from capture2face.synth import SynthOptions, synthesize
+from capture2face.synth.trajectories import STARTS
 from capture2face.tracking import TrackOptions, track_clip
 from capture2face.tracking.landmarker import defer_pyplot
 from capture2face.tracking.overlay import write_overlay
@@ -83,7 +84,7 @@ def _cmd_synth(args: argparse.Namespace) -> int:
     opts = SynthOptions(
         frames=args.frames, seed=args.seed, size=args.size, fps=args.fps,
         head_motion=not args.no_head_motion, expression=not args.no_expression,
-        face_exit=args.face_exit, variant=args.variant,
+        face_exit=args.face_exit, variant=args.variant, start=args.start,
     )
     synthesize(args.output, opts, progress=not args.quiet)
     print(f"wrote {args.output} and {Path(args.output).with_suffix('.truth.npz')}")
@@ -138,7 +139,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_eval(args: argparse.Namespace) -> int:
     result = evaluate_synthetic(
         frames=args.frames, seed=args.seed, target_variant=args.target_variant,
-        size=args.size, progress=not args.quiet,
+        size=args.size, progress=not args.quiet, start=args.start,
     )
     text = json.dumps(result, indent=2)
     if args.json:
@@ -285,7 +286,14 @@ def _add_synth_parser(sub, common: argparse.ArgumentParser) -> None:
     p.add_argument("--no-expression", action="store_true", help="fixed expression, head motion only")
     p.add_argument("--face-exit", action="store_true", help="the face leaves the frame for a while")
     p.add_argument("--variant", default=None, help="render a built-in avatar variant")
+    _add_start_option(p)
     p.set_defaults(func=_cmd_synth)
+
+
+def _add_start_option(p) -> None:
+    p.add_argument("--start", choices=STARTS, default="rest",
+                   help="rest: start on the neutral; held: one expression held for the first seconds; raised: "
+                        "brows raised on most frames (both take the neutral mid-clip) (default: rest)")
 
 
 def _add_track_parser(sub, common: argparse.ArgumentParser) -> None:
@@ -327,6 +335,7 @@ def _add_eval_synthetic_parser(evals, common: argparse.ArgumentParser) -> None:
     p.add_argument("--size", type=int, default=512, help="frame size in pixels (default: 512)")
     p.add_argument("--target-variant", default=None, help="retarget onto another avatar, e.g. 'wide'")
     p.add_argument("--json", metavar="PATH", help="also write the figures as JSON")
+    _add_start_option(p)
     p.set_defaults(func=_cmd_eval)
 
 

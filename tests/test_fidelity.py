@@ -10,6 +10,7 @@ import sys
 import numpy as np
 import pytest
 
+from capture2face.eval.fidelity import summary_line
 from capture2face.measures import (
     MEASURES,
     ClipFidelity,
@@ -19,7 +20,9 @@ from capture2face.measures import (
     faithful,
     lowpass,
     measures_from_points,
+    rest_frames,
 )
+from capture2face.pipeline.report_html import _fidelity_tables, _wrinkle_plots
 from capture2face.rig.avatar import default_avatar
 from tests.conftest import shared_clip
 
@@ -134,6 +137,74 @@ def test_figures_compare_with_the_curves_only_drive():
     assert fig["summary"]["not_worse_than_curves"] == fig["summary"]["judged"] - 1
 
 
+SCORES = ["browInnerUp", "browDownLeft", "browDownRight", "jawOpen"]
+
+
+def _brow_clip(lower: float, frown_score: float, compress: np.ndarray | None = None) -> ClipFidelity:
+    """200 frames starting with the brows raised (0.08 IOD above a rest of 0.33): they rise
+    on the positive half-waves, lower by ``lower`` on the negative ones (browDown
+    ``frown_score``); the character's brows sit 0.08 low (its rest taken at frame 0, raised)
+    and its lips follow the actor's; forehead stretch follows the raise, glabella compress
+    the lowering (or ``compress``)."""
+    t = np.linspace(0.5 * np.pi, 6.5 * np.pi, 200)
+    up, down = np.maximum(np.sin(t), 0.0), np.maximum(-np.sin(t), 0.0)
+    src = np.zeros((len(t), len(MEASURES)))
+    names = list(MEASURES)
+    brows = [names.index("brow_right"), names.index("brow_left")]
+    src[:, brows] = (0.33 + 0.08 * up - lower * down)[:, None]
+    src[:, names.index("mouth_open")] = 0.1 * down  # lips closed at rest
+    character = src.copy()
+    character[:, brows] += 0.30 - 0.41  # its rest brow (0.30) where the actor's was 0.41
+    rest = np.zeros(len(MEASURES))
+    rest[brows] = 0.30
+    scores = np.stack([0.9 * up, frown_score * down, frown_score * down, 0.8 * down], 1)
+    wrinkles = np.stack([0.7 * up, 0.5 * down if compress is None else compress], 1)
+    return ClipFidelity(name="x", times=t, source=src, character=character, direct=src, arkit=scores,
+                        arkit_names=SCORES, arkit_source="tracker", scores=scores, score_names=SCORES,
+                        character_rest=rest, wrinkles=wrinkles)
+
+
+def test_rest_frames_are_the_most_relaxed_not_the_first():
+    fid = _brow_clip(0.03, 0.6)
+    at = rest_frames(fid.scores, SCORES, "brows")
+    assert len(at) == 20 and 0 not in at  # frame 0 holds the brows raised
+    assert np.allclose(fid.brow()[at], 0.33, atol=0.015)  # frame 0: 0.41
+
+
+def test_levels_see_the_character_rest_off_the_actors():
+    """The character's brows 0.08 IOD below its rest where the actor's are at theirs: not
+    met; the lips closed on both: met."""
+    levels = _brow_clip(0.03, 0.6).figures()["levels"]
+    assert levels["brows"]["offset"] == pytest.approx(-0.08, abs=0.005) and not levels["brows"]["met"]
+    assert levels["mouth"]["offset"] == pytest.approx(0.0, abs=1e-6) and levels["mouth"]["met"]
+
+
+def test_wrinkles_follow_the_brows_from_their_rest():
+    w = _brow_clip(0.03, 0.6).figures()["wrinkles"]
+    assert w["brow_rest"] == pytest.approx(0.33, abs=0.005)
+    assert w["forehead_stretch"]["judged"] and w["forehead_stretch"]["r"] > 0.99 and w["forehead_stretch"]["met"]
+    assert w["glabella_compress"]["judged"] and w["glabella_compress"]["r"] > 0.99
+    assert w["glabella_compress"]["amount"] == pytest.approx(0.03, abs=0.002)
+    assert not w["glabella_unfrowned"]["judged"]  # browDown reaches 0.6
+    assert (w["judged"], w["met"]) == (2, 2)
+    # Brows that never lower (browDown 0.02): a glabella that folds anyway fails, one that
+    # stays flat passes; the lowering is too small to judge r.
+    t = np.arange(200)
+    folds = _brow_clip(0.0, 0.02, compress=0.4 + 0.05 * np.sin(t)).figures()["wrinkles"]
+    assert not folds["glabella_compress"]["judged"]
+    assert folds["glabella_unfrowned"]["judged"] and folds["glabella_unfrowned"]["p99"] == pytest.approx(0.45, abs=0.01)
+    assert not folds["glabella_unfrowned"]["met"] and (folds["judged"], folds["met"]) == (2, 1)
+    flat = _brow_clip(0.0, 0.02, compress=0.05 + 0.05 * np.sin(t)).figures()
+    assert flat["wrinkles"]["glabella_unfrowned"]["met"]
+    line = summary_line([_brow_clip(0.03, 0.6).figures(), flat])
+    assert "levels: 2/4 brow and mouth rests" in line and "wrinkles: 4/4 checks met" in line
+    assert "judged measures faithful" in line  # the old clauses stay
+    page = _fidelity_tables(flat)
+    assert "glabella compress p99" in page and "forehead stretch r with brow raise" in page
+    plots = _wrinkle_plots(_brow_clip(0.03, 0.6), _brow_clip(0.03, 0.6).figures())
+    assert len(plots) == 2 and "forehead stretch  r 1.00" in plots[0]
+
+
 @pytest.mark.slow
 @pytest.mark.shared_clips
 def test_eval_fidelity_on_a_real_clip(tmp_path):
@@ -157,3 +228,7 @@ def test_eval_fidelity_on_a_real_clip(tmp_path):
         assert figures["measures"][eye]["r"] >= 0.9
     assert figures["arkit_source"] == "animation"
     assert figures["arkit"]["jawOpen"]["r"] >= 0.9 and figures["arkit"]["jawOpen"]["max"] >= 0.7
+    # The actor frowns (browDown ~0.7): the glabella check for brows that never lower is not judged.
+    assert "wrinkles:" in result.stdout and figures["levels"]["mouth"]["met"]
+    assert figures["wrinkles"]["glabella_unfrowned"]["brow_down_max"] > 0.5
+    assert not figures["wrinkles"]["glabella_unfrowned"]["judged"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from capture2face.errors import CaptureError
 from capture2face.rig.influences import group_influences, pose_influences
 from capture2face.synth import SynthOptions, render_performance
 from capture2face.synth.trajectories import (
@@ -223,3 +224,33 @@ def test_mediapipe_tracks_the_synthetic_clip(synthetic_clip):
     iod = np.linalg.norm(t.landmarks_px[:, 33] - t.landmarks_px[:, 263], axis=1)
     err = np.linalg.norm(found[:, :468] - t.landmarks_px[:, :468], axis=2).mean(1) / iod
     assert np.nanmedian(err[tracked]) < 0.05, np.nanmedian(err[tracked])
+
+
+def test_performances_that_do_not_start_at_rest(rig):
+    """``start="held"``: frame 0 holds an expression away from rest for the first second or
+    more; ``start="raised"``: the brows sit above their rest height from frame 0 on most
+    frames. Both keep an exact neutral hold, mid-clip, and the reference-pose holds."""
+    from capture2face.measures import MEASURES, character_measures, character_rest_measures
+
+    brows = [list(MEASURES).index("brow_right"), list(MEASURES).index("brow_left")]
+    rest_brow = character_rest_measures(rig)[brows].mean()
+    for start in ("held", "raised"):
+        perf = random_performance(rig, 240, seed=0, start=start)
+        neutral = np.flatnonzero(perf.key_pose == KEY_NEUTRAL)
+        assert len(neutral) >= 3 and 0.3 * 240 < neutral[0] < 0.8 * 240, start
+        np.testing.assert_array_equal(perf.bone_positions[neutral[0]], rig.bone_rest)
+        assert all(np.any(perf.key_pose == KEY_POSE0 + p) for p in range(len(rig.pose_names)))
+        assert np.abs(perf.bone_positions[0] - rig.bone_rest).max() > 0.3, start  # cm: not at rest
+        brow = character_measures(rig, perf.bone_positions, perf.blend_weights)[:, brows].mean(1) - rest_brow
+        if start == "held":
+            same = np.abs(perf.bone_positions - perf.bone_positions[0]).max(axis=(1, 2)) < 1e-6
+            assert same[:30].all()  # held for at least a second at 30 fps
+        else:
+            assert brow[0] > 0.05  # IOD above rest
+            assert np.mean(brow > 0.02) > 0.8  # raised on most frames
+            assert abs(brow[neutral]).max() < 1e-6
+    rest = random_performance(rig, 240, seed=0)
+    assert rest.key_pose[0] == KEY_NEUTRAL and np.mean(
+        character_measures(rig, rest.bone_positions, rest.blend_weights)[:, brows].mean(1) - rest_brow > 0.02) < 0.6
+    with pytest.raises(CaptureError):
+        random_performance(rig, 240, start="sideways")

@@ -15,11 +15,14 @@ from capture2face.character.load import load_character
 from capture2face.errors import CaptureError
 from capture2face.io.atomic import atomic_path
 from capture2face.measures import (
+    AT_REST_P99_GOAL,
     GAIN_MAX,
     GAIN_MIN,
     GAZE_R_GOAL,
+    LEVEL_TOL,
     MEASURES,
     R_MIN,
+    WRINKLE_R_GOAL,
     ClipFidelity,
     clip_fidelity,
 )
@@ -69,7 +72,22 @@ def summary_line(results: list[dict]) -> str:
             f"{GAIN_MIN}-{GAIN_MAX}), {beats}/{judged} not worse than the direct scores{curves}; "
             f"ARKit curves {sum(a['met'] for a in arkit)}/{len(arkit)} meet their r goal"
             + (f"; eye yaw {sum(g['met'] for g in gaze)}/{len(gaze)} follows eyeLookIn/Out (r >= {GAZE_R_GOAL})"
-               if gaze else ""))
+               if gaze else "") + _levels_and_wrinkles(results))
+
+
+def _levels_and_wrinkles(results: list[dict]) -> str:
+    """The summary line's clauses on rest levels and wrinkles (clips that have them)."""
+    levels = [v for r in results for v in r.get("levels", {}).values()]
+    wrinkles = [r["wrinkles"] for r in results if "wrinkles" in r]
+    out = ""
+    if levels:
+        out += (f"; levels: {sum(v['met'] for v in levels)}/{len(levels)} brow and mouth rests within "
+                f"{LEVEL_TOL} IOD of the actor's")
+    if wrinkles:
+        out += (f"; wrinkles: {sum(w['met'] for w in wrinkles)}/{sum(w['judged'] for w in wrinkles)} checks met "
+                f"(r >= {WRINKLE_R_GOAL} with the brows' raise and lowering, glabella compress p99 < "
+                f"{AT_REST_P99_GOAL} where they never lower)")
+    return out
 
 
 def table(results: list[dict]) -> str:
@@ -86,6 +104,32 @@ def table(results: list[dict]) -> str:
             mark = "" if not m["judged"] else (" ✓" if m["faithful"] else " ✗")
             cells.append(f"{m['r']:.2f} / {m['gain']:.2f}{mark} ({m['direct_r']:.2f} / {m['direct_gain']:.2f})"
                          if m["judged"] else f"— ({m['range']:.3f})")
+        lines.append(f"| {res['clip']} | " + " | ".join(cells) + " |")
+    extra = wrinkle_table(results)
+    return "\n".join(lines) + (f"\n\n{extra}" if extra else "")
+
+
+def _check_cell(entry: dict, key: str, fmt: str) -> str:
+    mark = (" ✓" if entry["met"] else " ✗") if entry.get("judged", True) and "met" in entry else ""
+    return f"{entry[key]:{fmt}}{mark}" if entry.get("judged", True) else f"— ({entry[key]:{fmt}})"
+
+
+def wrinkle_table(results: list[dict]) -> str:
+    """Levels and wrinkles per clip (Markdown): the character's brow and lip offsets from the
+    actor's at the actor's rest (IOD), r of forehead stretch / glabella compress with the
+    brows' raise / lowering (— and the motion's 99th percentile where too small to judge),
+    and glabella compress's 99th percentile where browDown never reaches 0.1."""
+    rows = [r for r in results if "wrinkles" in r or "levels" in r]
+    if not rows:
+        return ""
+    lines = ["| clip | brow level | lip level | forehead stretch r | glabella compress r | glabella p99 (unfrowned) |",
+             "|---|---|---|---|---|---|"]
+    for res in rows:
+        lv, w = res.get("levels", {}), res.get("wrinkles", {})
+        cells = [_check_cell(lv[k], "offset", "+.3f") if k in lv else "" for k in ("brows", "mouth")]
+        cells += [_check_cell(w[k], "r" if w[k]["judged"] else "amount", ".2f" if w[k]["judged"] else ".3f")
+                  if k in w else "" for k in ("forehead_stretch", "glabella_compress")]
+        cells.append(_check_cell(w["glabella_unfrowned"], "p99", ".2f") if "glabella_unfrowned" in w else "")
         lines.append(f"| {res['clip']} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

@@ -404,15 +404,16 @@ def gaze_errors(animation, truth, use: np.ndarray) -> dict:
 
 
 def synthetic_case(frames: int = 300, seed: int = 0, size: int = 512, folder: str | Path | None = None,
-                   progress: bool = True):
-    """Render a synthetic performance of the default avatar into ``folder`` and track it.
+                   progress: bool = True, start: str = "rest"):
+    """Render a synthetic performance of the default avatar into ``folder`` and track it
+    (``start``: ``SynthOptions.start``).
 
     Returns:
         (SyntheticClip, Track).
     """
     with tempfile.TemporaryDirectory(prefix="capture2face-eval-") as tmp:
         folder = Path(folder) if folder else Path(tmp)
-        clip = synthesize(folder / "synthetic.mp4", SynthOptions(frames=frames, seed=seed, size=size),
+        clip = synthesize(folder / "synthetic.mp4", SynthOptions(frames=frames, seed=seed, size=size, start=start),
                           progress=progress)
         track = track_clip(clip.video_path, TrackOptions(), progress=progress)
     return clip, track
@@ -470,17 +471,21 @@ def evaluate_synthetic(
     progress: bool = True,
     options: RetargetOptions | None = None,
     workdir: str | Path | None = None,
+    start: str = "rest",
 ) -> dict:
     """Render ``frames`` synthetic frames of the default avatar, track them, retarget onto
     the same avatar (or ``target_variant``) and score against the truth.
 
     Args:
         workdir: where the synthetic clip goes (default: a temporary folder, removed).
+        start: how the performance starts (``SynthOptions.start``); reported unless "rest".
     Returns:
         The figures of :func:`evaluate_track` (truth's neutral, and the tracker's pick in
         ``auto_neutral``), seed and size.
     """
-    clip, track = synthetic_case(frames, seed, size, workdir, progress)
+    clip, track = synthetic_case(frames, seed, size, workdir, progress, start)
     result = evaluate_track(track, clip.truth, target_variant, options)
     result.update({"seed": int(seed), "size": int(size)})
+    if start != "rest":  # the default's figures stay as they were
+        result["start"] = start
     return result

@@ -457,7 +457,38 @@ def _fidelity_tables(fig: dict) -> str:
     if left_out:  # the character's landmarks for them do not move with its morphs
         summary += ('<p class="note">Left out: ' + "; ".join(f"{_e(k)} ({_e(v)})" for k, v in left_out.items())
                     + ".</p>")
-    return summary + f'<div class="cols"><div>{measures}</div><div>{arkit}</div></div>'
+    return summary + f'<div class="cols"><div>{measures}</div><div>{arkit}</div></div>' + _wrinkle_table(fig)
+
+
+def _wrinkle_table(fig: dict) -> str:
+    """Levels (the character's brows and lips at the actor's rest) and wrinkle checks
+    (``figures()["levels"]``, ``["wrinkles"]``) as one table; "" without them."""
+    rows = []
+    for region, lv in fig.get("levels", {}).items():
+        rows.append(f'<tr><td class="l">{_e(region)} level (offset at the actor\'s rest, IOD)</td>'
+                    f'<td>{lv["offset"]:+.3f}</td><td>± {lv["tolerance"]:.2f}</td>'
+                    f'<td>{_mark(lv.get("met"))}</td></tr>')
+    w = fig.get("wrinkles", {})
+    for key, what in (("forehead_stretch", "forehead stretch r with brow raise"),
+                      ("glabella_compress", "glabella compress r with brow lowering")):
+        if key in w:
+            e = w[key]
+            value = f'{e["r"]:.3f}' if e["judged"] else f'— (moves {e["amount"]:.3f} IOD)'
+            rows.append(f'<tr><td class="l">{what}</td><td>{value}</td><td>{e.get("goal", "")}</td>'
+                        f'<td>{_mark(e.get("met"), e["judged"])}</td></tr>')
+    if "glabella_unfrowned" in w:
+        e = w["glabella_unfrowned"]
+        goal = f'&lt; {e["goal"]}' if e["judged"] else ""
+        rows.append(f'<tr><td class="l">glabella compress p99, brows never lowered (browDown max '
+                    f'{e["brow_down_max"]:.2f})</td><td>{e["p99"]:.3f}</td><td>{goal}'
+                    f'</td><td>{_mark(e.get("met"), e["judged"])}</td></tr>')
+    if not rows:
+        return ""
+    rest = f' (brow rest {w["brow_rest"]:.3f} IOD)' if "brow_rest" in w else ""
+    return (f'<p class="note">Levels and wrinkles, measured from the actor\'s rest: the most relaxed tenth of the '
+            f"frames by the region's scores{rest}.</p>"
+            '<table class="fidelity"><tr><th class="l">check</th><th>figure</th><th>goal</th><th>met</th></tr>'
+            + "".join(rows) + "</table>")
 
 
 def break_gaps(times: np.ndarray, *columns: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -484,7 +515,26 @@ def _fidelity_plots(fid, fig: dict) -> str:
                                       ("character", character[:, k], CHARACTER_COLOUR),
                                       ("direct", direct[:, k], DIRECT_COLOUR)], title=title,
                               y_label="× neutral opening" if name in EYE_MEASURES else "IOD"))
-    return f'<div class="plots">{"".join(plots)}</div>'
+    return f'<div class="plots">{"".join(plots + _wrinkle_plots(fid, fig))}</div>'
+
+
+def _wrinkle_plots(fid, fig: dict) -> list[str]:
+    """Forehead stretch against the brows' raise, glabella compress against their lowering
+    (both from the actor's rest, ×10 IOD so that 0.1 IOD meets influence 1)."""
+    if getattr(fid, "wrinkles", None) is None or getattr(fid, "scores", None) is None:
+        return []
+    rise, lower, _ = fid.brow_motion()
+    times, rise, lower, wrinkles = break_gaps(fid.times, rise, lower, fid.wrinkles)
+    w = fig.get("wrinkles", {})
+    plots = []
+    for k, (key, label, motion) in enumerate((("forehead_stretch", "forehead stretch", rise),
+                                              ("glabella_compress", "glabella compress", lower))):
+        r = w.get(key, {}).get("r", 0.0)
+        hi = max(1e-3, float(np.nanmax(np.concatenate([wrinkles[:, k], 10.0 * motion])))) * 1.05
+        plots.append(svg_plot(times, [(f"brow {'raise' if k == 0 else 'lowering'} ×10", 10.0 * motion, SOURCE_COLOUR),
+                                      (label, wrinkles[:, k], CHARACTER_COLOUR)],
+                              title=f"{label}  r {r:.2f}", y_range=(0.0, hi), y_label="influence / ×10 IOD"))
+    return plots
 
 
 def _masked(values: np.ndarray, presence: np.ndarray | None) -> np.ndarray:

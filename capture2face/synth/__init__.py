@@ -42,6 +42,9 @@ class SynthOptions:
         variant: default avatar variant (None: the base avatar; "wide": the other one).
         wrinkles: wrinkle driver the video is rendered with.
         fov_y: camera field of view (degrees); MediaPipe's pose model assumes 63.
+        start: "rest" (the clip starts on the neutral hold), "held" (one expression held
+            for the first seconds) or "raised" (the brows raised on most frames, from frame
+            0); the neutral hold is mid-clip for the last two (``random_performance``).
     """
 
     frames: int = 150
@@ -54,6 +57,7 @@ class SynthOptions:
     variant: str | None = None
     wrinkles: str = "auto"
     fov_y: float = DEFAULT_FOV_Y
+    start: str = "rest"
 
 
 @dataclass
@@ -67,7 +71,7 @@ def make_performance(rig, options: SynthOptions) -> Performance:
     """The performance ``synthesize`` renders for ``options``."""
     return random_performance(
         rig, options.frames, seed=options.seed, fps=options.fps, head_motion=options.head_motion,
-        expression=options.expression, face_exit=options.face_exit, fov_y=options.fov_y,
+        expression=options.expression, face_exit=options.face_exit, fov_y=options.fov_y, start=options.start,
     )
 
 

@@ -215,17 +215,22 @@ def _hold_one_expression(rig: FaceRig, k: _Keys, d: _KeyDraws, space: _PoseSpace
                            + 0.5 * d.morphs[K // 2], 0, 1)
 
 
-def _place_reference_poses(rig: FaceRig, k: _Keys, rest: np.ndarray) -> None:
+def _place_reference_poses(rig: FaceRig, k: _Keys, rest: np.ndarray, start: str = "rest") -> None:
     """Neutral on key 0, the reference poses on the free keys nearest evenly spread
-    fractions of the clip (clear of the face-exit window in the middle)."""
+    fractions of the clip (clear of the face-exit window in the middle). A performance that
+    does not start at rest (``start``) takes its neutral mid-clip and its poses later, so
+    that its first seconds are free."""
     keys, values, n_poses = k.keys, k.values, len(rig.pose_names)
     fractions = np.linspace(0.2, 0.85, n_poses) if n_poses > 1 else np.array([0.3])
     slots = [0]
+    if start != "rest":
+        fractions = np.concatenate([[0.6], np.linspace(0.4, 0.9, n_poses) if n_poses > 1 else [0.8]])
+        slots = []
     for fr in fractions:  # interior keys only; there are at least n_poses + 1
         order = np.argsort(np.abs(keys[1:-1] - fr * keys[-1])) + 1
         slots.append(int(next(i for i in order if i not in slots)))
     for p, i in enumerate(slots):
-        if p == 0:
+        if p == 0:  # neutral
             values.bones[i], values.weights[i], k.label[i] = rest, 0.0, KEY_NEUTRAL
             values.gaze[i] = 0.0
         else:
@@ -273,6 +278,51 @@ def _exact_holds(k: _Keys, c: _Values, frames: int) -> np.ndarray:
     return key_pose
 
 
+# ---- performances that do not start at rest ------------------------------------------------
+STARTS = ("rest", "held", "raised")
+HELD_MAX_SECONDS = 2.0  # "held": the first expression lasts up to this long...
+START_RAMP_SECONDS = 0.3  # ...and eases into the performance over this long
+RAISED_AMOUNT = 0.7  # "raised": this share of the stretch pose's brow travel, and...
+RAISED_MORPHS = {"browInnerUp": 0.6, "browOuterUpLeft": 0.4, "browOuterUpRight": 0.4}  # ...these morphs
+
+
+def _smoothstep(x: np.ndarray) -> np.ndarray:
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+def _start_held(rig: FaceRig, c: _Values, key_pose: np.ndarray, d: _KeyDraws, space: _PoseSpace,
+                fps: float) -> None:
+    """Hold one expression (a frown-like compress mixture plus key 0's own draws) from frame
+    0 until before the first labelled hold (at most :data:`HELD_MAX_SECONDS`), easing into
+    the performance: the clip does not start at rest."""
+    held = np.flatnonzero(key_pose != KEY_FREE)
+    end = min(int(held[0]) if held.size else len(key_pose), round(HELD_MAX_SECONDS * fps))
+    ramp = max(1, min(round(START_RAMP_SECONDS * fps), end // 3))
+    m = 1.0 - _smoothstep((np.arange(len(key_pose)) - (end - ramp)) / ramp)  # (F,) 1 held .. 0 free
+    bones = space.rest + 0.6 * space.travel[space.ci] + d.offsets[0]
+    weights = np.clip(0.6 * rig.pose_morph_weights[space.ci] + d.morphs[0], 0.0, 1.0)
+    c.bones[:] = m[:, None, None] * bones + (1.0 - m[:, None, None]) * c.bones
+    c.weights[:] = m[:, None] * weights + (1.0 - m[:, None]) * c.weights
+
+
+def _start_raised(rig: FaceRig, c: _Values, key_pose: np.ndarray, space: _PoseSpace, fps: float) -> None:
+    """Raise the brows (the stretch pose's brow bones and the brow-raising morphs) on every
+    free frame, easing out around the labelled holds, which stay exact."""
+    ramp = max(1, round(START_RAMP_SECONDS * fps / 2))
+    free = (key_pose == KEY_FREE).astype(np.float64)
+    # Erode the free frames by the ramp, then smooth with a box as wide: 0 on and next to the
+    # holds, 1 away from them, smooth between.
+    eroded = 1.0 - np.convolve(1.0 - free, np.ones(2 * ramp + 1), "same").clip(0.0, 1.0)
+    m = np.convolve(np.pad(eroded, ramp, mode="edge"), np.ones(2 * ramp + 1) / (2 * ramp + 1), "valid")
+    brow = np.array([n.startswith("brow") for n in rig.bone_names], np.float64)[:, None]  # (B, 1)
+    c.bones += m[:, None, None] * (RAISED_AMOUNT * brow * space.travel[space.si])[None]
+    cols = {n: i for i, n in enumerate(rig.morph_names)}
+    for name, amount in RAISED_MORPHS.items():
+        if name in cols:
+            c.weights[:, cols[name]] = np.clip(c.weights[:, cols[name]] + amount * m, 0.0, 1.0)
+
+
 def random_performance(
     rig: FaceRig,
     frames: int,
@@ -282,15 +332,23 @@ def random_performance(
     expression: bool = True,
     face_exit: bool = False,
     fov_y: float = DEFAULT_FOV_Y,
+    start: str = "rest",
 ) -> Performance:
     """A smooth random performance of ``frames`` frames, deterministic for ``seed``.
 
     ``expression=False`` keeps one mild, non-neutral expression throughout (head motion
     only); ``head_motion=False`` keeps the head frontal and centred. ``face_exit=True``
     slides the head out of the (square) frame sideways for about one second mid-clip.
+    ``start``: "rest" starts on the neutral hold; "held" holds one expression for the first
+    seconds (the neutral hold mid-clip); "raised" keeps the brows raised on every frame but
+    the neutral and reference-pose holds (from frame 0): what a real actor's clip may do.
     """
     if frames < 2:
         raise CaptureError(f"a synthetic performance needs at least 2 frames (got {frames})")
+    if start not in STARTS:
+        raise CaptureError(f"unknown start '{start}' (one of {', '.join(STARTS)})")
+    if start != "rest" and not expression:
+        raise CaptureError("a performance without expression has no start to choose")
     rng = np.random.default_rng(seed)
     hold = max(2, int(round(HOLD_SECONDS * fps)))
     n_poses = len(rig.pose_names)
@@ -306,12 +364,16 @@ def random_performance(
     if not expression:
         _hold_one_expression(rig, k, draws, space)
     else:
-        _place_reference_poses(rig, k, space.rest)
+        _place_reference_poses(rig, k, space.rest, start)
         k = _hold_labelled_keys(k, hold, frames)
 
     f = np.arange(frames, dtype=np.float64)
     c = _interpolate(k, f)
     key_pose = _exact_holds(k, c, frames)
+    if start == "held":
+        _start_held(rig, c, key_pose, draws, space, fps)
+    elif start == "raised":
+        _start_raised(rig, c, key_pose, space, fps)
 
     offset_f, exiting = c.offset, np.zeros(frames, bool)
     if face_exit:
