@@ -3,16 +3,16 @@ actor performs? Judged on the output video alone, the way a viewer sees it.
 
 A ``run`` folder's avatar.mp4 is tracked with the clips' tracker; in every frame with a
 face, the skin's brightness is sampled in discs on the cheeks and the chin (landmark
-positions in the video). A shading fault (normals turned by combined morphs) darkens or
-the discs as the face moves; the figure is each disc's 95th percentile of its darkening,
-``max(0, 1 - brightness / its median frame)``, judged on the mean over the discs. The head
-turning under the light also lights a disc differently (a cheek turned away darkens by
-5-10 %): a rigid patch's diffuse light is linear in the head rotation's nine entries, so
-that part (a least-squares fit over the frames) is taken out first; what is left is the
-shading that expressions change. One-sided: a shading fault darkens. The mouth opening measured in
-that tracked video (:func:`~capture2face.measures.source_measures`) is compared with the
-source clip's (the run's track.npz): a character whose mouth does not open on screen fails
-it whatever its animation says.
+positions in the video). A shading fault (normals turned by combined morphs) darkens the
+discs as the face moves. The head turning under the light also lights a disc differently
+(a cheek turned away darkens by 5-10 %): a rigid patch's diffuse light is linear in the
+head rotation's nine entries, so that part (a least-squares fit over the frames) is taken
+out first. The figure is each disc's 95th percentile of what is left darkening,
+``max(0, 1 - brightness / its median frame)`` (one-sided: a fault darkens), judged on the
+mean over the discs. The mouth opening measured in that tracked video
+(:func:`~capture2face.measures.source_measures`) is compared with the source clip's (the
+run's track.npz): a character whose mouth does not open on screen fails it whatever its
+animation says.
 """
 
 from __future__ import annotations
