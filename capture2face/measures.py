@@ -50,6 +50,7 @@ MEASURES: dict[str, tuple[int, int]] = {
     "eye_left": (386, 374),
 }
 EYE_MEASURES = ("eye_right", "eye_left")
+BROW_COLUMNS = [list(MEASURES).index("brow_right"), list(MEASURES).index("brow_left")]  # the brows' mean
 IOD_PAIR = (33, 263)
 LOWPASS_HZ = 8.0
 MIN_RANGE_IOD = 0.04
@@ -205,10 +206,7 @@ def rig_landmark_points(rig, bone_positions: np.ndarray, blend_weights: np.ndarr
     skin = rig.dense_skin_weights()[verts].astype(np.float64)  # (n, B)
     pos += np.einsum("vb,fbc->fvc", skin, np.asarray(bone_positions, np.float64) - rig.bone_rest)
     out = np.zeros((len(pos), len(have), 3))
-    if rig.landmark_faces is None:
-        out[:, rows] = pos[:, local[:, 0]]  # a vertex each (bit-exact with the old sum)
-    else:
-        out[:, rows] = np.einsum("fkjc,kj->fkc", pos[:, local], bary[rows])
+    out[:, rows] = np.einsum("fkjc,kj->fkc", pos[:, local], bary[rows])  # a vertex: weights (1, 0, 0)
     return out
 
 
@@ -216,7 +214,7 @@ def character_measures(rig, bone_positions: np.ndarray, blend_weights: np.ndarra
     """(F, 6) the character's measures (its own rest pose is its neutral)."""
     if np.any(np.asarray(rig.landmark_vertices)[MEASURED] < 0):
         raise CaptureError(f"character '{rig.name}' has no vertex for some measured landmarks")
-    rest = _distances(rig_landmark_points(rig, rig.bone_rest[None], np.zeros((1, rig.n_morphs)), MEASURED))[0]
+    rest = _rest_distances(rig)
     n = len(bone_positions)
     dist = np.concatenate([
         _distances(rig_landmark_points(rig, bone_positions[s:s + CHUNK], blend_weights[s:s + CHUNK], MEASURED))
@@ -226,8 +224,13 @@ def character_measures(rig, bone_positions: np.ndarray, blend_weights: np.ndarra
 
 def character_rest_measures(rig) -> np.ndarray:
     """(6,) the character's measures at its own rest (eyes 1 by definition)."""
-    rest = _distances(rig_landmark_points(rig, rig.bone_rest[None], np.zeros((1, rig.n_morphs)), MEASURED))
-    return _normalise(rest, rest[0])[0]
+    rest = _rest_distances(rig)
+    return _normalise(rest[None], rest)[0]
+
+
+def _rest_distances(rig) -> np.ndarray:
+    """(7,) the measured pairs' distances and the IOD of the rig at rest."""
+    return _distances(rig_landmark_points(rig, rig.bone_rest[None], np.zeros((1, rig.n_morphs)), MEASURED))[0]
 
 
 def direct_weights(rig, scores: np.ndarray, names: list[str]) -> np.ndarray:
@@ -358,7 +361,7 @@ class ClipFidelity:
         if self.left_out:
             out["left_out"] = dict(self.left_out)
         out["measures"], out["summary"] = self._measure_figures()
-        brow = self.source[:, [list(MEASURES).index("brow_right"), list(MEASURES).index("brow_left")]].mean(1)
+        brow = self.brow()
         for name, (measure, sign, goal) in ARKIT_CHECKS.items():
             if name not in self.arkit_names:
                 continue
@@ -387,7 +390,7 @@ class ClipFidelity:
 
     def brow(self) -> np.ndarray:
         """(T,) the actor's brow height (mean of both brows, IOD)."""
-        return self.source[:, [list(MEASURES).index("brow_right"), list(MEASURES).index("brow_left")]].mean(1)
+        return self.source[:, BROW_COLUMNS].mean(1)
 
     def brow_motion(self) -> tuple[np.ndarray, np.ndarray, float]:
         """(raise (T,), lowering (T,), rest): the actor's brows above and below their rest
@@ -404,7 +407,7 @@ class ClipFidelity:
         for region, measure in LEVEL_CHECKS.items():
             at = rest_frames(self.scores, self.score_names, region)
             if measure == "brow":
-                actor, ks = self.brow(), [list(MEASURES).index("brow_right"), list(MEASURES).index("brow_left")]
+                actor, ks = self.brow(), BROW_COLUMNS
             else:
                 actor, ks = self.source[:, list(MEASURES).index(measure)], [list(MEASURES).index(measure)]
             character = float(np.median(self.character[at][:, ks].mean(1))) - float(np.mean(self.character_rest[ks]))

@@ -46,13 +46,9 @@ def feature_positions(rig: FaceRig, blend_weights: np.ndarray) -> np.ndarray:
     auto = [b for b, n in enumerate(rig.bone_names) if n.startswith(AUTO_PREFIX)]
     if not auto:
         return out
-    if rig.landmark_faces is None:
-        verts = rig.landmark_vertices[rig.bone_landmarks[auto]]
-        deltas = rig.morph_positions[:, verts].reshape(rig.n_morphs, -1).astype(np.float32)  # (M, n*3)
-    else:  # barycentric on the landmark's triangle
-        verts, bary, _ = landmark_support(rig, rig.bone_landmarks[auto])
-        deltas = np.einsum("mnjc,nj->mnc", rig.morph_positions[:, verts], bary.astype(np.float32))
-        deltas = deltas.reshape(rig.n_morphs, -1).astype(np.float32)
+    verts, bary, _ = landmark_support(rig, rig.bone_landmarks[auto])  # its triangle, or its vertex
+    deltas = np.einsum("mnjc,nj->mnc", rig.morph_positions[:, verts], bary.astype(np.float32))
+    deltas = deltas.reshape(rig.n_morphs, -1).astype(np.float32)  # (M, n*3)
     out[:, auto] += (weights @ deltas).reshape(len(weights), len(auto), 3)
     return out
 
