@@ -39,6 +39,7 @@ from capture2face.maths.stats import pearson
 from capture2face.rig.arkit_names import GAZE_SCORES, arkit_morphs, arkit_weights
 from capture2face.rig.face_rig import landmark_points, landmark_support
 from capture2face.tracking.head_pose import head_landmarks
+from capture2face.tracking.rest import actor_rest
 
 # name -> (landmark a, landmark b): the measure is |p_a - p_b|.
 MEASURES: dict[str, tuple[int, int]] = {
@@ -178,12 +179,14 @@ def raw_head_landmarks(track, start: int = 0, stop: int | None = None) -> np.nda
 
 
 def source_measures(track) -> np.ndarray:
-    """(F, 6) the actor's measures: raw landmarks, head rotation removed, 8 Hz low-pass
+    """(F, 6) the actor's measures: raw landmarks, head rotation removed, 8 Hz low-pass;
+    IOD and eye openings of the actor's rest (:func:`~capture2face.tracking.rest.actor_rest`)
     (computed :data:`CHUNK` frames at a time: memory stays flat on long clips)."""
     n = track.n_frames
     dist = np.concatenate([_distances(raw_head_landmarks(track, s, min(n, s + CHUNK))[:, MEASURED])
                            for s in range(0, n, CHUNK)])
-    return lowpass(_normalise(dist, dist[track.neutral_frame]), track.fps)
+    rest = _distances(actor_rest(track).face[None, MEASURED].astype(np.float64))[0]
+    return lowpass(_normalise(dist, rest), track.fps)
 
 
 def rig_landmark_points(rig, bone_positions: np.ndarray, blend_weights: np.ndarray,

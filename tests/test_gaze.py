@@ -34,13 +34,13 @@ def _gaze_clip(rig, frames=60, seed=3):
 def test_gaze_from_exact_irises_recovers_the_angles(avatar):
     truth, bones, weights = _gaze_clip(avatar)
     lm = deformed_landmarks(avatar, bones, weights, eye_rotation=truth)
-    est = eye_rotation(lm, 0, eye_radius_iod(avatar))
+    est = eye_rotation(lm, lm[0], eye_radius_iod(avatar))
     assert est.shape == truth.shape and est.dtype == np.float32
     # Pitch is the two eyes' mean (equal here); the iris mean sits on the eye's sphere
     # direction, so the angles come back to within rounding.
     assert np.abs(est - truth).max() < 0.05
     # A human's smaller eye radius reads the same motion as larger angles.
-    human = eye_rotation(lm, 0, HUMAN_RADIUS_IOD)
+    human = eye_rotation(lm, lm[0], HUMAN_RADIUS_IOD)
     moving = np.abs(truth[..., 0]) > 5
     assert np.all(np.abs(human[..., 0][moving]) > np.abs(truth[..., 0][moving]))
 
@@ -51,7 +51,7 @@ def test_gaze_survives_blinks(avatar):
     weights[20:26, blink_r] = 1.0  # the right eye winks: it takes the left eye's angles
     weights[40:44, [blink_r, blink_l]] = 1.0  # both blink: bridged from the frames around
     lm = deformed_landmarks(avatar, bones, weights, eye_rotation=truth)
-    est = eye_rotation(lm, 0, eye_radius_iod(avatar))
+    est = eye_rotation(lm, lm[0], eye_radius_iod(avatar))
     np.testing.assert_array_equal(est[20:26, 0], est[20:26, 1])
     np.testing.assert_allclose(est[20:26, 1], truth[20:26, 1], atol=0.05)
     bridge = np.array([np.interp(np.arange(40, 44), [39, 44], est[[39, 44], e, c]) for e in (0, 1) for c in (0, 1)])

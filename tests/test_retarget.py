@@ -188,15 +188,15 @@ def test_linear_solver_prior_and_rigid_unknowns_match_bounded_least_squares():
 def test_steadied_map_keeps_the_neutral_and_blends_the_motion():
     """SteadiedMap: the neutral lands on the target's exactly; share 1 is the network,
     share 0 the similarity of the two neutrals (a scaled, turned copy of the motion)."""
-    from capture2face.maths.rotations import rotation_ypr
-    from capture2face.retarget.arkit_solve import SteadiedMap, similarity
+    from capture2face.maths.rotations import rotation_ypr, similarity
+    from capture2face.retarget.arkit_solve import SteadiedMap
 
     rng = np.random.default_rng(2)
     src = rng.normal(size=(40, 3)) * [7, 9, 4]
     rot = rotation_ypr(np.array([10.0, -5.0, 3.0]))
     tgt = 1.3 * src @ rot.T + [1, 2, 3] + rng.normal(0, 0.3, src.shape)  # another face: a similar one, reshaped
     net = fit_feature_map(src, tgt, kernel="cubic")
-    s, r = similarity(src, tgt)
+    s, r, _ = similarity(src, tgt)
     assert abs(s - 1.3) < 0.05 and np.abs(r - rot).max() < 0.05
     motion = src + rng.normal(0, 0.2, src.shape)
     for share in (0.0, 0.5, 1.0):
@@ -344,11 +344,12 @@ def test_default_priors_stay_close_on_a_perfect_track(rig, performance):
 def test_depth_motion_scales_the_trackers_depth_motion_only(rig, performance):
     from capture2face.retarget import feature_correspondence
     from capture2face.retarget.driver import _fit_network
+    from capture2face.tracking.rest import actor_rest
 
     track = perfect_track(rig, performance)
     landmarks, target, _ = feature_correspondence(rig)
-    half = _fit_network(track, rig, landmarks, target, RetargetOptions(depth_motion=0.5))
-    full = _fit_network(track, rig, landmarks, target, RetargetOptions(depth_motion=1.0))
+    half = _fit_network(actor_rest(track), rig, landmarks, target, RetargetOptions(depth_motion=0.5))
+    full = _fit_network(actor_rest(track), rig, landmarks, target, RetargetOptions(depth_motion=1.0))
     src = track.landmarks_head[:, landmarks].astype(np.float64)
     neutral = src[track.neutral_frame]
     damped = neutral + (src - neutral) * np.array([1.0, 1.0, 0.5])

@@ -42,7 +42,7 @@ from scipy.spatial import cKDTree
 
 from capture2face.character.landmarks import with_surface_landmarks
 from capture2face.errors import CaptureError
-from capture2face.gltf.rig_import import _similarity
+from capture2face.maths.rotations import similarity
 from capture2face.rig.arkit_names import arkit_morphs
 from capture2face.rig.avatar import default_avatar
 from capture2face.rig.face_rig import FaceRig, landmark_points, landmark_support
@@ -102,7 +102,7 @@ def automatic_wrinkles(rig: FaceRig) -> FaceRig:
     canon = avatar.vertices[avatar.landmark_vertices.clip(0)].astype(np.float64)
     both = np.flatnonzero((avatar.landmark_vertices >= 0) & (lmv >= 0))[:468]
     both = both[both < 468]
-    s, rot, t = _similarity(canon[both], points[both])
+    s, rot, t = similarity(canon[both], points[both])
     fitted = avatar.vertices.astype(np.float64) @ (s * rot).T + t  # (Va, 3) on the character
     askin = np.flatnonzero(avatar.material == 0)
     dist, nearest = cKDTree(fitted[askin]).query(rig.vertices.astype(np.float64), k=1)

@@ -45,9 +45,10 @@ dimensionless) and how each is measured:
   radius (``RetargetOptions.eye_radius_iod`` = ``retarget.gaze.eye_radius_iod(source)``)
   unless ``options`` are given.
 * Retargeting starts from a frame the truth holds at neutral, and again from the
-  tracker's own pick (``neutral_frame_auto``; one tracking pass, two retargets): the
-  second set of figures, same keys, is the nested ``auto_neutral`` block, so the cost of a
-  bad neutral pick shows.
+  tracker's own rest (each region's most relaxed frames; one tracking pass, two
+  retargets): the second set of figures, same keys, is the nested ``auto_neutral`` block,
+  so the cost of a bad rest shows; ``rest_offsets_iod``: that rest's brow height, lid
+  openings and lip gap less the tracker's at the truth's neutral frames (IOD).
 * ``goals``: the benchmark's goals (:data:`GOALS`, stated for 300 frames), each with the
   values it was judged on and ``met``; also inside ``auto_neutral``.
 
@@ -85,6 +86,7 @@ from capture2face.rig.influences import (
 )
 from capture2face.synth import SynthOptions, synthesize
 from capture2face.tracking import TrackOptions, track_clip
+from capture2face.tracking.rest import GEOMETRY, actor_rest, frame_rest, rest_fields, rest_geometry
 
 # A morph is active in a clip when its true weight's std over the scored frames exceeds this.
 ACTIVE_STD = 0.02
@@ -430,8 +432,9 @@ def evaluate_track(track, truth, target_variant: str | None = None,
     the result reports: ``neutral_frame_auto`` and ``neutral_frame_auto_offset_iod``, the
     largest true bone displacement on that frame).
     ``auto_neutral`` (with ``true_neutral``): also retarget the same track from the
-    tracker's own pick and score it into the nested ``auto_neutral`` block (same keys,
-    its own ``goals``). When the pick is the truth's frame the block repeats the figures.
+    tracker's own rest (each region's, :mod:`capture2face.tracking.rest`) and score it into
+    the nested ``auto_neutral`` block (same keys, its own ``goals``), with
+    ``rest_offsets_iod`` (:func:`rest_offsets`).
     """
     auto = int(track.neutral_frame)
     held = truth.pose_frames("neutral")
@@ -440,8 +443,11 @@ def evaluate_track(track, truth, target_variant: str | None = None,
     if options is None:  # the actor's eyes are the source avatar's
         options = RetargetOptions(eye_radius_iod=eye_radius_iod(source))
 
-    def run(neutral: int) -> dict:
-        posed = dataclasses.replace(track, neutral_frame=int(neutral))
+    def run(neutral: int | None) -> dict:
+        posed = track  # None: the tracker's own rest
+        if neutral is not None:
+            rest = frame_rest(track.landmarks_head, track.blendshapes, list(track.blendshape_names), neutral)
+            posed = dataclasses.replace(track, neutral_frame=int(neutral), **rest_fields(rest))
         start = time.perf_counter()
         animation = retarget(posed, target, options)
         elapsed = time.perf_counter() - start
@@ -450,17 +456,27 @@ def evaluate_track(track, truth, target_variant: str | None = None,
         result["goals"] = goals(result)
         return result
 
-    first = int(held[0]) if true_neutral and len(held) else auto
+    first = int(held[0]) if true_neutral and len(held) else None
     result = run(first)
     moved = np.linalg.norm(truth.bone_positions[auto] - source.bone_rest, axis=1).max()
     result["neutral_frame_auto"] = auto
     result["neutral_frame_auto_offset_iod"] = float(moved / source.interocular())
-    if auto_neutral and first != auto:
-        result["auto_neutral"] = run(auto)
-    elif auto_neutral:
-        result["auto_neutral"] = {k: v for k, v in result.items() if k not in ("neutral_frame_auto",
-                                                                               "neutral_frame_auto_offset_iod")}
+    if auto_neutral and first is not None:
+        result["auto_neutral"] = run(None)
+        result["rest_offsets_iod"] = rest_offsets(track, held)
     return result
+
+
+def rest_offsets(track, neutral_frames: np.ndarray) -> dict[str, float]:
+    """Each rest measure of the tracker's own rest (:mod:`capture2face.tracking.rest`: brow
+    height, lid openings, lip gap) less the same measure at the frames the truth holds at
+    neutral (the tracker's landmarks there, so its bias cancels), in IOD; {} without such
+    frames."""
+    if not len(neutral_frames):
+        return {}
+    at_neutral = np.median(rest_geometry(track.landmarks_head)[np.asarray(neutral_frames)], 0)
+    rest = rest_geometry(actor_rest(track).landmarks[None])[0]
+    return {name: round(float(rest[k] - at_neutral[k]), 4) for k, name in enumerate(GEOMETRY)}
 
 
 def evaluate_synthetic(

@@ -111,6 +111,7 @@ from capture2face.gltf.container import (
     texture_transform,
 )
 from capture2face.gltf.mapping import check_mapping
+from capture2face.maths.rotations import similarity
 from capture2face.rig.arkit_names import arkit_morphs, canonical_arkit
 from capture2face.rig.avatar import default_avatar
 from capture2face.rig.face_rig import REGION_NAMES, ZONE_NAMES, FaceRig
@@ -1147,18 +1148,6 @@ def _apply_mapping(rig: FaceRig, mapping: dict) -> FaceRig:
                              tabled={k for k in given_table})
 
 
-def _similarity(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """Least-squares s, R, t with dst ~ s R src + t (Umeyama)."""
-    ms, md = src.mean(0), dst.mean(0)
-    a, b = src - ms, dst - md
-    u, sig, vt = np.linalg.svd(b.T @ a)
-    d = np.ones(3)
-    d[2] = np.sign(np.linalg.det(u @ vt)) or 1.0
-    rot = u @ np.diag(d) @ vt
-    s = float((sig * d).sum() / max((a ** 2).sum(), 1e-12))
-    return s, rot, md - s * rot @ ms
-
-
 def _lend_from_avatar(rig: FaceRig, posed: set, tabled: set) -> FaceRig:
     known = np.flatnonzero(rig.bone_landmarks >= 0)
     if len(known) < 3:
@@ -1180,7 +1169,7 @@ def _lend_from_avatar(rig: FaceRig, posed: set, tabled: set) -> FaceRig:
     ok = [b for b in known if np.isfinite(canon[rig.bone_landmarks[b]]).all()]
     if len(ok) < 3:
         return rig
-    s, rot, t = _similarity(canon[rig.bone_landmarks[ok]], rig.bone_rest[ok].astype(np.float64))
+    s, rot, t = similarity(canon[rig.bone_landmarks[ok]], rig.bone_rest[ok].astype(np.float64))
     fitted = canon @ (s * rot).T + t  # avatar landmarks on the character
 
     # Poses: the avatar's offsets of the bone on the same landmark, rotated and scaled.

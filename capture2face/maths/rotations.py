@@ -94,3 +94,16 @@ def head_rotations(head_pose: np.ndarray) -> np.ndarray:
     quaternions (x, y, z, w) of their rotation part (:func:`rotation_part`), sign-continuous
     (:func:`quaternions`). Non-finite poses become the identity."""
     return quaternions(rotation_part(head_pose))
+
+
+def similarity(source: np.ndarray, target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """Scale, rotation (3, 3) and shift (3,) of the least-squares similarity
+    ``target ~ scale * rotation @ source + shift`` of points (N, 3) (Umeyama)."""
+    ms, mt = source.mean(0), target.mean(0)
+    a, b = source - ms, target - mt
+    u, sv, vt = np.linalg.svd(b.T @ a)
+    d = np.ones(3)
+    d[2] = np.sign(np.linalg.det(u @ vt)) or 1.0
+    rot = u @ np.diag(d) @ vt
+    scale = float((sv * d).sum() / max((a * a).sum(), 1e-12))
+    return scale, rot, mt - scale * rot @ ms

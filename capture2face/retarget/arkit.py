@@ -6,12 +6,12 @@ often scores 0.6-0.8, and browInnerUp barely follows the brows. :func:`arkit_cur
 gives each of the 52 curves ARKit's meaning (0 at rest, 1 at the full pose):
 
 * **every curve**: the score calibrated to the clip's rest, ``(s - s0) / (1 - s0)``
-  clipped to [0, 1], ``s0`` the score at the neutral frame. Subtracting alone would cap
-  the curve at ``1 - s0``; dividing by ``1 - s0`` keeps a saturated score at 1, so the
-  full range survives while the neutral lands on 0.
+  clipped to [0, 1], ``s0`` the score at the actor's rest (its region's, :mod:`capture2face.tracking.rest`).
+  Subtracting alone would cap the curve at ``1 - s0``; dividing by ``1 - s0`` keeps a
+  saturated score at 1, so the full range survives while the rest lands on 0.
 * **jawOpen, eyeBlinkLeft/Right, browInnerUp** (:data:`GEOMETRIC`): the curve is the
   face's geometry instead, per clip mapped to [0, 1]: mouth opening 13-14, eye closure
-  1 - opening / neutral opening (159-145, 386-374), brow height 105-33 / 334-263. The
+  1 - opening / rest opening (159-145, 386-374), brow height 105-33 / 334-263. The
   tracker's landmark filter (One Euro, :data:`LANDMARK_FILTER`) takes part of the fast
   motion of blinks and jaw snaps away, so the detail it removed is put back from the score (the score
   mapped to centimetres by a per-clip fit, minus the same filter's output on it): the
@@ -30,6 +30,7 @@ import numpy as np
 from capture2face.io.framestore import take_points
 from capture2face.maths.stats import pearson
 from capture2face.tracking.filtering import OneEuro, one_euro
+from capture2face.tracking.rest import ActorRest, actor_rest
 from capture2face.tracking.tracker import TrackOptions
 
 # curve -> landmark pairs whose distance is its geometric measure (two pairs: the mean).
@@ -58,11 +59,11 @@ FILTER_COLUMNS = 8  # curves calibrated and filtered together (memory of the tem
 # The tracker's landmark filter (TrackOptions defaults): what it took from the geometry is
 # what the score's detail restores.
 LANDMARK_FILTER = TrackOptions().landmark_filter()
-# Rest of the geometric curves: the neutral frame, or the clip's 2% most-rested frames
-# where those go further. The automatic neutral frame has the least expression energy
+# Rest of the geometric curves: the actor's rest, or the clip's 2% most-rested frames
+# where those go further. (A whole-face neutral frame has the least expression energy
 # overall, not closed lips and open eyes: on the real clips 38-80% of frames had the lips
 # more closed than it, and up to 73% the eyes wider; a curve clipped at 0 there loses that
-# motion (JawOpen r 0.73 instead of 0.95 on one clip).
+# motion: JawOpen r 0.73 instead of 0.95 on one clip.)
 REST_PERCENTILE = 2.0
 
 
@@ -72,9 +73,9 @@ def calibrate_scores(scores: np.ndarray, rest: np.ndarray) -> np.ndarray:
     return np.clip((np.asarray(scores, np.float64) - rest) / (1.0 - rest), 0.0, 1.0)
 
 
-def geometric_measures(landmarks_head, neutral_frame: int, chunk: int = 512) -> tuple[np.ndarray, float]:
+def geometric_measures(landmarks_head, chunk: int = 512) -> tuple[np.ndarray, np.ndarray]:
     """(F, 4) distances in cm of the :data:`GEOMETRIC` measures (columns in its order),
-    and the inter-ocular distance (cm) at the neutral frame.
+    and the inter-ocular distance (F,) cm.
 
     Args:
         landmarks_head: (F, L, 3) head-coordinate landmarks, cm (an array or a disk-backed
@@ -87,8 +88,7 @@ def geometric_measures(landmarks_head, neutral_frame: int, chunk: int = 512) -> 
     out = np.empty((len(pts), len(GEOMETRIC)))
     for k, measure_pairs in enumerate(GEOMETRIC.values()):
         out[:, k] = np.mean([np.linalg.norm(pts[:, col[a]] - pts[:, col[b]], axis=-1) for a, b in measure_pairs], 0)
-    iod = float(np.linalg.norm(pts[neutral_frame, col[IOD_PAIR[0]]] - pts[neutral_frame, col[IOD_PAIR[1]]]))
-    return out, max(iod, 1e-6)
+    return out, np.linalg.norm(pts[:, col[IOD_PAIR[0]]] - pts[:, col[IOD_PAIR[1]]], axis=-1)
 
 
 def restore_detail(distance: np.ndarray, score: np.ndarray, times: np.ndarray, sign: float) -> np.ndarray:
@@ -102,39 +102,42 @@ def restore_detail(distance: np.ndarray, score: np.ndarray, times: np.ndarray, s
     return distance + (cm - one_euro(cm, times, LANDMARK_FILTER))
 
 
-def arkit_curves(track) -> np.ndarray:
+def arkit_curves(track, rest: ActorRest | None = None) -> np.ndarray:
     """(F, S) float32 ARKit curves in [0, 1], columns named and ordered as
     ``track.blendshape_names`` (MediaPipe's 52: ``_neutral`` then the ARKit names).
 
     Args:
         track: a Track with ``blendshapes`` (F, S) raw scores, ``landmarks_head`` (F, 478, 3)
-            cm, ``times`` (F,), ``neutral_frame``.
+            cm, ``times`` (F,).
+        rest: the actor's rest (default: the track's, :func:`~capture2face.tracking.rest.actor_rest`).
     """
+    rest = actor_rest(track) if rest is None else rest
     names = list(track.blendshape_names)
     raw = np.asarray(track.blendshapes)  # (F, S) float32: read a few columns at a time
     times = np.asarray(track.times, np.float64)
-    n0 = int(track.neutral_frame)
     geometric = {}  # column -> its curve from the geometry (F,)
     wanted = [k for k, name in enumerate(GEOMETRIC) if name in names]
     if wanted and len(raw) >= 3:
-        dist, iod = geometric_measures(track.landmarks_head, n0)
+        dist, _ = geometric_measures(track.landmarks_head)
+        rest_dist, rest_iod = geometric_measures(rest.landmarks[None])
+        iod = max(float(rest_iod[0]), 1e-6)
         for k in wanted:
             name = list(GEOMETRIC)[k]
             c = names.index(name)
             score = np.nan_to_num(raw[:, c].astype(np.float64))
             blink = name.startswith("eyeBlink")
             d = restore_detail(dist[:, k], score, times, -1.0 if blink else 1.0)
-            # Rest: the neutral frame, or the clip's own most-rested frames (widest eye,
-            # closest lips, lowest brows) where the face goes further than the neutral;
-            # taken from the filtered geometry (the restored detail can overshoot a step).
+            # Rest: the actor's, or the clip's own most-rested frames (widest eye, closest
+            # lips, lowest brows) where the face goes further than it; taken from the
+            # filtered geometry (the restored detail can overshoot a step).
             g = dist[:, k]
             if blink:
-                rest = max(g[n0], np.percentile(g, 100.0 - REST_PERCENTILE))
-                m = 1.0 - d / max(rest, 1e-6)  # fraction of the rest opening closed
+                g0 = max(rest_dist[0, k], np.percentile(g, 100.0 - REST_PERCENTILE))
+                m = 1.0 - d / max(g0, 1e-6)  # fraction of the rest opening closed
             else:
-                rest = min(g[n0], np.percentile(g, REST_PERCENTILE))
-                m = (d - rest) / iod
-            score_rest = min(score[n0], np.percentile(score, REST_PERCENTILE))
+                g0 = min(rest_dist[0, k], np.percentile(g, REST_PERCENTILE))
+                m = (d - g0) / iod
+            score_rest = min(rest.scores[c], np.percentile(score, REST_PERCENTILE))
             target = calibrate_scores(score, score_rest)
             up = np.clip(m, 0.0, None)
             # Per-clip gain: the calibrated score's scale, floored by the anatomical full
@@ -149,7 +152,7 @@ def arkit_curves(track) -> np.ndarray:
     for c0 in range(0, raw.shape[1], FILTER_COLUMNS):
         cols = range(c0, min(c0 + FILTER_COLUMNS, raw.shape[1]))
         scores = np.nan_to_num(raw[:, c0:cols.stop].astype(np.float64))
-        curves = calibrate_scores(scores, scores[n0])
+        curves = calibrate_scores(scores, rest.scores[c0:cols.stop])
         for j, c in enumerate(cols):
             if names[c] == "_neutral":  # not an ARKit curve: MediaPipe's own "no expression" score, kept
                 curves[:, j] = scores[:, j]

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from capture2face.maths.rotations import similarity
 from capture2face.retarget.solve import LinearRigModel
 from capture2face.rig.arkit_names import arkit_morphs
 from capture2face.rig.feature_points import landmark_basis
@@ -181,15 +182,6 @@ def rigid_columns(rest: np.ndarray) -> np.ndarray:
     return cols.reshape(3 * n, 6)
 
 
-def similarity(source: np.ndarray, target: np.ndarray) -> tuple[float, np.ndarray]:
-    """Scale and rotation (3, 3) of the least-squares similarity from ``source`` (N, 3) onto
-    ``target`` (N, 3) (Umeyama)."""
-    a, b = source - source.mean(0), target - target.mean(0)
-    u, sv, vt = np.linalg.svd(b.T @ a)
-    d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
-    return float((sv * np.diag(d)).sum() / max((a * a).sum(), 1e-12)), u @ d @ vt
-
-
 class SteadiedMap:
     """The feature-point network, its motion blended with a similarity's: ``share`` of each
     frame's motion away from the neutral as the network maps it, the rest as the whole
@@ -210,7 +202,7 @@ class SteadiedMap:
 
     def __init__(self, network, share):
         self.network, self.share = network, np.asarray(share, np.float64)[..., None]
-        self.scale, self.rotation = similarity(network.source_neutral, network.target_neutral)
+        self.scale, self.rotation, _ = similarity(network.source_neutral, network.target_neutral)
 
     def __call__(self, source_points: np.ndarray) -> np.ndarray:
         pts = np.asarray(source_points, np.float64)

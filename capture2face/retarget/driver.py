@@ -23,6 +23,7 @@ from capture2face.rig import influences as inf
 from capture2face.rig.arkit_names import arkit_weights, drive_mode
 from capture2face.rig.avatar import close_lips
 from capture2face.rig.feature_points import feature_correspondence, feature_positions
+from capture2face.tracking.rest import REGIONS, ActorRest, actor_rest, landmark_regions
 
 
 @dataclass
@@ -162,8 +163,8 @@ def _reliability(median_r2: np.ndarray, floor: float) -> np.ndarray:
     return w / w.mean()
 
 
-def _fit_network(track, rig, landmarks, target, options: RetargetOptions) -> FeatureMap:
-    neutral = np.asarray(track.landmarks_head[track.neutral_frame], np.float64)
+def _fit_network(rest: ActorRest, rig, landmarks, target, options: RetargetOptions) -> FeatureMap:
+    neutral = np.asarray(rest.face, np.float64)
     if options.close_source_lips:
         neutral = close_lips(neutral)
     neutral = neutral[landmarks]
@@ -239,7 +240,7 @@ def solve_bones_weights(mapped: MappedPoints, rig, landmarks: np.ndarray, per_ve
     Args:
         mapped: the network's output (target feature points per frame), by window.
         landmarks: (N,) the tracker landmarks they belong to.
-        neutral: the neutral frame, pinned to rest bones and zero weights.
+        neutral: a frame pinned to rest bones and zero weights (a rest of one frame), or None.
     """
     rest = rig.bone_rest.astype(np.float64)
     bone_lm = np.asarray(rig.bone_landmarks)
@@ -318,43 +319,44 @@ def retarget(track, rig, options: RetargetOptions | None = None) -> Animation:
         raise CaptureError("the track has no frames to retarget")
     if not 0 <= track.neutral_frame < track.n_frames:
         raise CaptureError(f"neutral frame {track.neutral_frame} is outside the track's {track.n_frames} frames")
+    rest = actor_rest(track)
     # The solve's matrices are small (~100 x 100): BLAS threads only add synchronisation,
     # which on a loaded 2-core machine made a 105 x 105 eigendecomposition take 77 ms
     # instead of 1 ms. One thread is the fast choice at these sizes.
     with threadpool_limits(limits=1, user_api="blas"):
-        return _retarget(track, rig, options)
+        return _retarget(track, rest, rig, options)
 
 
-def _retarget(track, rig, options: RetargetOptions) -> Animation:
+def _retarget(track, rest: ActorRest, rig, options: RetargetOptions) -> Animation:
     if drive_mode(rig) == "arkit":
-        return _retarget_arkit(track, rig, options)
+        return _retarget_arkit(track, rest, rig, options)
     landmarks, target, per_vertex = feature_correspondence(rig)
-    network = _fit_network(track, rig, landmarks, target, options)
+    network = _fit_network(rest, rig, landmarks, target, options)
     windows = frame_windows(track.n_frames, options.window_frames, options.window_overlap)
     reads = 1 + (options.reweight_iterations if per_vertex and options.joint_solve else 0)
     with MappedPoints(track.landmarks_head, network, landmarks, windows, reads) as mapped:
-        bones, weights = solve_bones_weights(mapped, rig, landmarks, per_vertex, options, track.neutral_frame)
+        bones, weights = solve_bones_weights(mapped, rig, landmarks, per_vertex, options, rest.single_frame)
     if weights is None:
         weights = _mediapipe_weights(track, rig)
-    return _animation(track, rig, bones, weights, arkit_curves(track), options)
+    return _animation(track, rest, rig, bones, weights, arkit_curves(track, rest), options)
 
 
-def _retarget_arkit(track, rig, options: RetargetOptions) -> Animation:
+def _retarget_arkit(track, rest: ActorRest, rig, options: RetargetOptions) -> Animation:
     """A character without face bones: its morph weights are solved from the feature
     points, with the clip's ARKit curves (which already have ARKit meaning,
     :func:`~capture2face.retarget.arkit.arkit_curves`) as the prior and as the weights of
     what the points cannot see (:mod:`capture2face.retarget.arkit_solve`); without
     landmark points on its skin (or ``solve_blend_weights`` off) its ARKit-named morphs
     take the curves. Bones stay at rest (the head rotation is the animation's head pose)."""
-    curves = arkit_curves(track)
+    curves = arkit_curves(track, rest)
     weights = arkit_weights(list(track.blendshape_names), curves, rig.morph_names)
     landmarks = _skin_landmarks(rig)
     if options.solve_blend_weights and landmarks is not None:
-        weights = _solve_arkit_weights(track, rig, landmarks, weights, options)
+        weights = _solve_arkit_weights(track, rest, rig, landmarks, weights, options)
     bones = np.repeat(rig.bone_rest[None].astype(np.float32), track.n_frames, 0)
     # Automatic feature points (character.auto_wrinkles) measure the influences where the
     # morphs carry them; as bones they stay at rest (the morphs deform the face).
-    return _animation(track, rig, bones, weights, curves, options,
+    return _animation(track, rest, rig, bones, weights, curves, options,
                       influence_bones=_per_frame(lambda w: feature_positions(rig, w), weights))
 
 
@@ -368,14 +370,15 @@ def _skin_landmarks(rig) -> np.ndarray | None:
     return landmarks if per_vertex else None
 
 
-def _solve_arkit_weights(track, rig, landmarks: np.ndarray, prior: np.ndarray, options: RetargetOptions) -> np.ndarray:
+def _solve_arkit_weights(track, rest: ActorRest, rig, landmarks: np.ndarray, prior: np.ndarray,
+                         options: RetargetOptions) -> np.ndarray:
     """(F, M) float32 morph weights of an ARKit character solved from the mapped feature
     points at ``landmarks`` (N,), ``prior`` (F, M) the curves as morph weights."""
     solve = morph_solve(rig, landmarks, options.arkit_min_motion, options.arkit_pair_across)
     point_weights = arkit_point_weights(landmarks, landmark_prior_weights(landmarks, options),
                                         options.arkit_other_weight, options.arkit_pair_weight)
     options = dataclasses.replace(options, morph_ridge=options.arkit_morph_ridge, sparsity=options.arkit_sparsity)
-    network = SteadiedMap(_fit_network(track, rig, landmarks, solve.model.rest[:len(landmarks)], options),
+    network = SteadiedMap(_fit_network(rest, rig, landmarks, solve.model.rest[:len(landmarks)], options),
                           np.where(np.isin(landmarks, EYE_CONTOURS), options.arkit_eye_share, options.arkit_network_share))
     windows = frame_windows(track.n_frames, options.window_frames, options.window_overlap)
     weights = np.zeros_like(prior)
@@ -387,27 +390,53 @@ def _solve_arkit_weights(track, rig, landmarks: np.ndarray, prior: np.ndarray, o
     prior_x[:, nf:] = prior[:, solved]
     with MappedPoints(track.landmarks_head, network, landmarks, windows, 1 + options.reweight_iterations) as mapped:
         for w, x in solve_windows(CurveShifted(mapped, solve, prior), solve.model, point_weights, options,
-                                  track.neutral_frame, prior=prior_x, prior_strength=strength):
+                                  rest.single_frame, prior=prior_x, prior_strength=strength):
             weights[w.start:w.stop, solved] += (w.fade[:, None] * x[:, nf:]).astype(np.float32)
     return weights
 
 
-def _gaze(track, options: RetargetOptions) -> np.ndarray | None:
+def _gaze(track, rest: ActorRest, options: RetargetOptions) -> np.ndarray | None:
     """(F, 2, 2) eye yaw and pitch (degrees) from the tracked irises; None for a track
     without iris landmarks."""
     if track.landmarks_head.shape[1] < 478:
         return None
-    return gaze.eye_rotation(track.landmarks_head, track.neutral_frame, options.eye_radius_iod)
+    return gaze.eye_rotation(track.landmarks_head, rest.landmarks, options.eye_radius_iod)
 
 
-def _animation(track, rig, bones: np.ndarray, weights: np.ndarray, curves: np.ndarray,
+def wrinkle_reference(bones: np.ndarray, rig, rest: ActorRest) -> np.ndarray:
+    """(B, 3) where each bone sits at the actor's rest of its region, less its rest
+    position: the wrinkles' reference poses are measured from there.
+
+    The solve maps the rest onto the character's rest, but a region's rest frames are a
+    median of frames whose head coordinates carry the tracker's registration (MediaPipe's
+    fitted head pose shrinks the upper face as the jaw opens: brows 2 mm lower while
+    talking on one clip), so the brows of a talking actor sat below rest and drew frown
+    lines. Measured from the bones' own median over the region's rest frames, a wrinkle
+    appears only where the region moves away from its rest. Zero for a rest of one frame
+    (pinned to rest) or from outside the clip (no frames).
+
+    Args:
+        bones: (F, B, 3) the bones (or feature points) the influences are evaluated on.
+    """
+    shift = np.zeros((rig.n_bones, 3), np.float32)
+    regions = landmark_regions()
+    for b, lm in enumerate(np.asarray(rig.bone_landmarks)):
+        frames = rest.frames.get(REGIONS[regions[lm]], ()) if 0 <= lm < len(regions) else ()
+        if b > 0 and len(frames):
+            shift[b] = np.median(np.asarray(bones[np.asarray(frames)][:, b], np.float64), 0) - rig.bone_rest[b]
+    return shift
+
+
+def _animation(track, rest: ActorRest, rig, bones: np.ndarray, weights: np.ndarray, curves: np.ndarray,
                options: RetargetOptions, influence_bones: np.ndarray | None = None) -> Animation:
     """The Animation of solved bones (F, B, 3) and morph weights (F, M): the head bone
     pinned to rest, weights clipped to [0, 1], influences (from ``influence_bones``,
     default ``bones``), regions and zones evaluated, the gaze estimated."""
     bones[:, 0] = rig.bone_rest[0]
     weights = np.clip(weights, 0.0, 1.0).astype(np.float32, copy=False)
-    influences = _per_frame(lambda b: inf.rig_influences(b, rig), bones if influence_bones is None else influence_bones)
+    source = bones if influence_bones is None else influence_bones
+    shift = wrinkle_reference(source, rig, rest)
+    influences = _per_frame(lambda b: inf.rig_influences(b - shift, rig), source)
     return Animation(
         times=np.asarray(track.times, np.float64),
         fps=float(track.fps),
@@ -429,7 +458,7 @@ def _animation(track, rig, bones: np.ndarray, weights: np.ndarray, curves: np.nd
         character=rig.name,
         arkit_names=list(track.blendshape_names),
         arkit_weights=curves,
-        eye_rotation=_gaze(track, options),
+        eye_rotation=_gaze(track, rest, options),
     )
 
 

@@ -8,16 +8,16 @@ distance from the eye's centre of rotation to the iris. Per frame and eye:
 * ``d`` = the mean of the five iris landmarks minus the midpoint of the eye's corners
   (33/133, 263/362): measured against the eye's own corners, so what head-pose
   stabilization leaves of head motion cancels;
-* straight ahead is ``d`` at the neutral frame (the actor is taken to look straight ahead
-  there; the median over the few frames around it, against landmark jitter), so the
+* straight ahead is ``d`` at the actor's rest (the eyes' rest frames, where the eyes are
+  most relaxed and look straight ahead, :mod:`capture2face.tracking.rest`), so the
   actor's anatomy (where the iris sits between the corners) needs no model;
 * ``pitch = asin(-dy / r)`` (> 0 down), ``yaw = asin(dx / (r cos pitch))`` (> 0 towards
   the subject's left), ``dx, dy`` relative to straight ahead, r = ``radius_iod`` times the
-  inter-ocular distance (outer corners) at the neutral frame;
+  inter-ocular distance (outer corners) at rest;
 * the eyes' pitch is their mean (vertical vergence is nil in healthy eyes, and the mean
   halves the landmarks' noise), yaw stays per eye (horizontal vergence is real);
 * while a lid is nearly closed (opening 159-145 / 386-374 below ``CLOSED_FRACTION`` of
-  its neutral opening) its iris landmarks follow the lid, not the eye: the other eye's
+  its rest opening) its iris landmarks follow the lid, not the eye: the other eye's
   angles are used when it is open, else the gaze is interpolated over the blink.
 
 Signs and units are those of ``Animation.eye_rotation`` and Live Link Face.
@@ -42,9 +42,8 @@ EYES = (
 # distances (outer corners): a human eye of radius 12 mm whose iris plane lies ~11 mm in
 # front of its centre, on a face with ~9 cm between the outer eye corners.
 HUMAN_RADIUS_IOD = 0.12
-CLOSED_FRACTION = 0.45  # a lid opening below this fraction of the neutral one: iris unreliable
+CLOSED_FRACTION = 0.45  # a lid opening below this fraction of the rest one: iris unreliable
 MAX_DEG = 45.0  # the eye's mechanical range: estimates beyond it are clipped
-NEUTRAL_SPAN = 2  # frames either side of the neutral frame in its median
 
 
 def iris_offsets(landmarks_head, chunk: int = 512) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -77,22 +76,20 @@ def _fill_closed(values: np.ndarray, bad: np.ndarray) -> np.ndarray:
     return np.interp(np.arange(len(values)), good, values[good])
 
 
-def eye_rotation(landmarks_head, neutral_frame: int, radius_iod: float = HUMAN_RADIUS_IOD) -> np.ndarray:
+def eye_rotation(landmarks_head, rest: np.ndarray, radius_iod: float = HUMAN_RADIUS_IOD) -> np.ndarray:
     """(F, 2, 2) float32 yaw, pitch in degrees per eye (right, left) from the tracked irises.
 
     Args:
         landmarks_head: (F, 478, 3) head-coordinate landmarks (cm).
-        neutral_frame: the frame where the eyes look straight ahead.
+        rest: (478, 3) the landmarks at rest, eyes looking straight ahead.
         radius_iod: distance from the eyes' centre of rotation to the iris, in
             inter-ocular distances (:data:`HUMAN_RADIUS_IOD`).
     """
     offsets, opening, iod = iris_offsets(landmarks_head)
-    F = len(offsets)
-    n0 = int(neutral_frame)
-    span = slice(max(0, n0 - NEUTRAL_SPAN), min(F, n0 + NEUTRAL_SPAN + 1))
-    rest = np.median(offsets[span], axis=0)  # (2, 3)
-    rest_opening = np.maximum(np.median(opening[span], axis=0), 1e-6)
-    radius = max(float(radius_iod) * float(np.median(iod[span])), 1e-6)
+    rest_offsets, rest_opening, rest_iod = iris_offsets(np.asarray(rest)[None])
+    rest = rest_offsets[0]  # (2, 3)
+    rest_opening = np.maximum(rest_opening[0], 1e-6)
+    radius = max(float(radius_iod) * float(rest_iod[0]), 1e-6)
     d = (offsets - rest) / radius
     pitch = np.degrees(np.arcsin(np.clip(-d[..., 1], -1.0, 1.0)))  # (F, 2)
     yaw = np.degrees(np.arcsin(np.clip(d[..., 0] / np.maximum(np.cos(np.radians(pitch)), 1e-6), -1.0, 1.0)))

@@ -44,20 +44,12 @@ def head_speed(pose: np.ndarray, times: np.ndarray) -> np.ndarray:
     return np.concatenate([[step[0]], 0.5 * (step[1:] + step[:-1]), [step[-1]]])
 
 
-def mouth_gap(landmarks_head: np.ndarray) -> np.ndarray:
-    """(F,) distance between the inner lips (landmarks 13, 14) in inter-ocular distances
-    (33-263) of head-coordinate landmarks (F, L, 3)."""
-    pts = np.asarray(landmarks_head[:, [13, 14, 33, 263]], np.float64)
-    iod = np.linalg.norm(pts[:, 2] - pts[:, 3], axis=-1)
-    return np.linalg.norm(pts[:, 0] - pts[:, 1], axis=-1) / np.maximum(iod, 1e-9)
-
-
 def pick_neutral(blendshapes: np.ndarray, names: list[str], pose: np.ndarray,
                  times: np.ndarray, valid: np.ndarray, mouth_gap: np.ndarray | None = None) -> int:
     """Index of the neutral frame among ``valid`` (F,) bool frames (tracked, not filled).
 
     Args:
-        mouth_gap: (F,) lip gap in inter-ocular distances (:func:`mouth_gap`); None
+        mouth_gap: (F,) lip gap in inter-ocular distances (13-14 over 33-263); None
             judges by the scores alone.
     """
     valid = np.asarray(valid, bool)

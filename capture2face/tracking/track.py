@@ -44,6 +44,14 @@ class Track:
         n_gaps: number of gaps (runs of frames without a face).
         n_long_gaps: gaps longer than the interpolation limit (flagged as held).
         camera_fov_y: vertical field of view (degrees) assumed for head_pose.
+        rest_face: (L, 3) float32 the actor's whole face at rest, head coordinates
+            (:class:`~capture2face.tracking.rest.ActorRest`); None: worked out from the
+            clip when needed.
+        rest_landmarks: (L, 3) float32 the same, each region from its own rest frames.
+        rest_scores: (S,) float32 the scores at rest.
+        rest_frames: (4, K) int32 the frames each region's rest took (rows: brows, eyes,
+            mouth, face; -1 padded; all -1 for a rest from outside the clip).
+        rest_source: where the rest came from ("clip", "frame N", "image PATH", "clip PATH").
     """
 
     times: np.ndarray
@@ -65,6 +73,11 @@ class Track:
     n_gaps: int = 0
     n_long_gaps: int = 0
     camera_fov_y: float = 63.0
+    rest_face: np.ndarray | None = None
+    rest_landmarks: np.ndarray | None = None
+    rest_scores: np.ndarray | None = None
+    rest_frames: np.ndarray | None = None
+    rest_source: str = ""
 
     @property
     def n_frames(self) -> int:

@@ -29,8 +29,9 @@ from capture2face.tracking.landmarker import (
     FaceObservation,
     stack_observations,
 )
-from capture2face.tracking.neutral import mouth_gap, pick_neutral
+from capture2face.tracking.neutral import pick_neutral
 from capture2face.tracking.options import TrackOptions
+from capture2face.tracking.rest import GEOMETRY, clip_rest, frame_rest, rest_fields, rest_geometry
 from capture2face.tracking.segments import track_parallel
 from capture2face.tracking.track import Track
 
@@ -175,9 +176,13 @@ class TrackBuilder:
             neutral = int(options.neutral_frame)
             if not 0 <= neutral < n:
                 raise CaptureError(f"--neutral-frame {neutral} is outside the clip (0..{n - 1})")
-        landmarks, gap = self._landmark_passes(t, gaps, width, height, progress)
+        landmarks, geometry = self._landmark_passes(t, gaps, width, height, progress)
         if options.neutral_frame is None:
+            gap = geometry[:, GEOMETRY.index("lip_gap")]
             neutral = pick_neutral(scores, BLENDSHAPE_NAMES, pose_f, t, presence, mouth_gap=gap)
+            rest = clip_rest(landmarks["head"], scores, BLENDSHAPE_NAMES, pose_f, t, presence, geometry)
+        else:
+            rest = frame_rest(landmarks["head"], scores, BLENDSHAPE_NAMES, neutral)
 
         return Track(
             times=t,
@@ -199,6 +204,7 @@ class TrackBuilder:
             n_gaps=gaps.n_gaps,
             n_long_gaps=gaps.n_long_gaps,
             camera_fov_y=FOV_Y_DEGREES,
+            **rest_fields(rest),
         )
 
     def _landmark_passes(self, t: np.ndarray, gaps, width: int, height: int,
@@ -206,8 +212,8 @@ class TrackBuilder:
         """Gap-fill and filter the landmarks on disk window by window: a forward pass
         (pixels, depth, causal filter of the head-coordinate landmarks) and, for the
         zero-phase filter, a backward one. Returns the three landmark arrays and the
-        filtered landmarks' lip gap (F,) (:func:`~capture2face.tracking.neutral.mouth_gap`,
-        taken from each window as it is written: the neutral pick needs no second read)."""
+        filtered landmarks' rest geometry (F, 4) (:func:`~capture2face.tracking.rest.rest_geometry`,
+        taken from each window as it is written: the rest needs no second read)."""
         n = len(t)
         d = self._dir
         px = FrameArray(d / "landmarks_px.f32", (N_LANDMARKS, 2), np.float32)
@@ -218,7 +224,7 @@ class TrackBuilder:
         params = self.options.landmark_filter()
         windows = [(s, min(n, s + WINDOW_FRAMES)) for s in range(0, n, WINDOW_FRAMES)]
         scale = np.array([width, height], np.float64)
-        gap = np.empty(n)
+        geometry = np.empty((n, len(GEOMETRY)))
         bar = tqdm(total=len(windows) * (2 if zero_phase else 1), disable=not progress or len(windows) < 4,
                    desc="filtering", unit="window", leave=False)
         with bar:
@@ -230,14 +236,14 @@ class TrackBuilder:
                 filtered = causal(gaps.fill_window(self._head.read_rows, s, e), t[s:e])
                 forward.write(s, filtered)
                 if not zero_phase:
-                    gap[s:e] = mouth_gap(filtered.astype(np.float32))  # as stored
+                    geometry[s:e] = rest_geometry(filtered.astype(np.float32))  # as stored
                 bar.update(1)
             if zero_phase:  # the same filter run backward in time over the forward result
                 causal = CausalOneEuro(params, speed_axis=-1)
                 for s, e in reversed(windows):
                     filtered = causal(forward.read(s, e)[::-1], -t[s:e][::-1])[::-1]
                     head.write(s, filtered)
-                    gap[s:e] = mouth_gap(filtered.astype(np.float32))  # as stored
+                    geometry[s:e] = rest_geometry(filtered.astype(np.float32))  # as stored
                     bar.update(1)
         for f in (self._norm, self._head, forward if zero_phase else None):
             if f is not None:
@@ -248,7 +254,7 @@ class TrackBuilder:
         result = {k: np.asarray(v) if self._own_dir else v.reopen_readonly() for k, v in out.items()}
         for v in out.values():
             v.close()
-        return result, gap
+        return result, geometry
 
 
 class Tracker:
