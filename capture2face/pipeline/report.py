@@ -8,6 +8,7 @@ from pathlib import Path
 
 from capture2face.errors import CaptureError
 from capture2face.pipeline.options import RunOptions
+from capture2face.tracking.rest import actor_rest, rest_warnings
 
 
 def outputs_complete(folder: str | os.PathLike) -> bool:
@@ -61,5 +62,5 @@ def track_warnings(track, options: RunOptions | None = None) -> list[str]:
                  else "the face nearest the centre" if faces == "center" else "the largest face")
         out.append(f"{track.n_faces_max} faces in view (the most seen at once); tracked: {start} at the start, "
                    "then the one continuing the track (choose with --face N or --faces largest|center)")
-    return out
+    return out + rest_warnings(actor_rest(track), list(track.blendshape_names))
 

@@ -56,6 +56,7 @@ from capture2face.rig.face_rig import FaceRig
 from capture2face.runtime.cores import free_cores
 from capture2face.runtime.heap import bound_heap, release_free_memory
 from capture2face.runtime.log import collect_warnings, log
+from capture2face.tracking.rest import actor_rest, rest_report
 
 
 @contextlib.contextmanager
@@ -242,6 +243,7 @@ def _report(clip, final: Path, rig: FaceRig, track, info, options: RunOptions, o
         "fps": float(track.fps),
         "source_size": [int(track.width), int(track.height)],
         "neutral_frame": int(track.neutral_frame),
+        "rest": rest_report(actor_rest(track)),
         "seconds": {k: round(v, 3) for k, v in seconds.items()},
         "fps_processing": n / seconds["total"],
         "track_fps": n / seconds["track"],

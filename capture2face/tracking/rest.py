@@ -205,7 +205,9 @@ def clip_rest(landmarks_head, scores: np.ndarray, names: list[str], pose: np.nda
     k = rest_frame_count(n_valid)
     total = cost.sum(1)
     share = np.array([OTHERS_WEIGHT[r] for r in REGIONS])
-    own = (1.0 - share) * cost + share * total[:, None]
+    valid = np.isfinite(total)
+    own = np.full_like(cost, np.inf)
+    own[valid] = (1.0 - share) * cost[valid] + share * total[valid, None]
     frames = {r: np.sort(np.argsort(c, kind="stable")[:k]) for r, c in zip((*REGIONS, FACE), (*own.T, total))}
     return _rest_of_frames(landmarks_head, scores, names, frames, "clip")
 
@@ -303,3 +305,45 @@ def with_clip_rest(track):
     rest = clip_rest(track.landmarks_head, track.blendshapes, list(track.blendshape_names), track.head_pose,
                      track.times, track.presence)
     return dataclasses.replace(track, **rest_fields(rest))
+
+
+# A region "never relaxes" when, at its calmest frames, a score of its own (gaze left out)
+# still reads above this, or (mouth) the lips stay this far apart (IOD). On the shared clips
+# and the synthetic faces the calmest frames reach at most 0.38 (brows: raised all through a clip),
+# 0.64 (eyes: squints MediaPipe scores on some faces all through a clip) and 0.05 IOD of lip
+# gap (docs/rest.md).
+NEVER_RELAXED = {"brows": 0.5, "eyes": 0.8, "mouth": 0.08}
+
+
+def rest_warnings(rest: ActorRest, names: list[str]) -> list[str]:
+    """One line per region that never relaxes in the clip, saying what to do about it."""
+    if not len(rest.frames.get(FACE, ())):
+        return []  # a rest from outside the clip: the user chose it
+    cols = region_score_columns(names, gaze=False)
+    out = []
+    for region in REGIONS:
+        if region == "mouth":
+            gap = rest.geometry[region]["lip_gap"]
+            if gap > NEVER_RELAXED[region]:
+                out.append(f"the lips never close in this clip ({gap:.2f} inter-ocular distances apart at their "
+                           "calmest): mouth shapes are measured from parted lips")
+            continue
+        if not cols[region]:
+            continue
+        k = cols[region][int(np.argmax(rest.scores[cols[region]]))]
+        if rest.scores[k] > NEVER_RELAXED[region]:
+            out.append(f"the {region} never relax in this clip ({names[k]} {rest.scores[k]:.2f} at their calmest): "
+                       f"their curves and wrinkles are measured from that expression")
+    if out:
+        out[-1] += "; give a frame at rest with --neutral-frame N"
+    return out
+
+
+def rest_report(rest: ActorRest) -> dict:
+    """report.json's ``rest``: where it came from and, per region (and the face), the frames
+    it took (their count and first ones) and its geometry."""
+    out: dict = {"source": rest.source}
+    for region in (*REGIONS, FACE):
+        frames = [int(f) for f in rest.frames.get(region, ())]
+        out[region] = {"frames": frames, **rest.geometry.get(region, {})}
+    return out
