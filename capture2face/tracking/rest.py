@@ -212,7 +212,8 @@ def clip_rest(landmarks_head, scores: np.ndarray, names: list[str], pose: np.nda
     return _rest_of_frames(landmarks_head, scores, names, frames, "clip")
 
 
-def frame_rest(landmarks_head, scores: np.ndarray, names: list[str], frame: int, source: str | None = None) -> ActorRest:
+def frame_rest(landmarks_head, scores: np.ndarray, names: list[str], frame: int,
+               source: str | None = None) -> ActorRest:
     """The rest of one frame for every region (``--neutral-frame``)."""
     frames = {r: np.array([int(frame)]) for r in (*REGIONS, FACE)}
     return _rest_of_frames(landmarks_head, scores, names, frames, source or f"frame {int(frame)}")
