@@ -48,6 +48,9 @@ from capture2face.pipeline.preflight import check_gl, check_shared
 from capture2face.runtime.cores import free_cores
 
 VIDEO_EXTENSIONS = (".mp4", ".mov", ".m4v", ".mkv", ".avi", ".webm", ".mpg", ".mpeg", ".wmv", ".flv")
+IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".webp", ".bmp", ".tif", ".tiff")
+NEUTRAL_SUFFIX = ".neutral"  # CLIP.neutral.jpg / CLIP.neutral.mp4 beside CLIP.mp4: its rest take
+LIST_COLUMNS = ("\t", " | ")  # a list file's line: CLIP, then optionally its rest take after either
 LIST_EXTENSIONS = (".txt", ".lst")
 REPORT_NAME = "batch_report.json"
 _GLOB_CHARS = set("*?[")
@@ -57,10 +60,12 @@ RAY_CONNECT_S = 10.0  # --ray HOST:PORT: joined within this (the command's check
 
 @dataclasses.dataclass
 class BatchClip:
-    """One input clip and the output folder name it gets (``OUT/<name>/``)."""
+    """One input clip, the output folder name it gets (``OUT/<name>/``) and its rest take
+    (an image or a clip of the actor at rest), if any."""
 
     path: str
     name: str
+    neutral: str | None = None
 
 
 def expand_inputs(inputs: Iterable[str | os.PathLike]) -> list[BatchClip]:
@@ -69,6 +74,10 @@ def expand_inputs(inputs: Iterable[str | os.PathLike]) -> list[BatchClip]:
     list) and plain paths. A path that does not exist is kept: the batch reports it as
     failed rather than silently dropping it.
 
+    Each clip's rest take: a list line's second column (after a tab or `` | ``), else a
+    sidecar ``CLIP.neutral.<image or video extension>`` beside it; sidecars are never
+    clips of their own.
+
     Output names are the clip stems; clips sharing a stem get their parent folder's name
     prefixed (``a/take.mp4`` -> ``a_take``, ``b/take.mp4`` -> ``b_take``).
 
@@ -76,23 +85,27 @@ def expand_inputs(inputs: Iterable[str | os.PathLike]) -> list[BatchClip]:
         CaptureError: nothing to process.
     """
     paths: list[Path] = []
+    listed: dict[Path, Path] = {}  # clip -> the rest take its list line names
     for item in inputs:
         text = os.fspath(item)
         p = Path(text)
         if p.is_dir():
-            paths += sorted(c for c in p.iterdir() if c.is_file() and c.suffix.lower() in VIDEO_EXTENSIONS)
+            paths += sorted(c for c in p.iterdir() if c.is_file() and c.suffix.lower() in VIDEO_EXTENSIONS
+                            and not _is_sidecar(c))
         elif _GLOB_CHARS & set(text) and not p.exists():
             matches = sorted(glob.glob(text, recursive=True))
             if not matches:
                 raise CaptureError(f"no file matches {text}")
-            paths += [Path(m) for m in matches if not Path(m).is_dir()]
+            paths += [Path(m) for m in matches if not Path(m).is_dir() and not _is_sidecar(Path(m))]
         elif p.is_file() and p.suffix.lower() in LIST_EXTENSIONS:
             # surrogateescape: a listed name that is not UTF-8 (Latin-1 bytes) still names its file
             for line in p.read_text(encoding="utf-8", errors="surrogateescape").splitlines():
                 line = line.split("#", 1)[0].strip()
                 if line:
-                    q = Path(line)
-                    paths.append(q if q.is_absolute() else p.parent / q)
+                    clip, neutral = _list_columns(line)
+                    paths.append(p.parent / clip)  # an absolute path stays itself
+                    if neutral:
+                        listed[paths[-1]] = p.parent / neutral
         else:
             paths.append(p)
     seen: set[Path] = set()
@@ -115,8 +128,42 @@ def expand_inputs(inputs: Iterable[str | os.PathLike]) -> list[BatchClip]:
         while name in used:
             name, k = f"{base}_{k}", k + 1
         used.add(name)
-        clips.append(BatchClip(str(p), name))
+        neutral = listed.get(p) or _sidecar(p)
+        clips.append(BatchClip(str(p), name, None if neutral is None else str(neutral)))
     return clips
+
+
+def _list_columns(line: str) -> tuple[str, str | None]:
+    """A list file's line -> (clip, its rest take or None)."""
+    for sep in LIST_COLUMNS:
+        if sep in line:
+            clip, neutral = line.split(sep, 1)
+            return clip.strip(), neutral.strip() or None
+    return line, None
+
+
+def _is_sidecar(path: Path) -> bool:
+    return path.stem.lower().endswith(NEUTRAL_SUFFIX)
+
+
+def _sidecar(clip: Path) -> Path | None:
+    """``CLIP.neutral.<ext>`` beside ``clip``, if there is one."""
+    for ext in IMAGE_EXTENSIONS + VIDEO_EXTENSIONS:
+        for candidate in (clip.with_name(clip.stem + NEUTRAL_SUFFIX + ext),
+                          clip.with_name(clip.stem + NEUTRAL_SUFFIX + ext.upper())):
+            if candidate.is_file():
+                return candidate
+    return None
+
+
+def clip_options(clip: BatchClip, options: Any) -> Any:
+    """``options`` for one clip: with its rest take (``neutral_image`` or ``neutral_clip``
+    by its extension), unless the batch's options give a rest of their own."""
+    given = any(getattr(options, k, None) is not None for k in ("neutral_frame", "neutral_image", "neutral_clip"))
+    if clip.neutral is None or given:
+        return options
+    kind = "neutral_image" if Path(clip.neutral).suffix.lower() in IMAGE_EXTENSIONS else "neutral_clip"
+    return dataclasses.replace(options, **{kind: clip.neutral})
 
 
 def _worker_init() -> None:
@@ -145,7 +192,8 @@ class _Report:
     def __init__(self, out: Path, clips: list[BatchClip], options: Any):
         self.path = out / REPORT_NAME
         self.t0 = time.perf_counter()
-        self.entries = [{"path": c.path, "name": c.name, "status": "pending", "seconds": None, "error": None}
+        self.entries = [{"path": c.path, "name": c.name, "status": "pending", "seconds": None, "error": None,
+                         **({"neutral": c.neutral} if c.neutral else {})}
                         for c in clips]
         # An earlier batch's entries stay; this batch's replace those of the same clip.
         merged = [dict(e, earlier=True) for e in _earlier_entries(self.path)]
@@ -341,7 +389,7 @@ def _plan_clips(report: _Report, clips: list[BatchClip], out: Path, options: Any
     and the others say why they run again. Writes the report."""
     todo = []
     for i, c in enumerate(clips):
-        skip, why = resume_check(out / c.name, options, c.path) if resume else (False, None)
+        skip, why = resume_check(out / c.name, clip_options(c, options), c.path) if resume else (False, None)
         if skip:
             report.entries[i].update(status="skipped", seconds=0.0, error=None)
         else:
@@ -384,7 +432,7 @@ def _run_clips(clips: list[BatchClip], todo: list[int], out: Path, options: Any,
         _run_ray(clips, todo, out, options, ray_address, done)
     elif n_jobs == 1:
         for i in todo:
-            done(i, _run_clip(clips[i].path, str(out), clips[i].name, options))
+            done(i, _run_clip(clips[i].path, str(out), clips[i].name, clip_options(clips[i], options)))
     else:
         _run_pool(clips, todo, out, options, n_jobs, done)
 
@@ -400,8 +448,8 @@ def _run_pool(clips: list[BatchClip], todo: list[int], out: Path, options: Any, 
         retry: list[int] = []
         with cf.ProcessPoolExecutor(n_jobs, mp_context=ctx, max_tasks_per_child=1,
                                     initializer=_worker_init) as pool:
-            futures = {pool.submit(_run_clip, clips[i].path, str(out), clips[i].name, options): i
-                       for i in pending}
+            futures = {pool.submit(_run_clip, clips[i].path, str(out), clips[i].name,
+                                   clip_options(clips[i], options)): i for i in pending}
             for attempts_i in futures.values():
                 attempts[attempts_i] += 1
             try:
@@ -528,7 +576,8 @@ def _run_ray(clips: list[BatchClip], todo: list[int], out: Path, options: Any, a
 
     # Each task is a clip; MediaPipe and the renderer use the worker's own cores.
     task = ray.remote(num_cpus=1, max_retries=1)(_run_clip)
-    refs = {task.remote(clips[i].path, str(out.resolve()), clips[i].name, options): i for i in todo}
+    refs = {task.remote(clips[i].path, str(out.resolve()), clips[i].name, clip_options(clips[i], options)): i
+            for i in todo}
     remaining = list(refs)
     while remaining:
         ready, remaining = ray.wait(remaining, num_returns=1)

@@ -94,6 +94,7 @@ def _cmd_synth(args: argparse.Namespace) -> int:
 def _track_options(args: argparse.Namespace):
     """The ``track`` command's TrackOptions, checked (TrackOptions.validate's bounds)."""
     options = TrackOptions(face_model=args.face_model, neutral_frame=args.neutral_frame,
+                           neutral_image=args.neutral_image, neutral_clip=args.neutral_clip,
                            faces=args.faces, face=args.face, workers=args.track_workers)
     options.validate()
     return options
@@ -114,7 +115,7 @@ def _cmd_track(args: argparse.Namespace) -> int:
         write_overlay(args.clip, track, args.overlay, progress=not args.quiet)
     print(
         f"{args.output}: {track.n_frames} frames, {track.tracked_frames} with a face, "
-        f"neutral frame {track.neutral_frame}"
+        f"neutral frame {track.neutral_frame}, rest: {track.rest_source}"
     )
     return 0
 
@@ -122,7 +123,8 @@ def _cmd_track(args: argparse.Namespace) -> int:
 def _cmd_run(args: argparse.Namespace) -> int:
     opts = RunOptions(
         character=args.character, wrinkles=args.wrinkles, size=args.size,
-        neutral_frame=args.neutral_frame, face_model=args.face_model, audio=not args.no_audio,
+        neutral_frame=args.neutral_frame, neutral_image=args.neutral_image, neutral_clip=args.neutral_clip,
+        face_model=args.face_model, audio=not args.no_audio,
         faces=args.faces, face=args.face, track_workers=args.track_workers,
     )
     opts.allow_truncated = args.allow_truncated
@@ -201,8 +203,16 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
-NEUTRAL_HELP = ("index of the frame with the actor's neutral face (default: picked "
-                "automatically); must lie inside the clip")
+NEUTRAL_HELP = ("index of a frame with the actor's face at rest (default: each region's rest, brows, eyes "
+                "and mouth, found in the clip); must lie inside the clip")
+
+
+def _add_neutral_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--neutral-frame", type=int, default=None, metavar="N", help=NEUTRAL_HELP)
+    p.add_argument("--neutral-image", metavar="IMAGE", default=None,
+                   help="a photo or still of the same actor at rest, instead (as Live Link Face's calibration)")
+    p.add_argument("--neutral-clip", metavar="VIDEO", default=None,
+                   help="a short take of the same actor at rest, instead")
 
 
 def _common_options() -> argparse.ArgumentParser:
@@ -301,7 +311,7 @@ def _add_track_parser(sub, common: argparse.ArgumentParser) -> None:
     p.add_argument("clip", help="the video to track")
     p.add_argument("-o", "--output", required=True, metavar="NPZ", help="the track file to write")
     p.add_argument("--overlay", metavar="MP4", help="also write the source with landmarks drawn")
-    p.add_argument("--neutral-frame", type=int, default=None, metavar="N", help=NEUTRAL_HELP)
+    _add_neutral_options(p)
     _add_face_model_option(p)
     _add_face_choice_options(p)
     p.set_defaults(func=_cmd_track)
@@ -315,7 +325,7 @@ def _add_run_parser(sub, common: argparse.ArgumentParser) -> None:
     p.add_argument("--name", metavar="NAME", default=None,
                    help="the results' folder name under DIR (default: the clip's stem); two clips of "
                         "the same name from different folders need different names")
-    p.add_argument("--neutral-frame", type=int, default=None, metavar="N", help=NEUTRAL_HELP)
+    _add_neutral_options(p)
     _add_run_options(p)
     p.set_defaults(func=_cmd_run)
 

@@ -40,7 +40,8 @@ class RunOptions:
             other morph names), or a :class:`FaceRig`.
         wrinkles: wrinkle driver: auto (Dutreve bone masks), zones, dynamic, off.
         size: rendered frame size in pixels (square, even).
-        neutral_frame: index of the neutral frame (None: picked automatically).
+        neutral_frame: index of the neutral frame (None: each region's rest found in the clip).
+        neutral_image, neutral_clip: instead, a photo or a short take of the actor at rest.
         face_model: MediaPipe ``face_landmarker.task`` (None: the default lookup).
         compare: also write compare.mp4.
         samples: MSAA samples of the renders; None: 4 on a GPU, and on a software GL
@@ -65,6 +66,8 @@ class RunOptions:
     wrinkles: str = "auto"
     size: int = 512
     neutral_frame: int | None = None
+    neutral_image: str | os.PathLike | None = None
+    neutral_clip: str | os.PathLike | None = None
     face_model: str | os.PathLike | None = None
     compare: bool = True
     samples: int | None = None
@@ -86,7 +89,8 @@ class RunOptions:
 
     def track_options(self):
         """The :class:`~capture2face.tracking.TrackOptions` of ``run``'s tracking."""
-        return TrackOptions(face_model=self.face_model, neutral_frame=self.neutral_frame, faces=self.faces,
+        return TrackOptions(face_model=self.face_model, neutral_frame=self.neutral_frame,
+                            neutral_image=self.neutral_image, neutral_clip=self.neutral_clip, faces=self.faces,
                             face=self.face, workers=self.track_workers)
 
 
@@ -115,10 +119,13 @@ def options_json(options: RunOptions) -> dict:
 
 
 def input_files(clip: str | os.PathLike, options: RunOptions) -> dict[str, str | None]:
-    """The files a run's result depends on, by role: ``clip``, and for a character file
+    """The files a run's result depends on, by role: ``clip``, a neutral take, and for a character file
     ``character`` and (.glb / .gltf) ``mapping``, the JSON beside it, which need not exist.
     A built-in avatar or a FaceRig object has none."""
     files: dict[str, str | None] = {"clip": os.fspath(clip)}
+    for role in ("neutral_image", "neutral_clip"):
+        if getattr(options, role) is not None:
+            files[role] = os.fspath(getattr(options, role))
     character = options.character
     if isinstance(character, (str, os.PathLike)) and Path(character).is_file():
         files["character"] = os.fspath(character)

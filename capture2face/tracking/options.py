@@ -18,7 +18,10 @@ class TrackOptions:
     Attributes:
         face_model: ``face_landmarker.task`` path (None: $CAPTURE2FACE_FACE_MODEL, else the
             copy bundled in capture2face/models).
-        neutral_frame: index of the neutral frame (None: picked automatically).
+        neutral_frame: index of the neutral frame (None: each region's rest found in the
+            clip, :mod:`.rest`).
+        neutral_image: instead, a photo or still of the same actor at rest.
+        neutral_clip: instead, a short take of the same actor at rest.
         num_faces: the most faces MediaPipe looks for (and counts) at once; 1: one face,
             no choice, no count. Several cost little: see :mod:`.landmarker`.
         faces: which face starts the track when several are in view: "largest" or
@@ -41,6 +44,8 @@ class TrackOptions:
 
     face_model: str | os.PathLike | None = None
     neutral_frame: int | None = None
+    neutral_image: str | os.PathLike | None = None
+    neutral_clip: str | os.PathLike | None = None
     num_faces: int = 4
     faces: str = "largest"
     face: int | None = None
@@ -64,6 +69,13 @@ class TrackOptions:
         clip (:func:`capture2face.pipeline.preflight.check_neutral_frame`)."""
         if self.neutral_frame is not None and int(self.neutral_frame) < 0:
             raise CaptureError(f"--neutral-frame must be >= 0 (got {self.neutral_frame})")
+        given = [flag for flag, v in (("--neutral-frame", self.neutral_frame), ("--neutral-image", self.neutral_image),
+                                      ("--neutral-clip", self.neutral_clip)) if v is not None]
+        if len(given) > 1:
+            raise CaptureError(f"{' and '.join(given)}: give one rest (a frame, an image or a clip), not several")
+        for flag, path in (("--neutral-image", self.neutral_image), ("--neutral-clip", self.neutral_clip)):
+            if path is not None and not os.path.isfile(path):
+                raise CaptureError(f"{flag} {os.fspath(path)}: no such file")
         self.landmarker_options().validate()
         if self.workers is not None and int(self.workers) < 1:
             raise CaptureError(f"--track-workers must be >= 1 (got {self.workers})")

@@ -15,6 +15,7 @@ from tqdm import tqdm
 from capture2face.errors import CaptureError, raise_if_interrupted
 from capture2face.io.framestore import FrameArray
 from capture2face.io.video_input import VideoInfo, iter_frames, open_video, prefetch
+from capture2face.tracking.calibration import calibrated, neutral_take, take_rest
 from capture2face.tracking.filtering import CausalOneEuro, filter_pose
 from capture2face.tracking.gaps import fill_pose, plan_gaps
 from capture2face.tracking.head_pose import (
@@ -341,19 +342,25 @@ def track_clip(clip: str | os.PathLike, options: TrackOptions | None = None, pro
     ``workers``: :class:`~.segments.SegmentWorkers` started ahead for a segment-parallel
     track (:attr:`TrackOptions.workers`; None: started here when the clip is split).
     ``info``: the clip's :func:`open_video` probe, when the caller has it (else probed here).
+    With ``options.neutral_image`` or ``neutral_clip`` that take is tracked first and the
+    Track rests on it (:mod:`.calibration`).
 
     Raises:
         CaptureError: unreadable clip, no model, or no face anywhere.
     """
     options = options or TrackOptions()
+    take = neutral_take(options)
+    # The neutral take first: a photo without a face fails before the clip is tracked.
+    rest = take_rest(*take, options, lambda p, o: track_clip(p, o, progress=False)) if take else None
     info = open_video(clip) if info is None else info
     n_workers = options.n_workers()
+    track = None
     if n_workers > 1:
         track = track_parallel(clip, info, options, n_workers, lambda: Tracker(info, options, workdir), progress,
                                workdir, workers)
-        if track is not None:
-            return track
-    return _track_sequential(clip, info, options, progress, workdir)
+    if track is None:
+        track = _track_sequential(clip, info, options, progress, workdir)
+    return calibrated(track, rest) if rest is not None else track
 
 
 def _track_sequential(clip, info: VideoInfo, options: TrackOptions, progress: bool, workdir) -> Track:
