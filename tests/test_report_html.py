@@ -100,3 +100,17 @@ def test_break_gaps_inserts_a_nan_row_where_frames_are_missing():
     np.testing.assert_allclose(bt, [0.0, 0.1, 0.2, 0.55, 0.9, 1.0])
     assert np.isnan(bv[3]).all() and np.isfinite(np.delete(bv, 3, 0)).all()
     np.testing.assert_array_equal(break_gaps(t[:3], v[:3])[1], v[:3])  # no gap: unchanged
+
+
+def test_facts_say_where_each_regions_rest_came_from():
+    """report.html's facts name each region's rest frames (as runs) and its geometry, or
+    the take it came from."""
+    from capture2face.pipeline.report_html import _facts_table
+
+    rest = {"source": "clip", "brows": {"frames": [5, 6, 7, 8, 30], "brow_height": 0.31, "largest_score": 0.3},
+            "eyes": {"frames": [1]}, "mouth": {"frames": []}, "face": {"frames": [0, 1, 2]}}
+    html = _facts_table({"rest": rest})
+    assert "<td>rest: brows</td><td>5–8, 30 (5 frames); brow height 0.31, largest score 0.3</td>" in html
+    assert "<td>rest: eyes</td><td>1 (1 frame)</td>" in html and "<td>rest: mouth</td><td>none</td>" in html
+    assert "<td>rest: whole face</td><td>0–2 (3 frames)</td>" in html
+    assert "from the image /a/b.jpg (every region)" in _facts_table({"rest": {"source": "image /a/b.jpg"}})

@@ -393,6 +393,7 @@ def _facts_table(report: dict) -> str:
         ("frames", f"{report.get('frames', '?')} ({report.get('tracked_frames', '?')} with a face)"),
         ("fps", f"{float(report.get('fps', 0)):.3f}"),
         ("neutral frame", report.get("neutral_frame", "")),
+        *_rest_rows(report.get("rest")),
         ("source size", " × ".join(str(v) for v in report.get("source_size", []))),
         ("render size", report.get("size", "")),
         ("video", ", ".join(f"{k} {v}" for k, v in (report.get("video") or {}).items())),
@@ -400,6 +401,35 @@ def _facts_table(report: dict) -> str:
     ]
     body = "".join(f"<tr><td>{_e(k)}</td><td>{_e(v)}</td></tr>" for k, v in rows)
     return f'<table class="facts">{body}</table>'
+
+
+def _frame_span(frames: list[int]) -> str:
+    """"5-12, 30-33 (12 frames)": runs of consecutive frames."""
+    if not frames:
+        return "none"
+    runs, start = [], frames[0]
+    for a, b in zip(frames, frames[1:] + [None]):
+        if b != a + 1:
+            runs.append(f"{start}" if start == a else f"{start}–{a}")
+            start = b
+    shown = ", ".join(runs[:6]) + (", …" if len(runs) > 6 else "")
+    return f"{shown} ({len(frames)} frame{'s' if len(frames) != 1 else ''})"
+
+
+def _rest_rows(rest: dict | None) -> list[tuple[str, str]]:
+    """report.json's ``rest``: where each region's rest came from (its frames, or the take)."""
+    if not rest:
+        return []
+    source = rest.get("source", "clip")
+    if source != "clip" and not source.startswith("frame"):
+        return [("rest", f"from the {source} (every region)")]
+    rows = []
+    for region in ("brows", "eyes", "mouth", "face"):
+        entry = rest.get(region) or {}
+        figures = ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in entry.items() if k != "frames")
+        label = "rest: whole face" if region == "face" else f"rest: {region}"
+        rows.append((label, _frame_span(list(entry.get("frames", []))) + (f"; {figures}" if figures else "")))
+    return rows
 
 
 STAGE_LABELS = {"render_gl": "\u2003of which GL drawing", "render_encode": "render + compose + encode",
