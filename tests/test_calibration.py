@@ -10,6 +10,7 @@ import pytest
 from capture2face.batch import BatchClip, clip_options, expand_inputs
 from capture2face.errors import CaptureError
 from capture2face.pipeline import RunOptions
+from capture2face.pipeline.options import input_files
 from capture2face.tracking import TrackOptions, track_clip
 from capture2face.tracking.rest import GEOMETRY, actor_rest, rest_geometry
 from tests.conftest import shared_clip
@@ -102,3 +103,5 @@ def test_batch_finds_each_clips_rest_take(tmp_path):
     assert clip_options(clips["c"], options) is options
     forced = RunOptions(neutral_frame=4)  # the batch's own rest wins
     assert clip_options(BatchClip("x.mp4", "x", "x.neutral.jpg"), forced) is forced
+    # The take is one of the run's inputs: --resume reruns a clip whose take changed.
+    assert input_files(clips["a"].path, clip_options(clips["a"], options))["neutral_image"] == clips["a"].neutral
