@@ -3,7 +3,7 @@ truth against what is rendered, and the closed loop's ARKit curves and measures.
 
 The actor is the shared ICT-FaceKit head ict-a (skipped where ../shared/characters is
 absent); clips are 60 frames at 320 px to keep the suite fast (the benchmark's figures,
-300 frames at 512 px, are in docs/synthetic.md).
+300 frames at 512 px, are in docs/accuracy.md).
 """
 
 from __future__ import annotations
