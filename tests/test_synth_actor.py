@@ -8,6 +8,7 @@ absent); clips are 60 frames at 320 px to keep the suite fast (the benchmark's f
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -16,12 +17,13 @@ from conftest import shared_character
 
 from capture2face.character.load import load_character
 from capture2face.cli import main
+from capture2face.eval.synthetic import arkit_curve_figures
 from capture2face.eval.synthetic_actor import evaluate_actor_track, resolve_characters
 from capture2face.render import FrameState, Renderer, RenderOptions
 from capture2face.rig.arkit_names import arkit_morphs
 from capture2face.rig.avatar import default_avatar
 from capture2face.rig.face_rig import landmark_points
-from capture2face.synth import SynthOptions, SyntheticTruth, actor_rig, synthesize
+from capture2face.synth import SyntheticTruth, SynthOptions, actor_rig, synthesize
 from capture2face.synth.actor import random_arkit_performance
 from capture2face.synth.trajectories import KEY_NEUTRAL
 from capture2face.tracking import TrackOptions, track_clip
@@ -127,6 +129,27 @@ def test_ict_actor_onto_default_avatar(case, ict_a):
     assert result["blendweight_active_r_per_morph"]["jawOpen"] > 0.9
     assert set(result["goals"]) == {"arkit_curves", "measures", "all_met"}
     assert "jawOpen" in result["goals"]["arkit_curves"]["judged"]
+
+
+def test_arkit_curve_figures_against_a_perfect_score(case):
+    """MediaPipe's scores replaced by the true weights: r 1 and MAE 0 on every curve that
+    moves; the all-zero MAE is the truth's mean; ``moved`` is the truth's range >= 0.2."""
+    clip, track = case
+    truth, names = clip.truth, list(track.blendshape_names)
+    perfect = np.array(track.blendshapes, np.float32)
+    for m, name in arkit_morphs(truth.blend_names).items():
+        if name in names:
+            perfect[:, names.index(name)] = truth.blend_weights[:, m]
+    use = np.ones(track.n_frames, bool)
+    use[:5] = False
+    figures = arkit_curve_figures(dataclasses.replace(track, blendshapes=perfect), truth, use)
+    for name, f in figures.items():
+        w = truth.blend_weights[use, truth.blend_names.index(name)]
+        assert f["moved"] == (np.ptp(w) >= 0.2) and f["zero_mae"] == pytest.approx(float(np.mean(w)), abs=1e-6)
+        assert f["mediapipe_mae"] < 1e-6
+        if f["moved"]:
+            assert f["mediapipe_r"] > 0.9999
+    assert figures["jawOpen"]["moved"]
 
 
 def test_ict_actor_onto_another_ict_head(case, ict_a):
