@@ -88,7 +88,7 @@ def _cmd_synth(args: argparse.Namespace) -> int:
         head_motion=not args.no_head_motion, expression=not args.no_expression,
         face_exit=args.face_exit, variant=args.variant, start=args.start,
     )
-    actor = None if args.actor is None else load_character(args.actor)
+    actor = None if args.actor in (None, "default") else load_character(args.actor)
     synthesize(args.output, opts, progress=not args.quiet, actor=actor)
     print(f"wrote {args.output} and {Path(args.output).with_suffix('.truth.npz')}")
     return 0
@@ -309,7 +309,7 @@ def _add_synth_parser(sub, common: argparse.ArgumentParser) -> None:
     p.add_argument("--variant", default=None, help="render a built-in avatar variant")
     p.add_argument("--actor", metavar="CHARACTER", default=None,
                    help="render this ARKit character (.glb/.gltf/.npz) through a random ARKit performance "
-                        "instead of the default avatar")
+                        "instead of the default avatar ('default': the default avatar's own performance)")
     _add_start_option(p)
     p.set_defaults(func=_cmd_synth)
 
