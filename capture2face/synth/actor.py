@@ -25,6 +25,8 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from scipy.interpolate import interp1d
+from scipy.ndimage import uniform_filter1d
 
 from capture2face.camera import face_centre_and_height
 from capture2face.errors import CaptureError
@@ -149,10 +151,12 @@ def _expression_keys(rng: np.random.Generator, K: int) -> np.ndarray:
     return w
 
 
-def _speech(rng: np.random.Generator, frames: int, fps: float) -> np.ndarray:
-    """(F, 52) the speech layer: mouth keys in talking spells, zero in the silences."""
+def _speech_keys(rng: np.random.Generator, end: float) -> tuple[np.ndarray, np.ndarray]:
+    """(K,) key times (seconds, up to past ``end``) and (K, 52) ARKit weights of the speech
+    layer: talking spells of mouth keys, each jawOpen plus one :data:`VISEMES` shape,
+    between silences (zero keys)."""
     times, values = [0.0], [np.zeros(len(ARKIT_NAMES))]
-    t, end, names = 0.0, (frames - 1) / fps, list(VISEMES)
+    t, names = 0.0, list(VISEMES)
     while t < end:
         t += rng.uniform(*SILENCE_SPELL)
         times.append(t)
@@ -169,16 +173,19 @@ def _speech(rng: np.random.Generator, frames: int, fps: float) -> np.ndarray:
                 key[_COL[full]] = amount
             times.append(t)
             values.append(key)
-        t += SPEECH_KEY_STEP[1]
+        t += SPEECH_KEY_STEP[1]  # the mouth closes before the next silence
         times.append(t)
         values.append(np.zeros(len(ARKIT_NAMES)))
-    from_keys = np.interp  # piecewise linear keys, then smoothed by a short box
-    f = np.arange(frames) / fps
-    keys = np.asarray(values)
-    out = np.stack([from_keys(f, times, keys[:, c]) for c in range(keys.shape[1])], 1)
+    return np.asarray(times), np.asarray(values)
+
+
+def _speech(rng: np.random.Generator, frames: int, fps: float) -> np.ndarray:
+    """(F, 52) the speech layer: its keys (:func:`_speech_keys`) joined linearly, then
+    rounded by a 0.17 s box (syllables, not a PCHIP through every key: the keys are close)."""
+    times, keys = _speech_keys(rng, (frames - 1) / fps)
+    out = interp1d(times, keys, axis=0)(np.arange(frames) / fps)
     width = max(1, round(0.08 * fps))
-    box = np.ones(2 * width + 1) / (2 * width + 1)
-    return np.stack([np.convolve(np.pad(col, width, mode="edge"), box, "valid") for col in out.T], 1)
+    return uniform_filter1d(out, 2 * width + 1, axis=0, mode="nearest")
 
 
 def _blinks(rng: np.random.Generator, frames: int, fps: float) -> np.ndarray:
