@@ -13,10 +13,12 @@ import sys
 from pathlib import Path
 
 from capture2face import batch, bench, pipeline
+from capture2face.character.load import load_character
 from capture2face.errors import CaptureError, exit_interrupted, install_process_defaults
 from capture2face.eval import shading
 from capture2face.eval.fidelity import evaluate_fidelity, table
 from capture2face.eval.synthetic import evaluate_synthetic, summary_line
+from capture2face.eval.synthetic_actor import actor_summary_line, evaluate_actor_synthetic
 from capture2face.gltf import export_glb
 from capture2face.gltf.arkit_export import export_arkit_character
 from capture2face.io.atomic import write_text_atomic
@@ -86,7 +88,8 @@ def _cmd_synth(args: argparse.Namespace) -> int:
         head_motion=not args.no_head_motion, expression=not args.no_expression,
         face_exit=args.face_exit, variant=args.variant, start=args.start,
     )
-    synthesize(args.output, opts, progress=not args.quiet)
+    actor = None if args.actor in (None, "default") else load_character(args.actor)
+    synthesize(args.output, opts, progress=not args.quiet, actor=actor)
     print(f"wrote {args.output} and {Path(args.output).with_suffix('.truth.npz')}")
     return 0
 
@@ -139,6 +142,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_eval(args: argparse.Namespace) -> int:
+    if args.actor is not None or args.target is not None:
+        return _cmd_eval_actor(args)
     result = evaluate_synthetic(
         frames=args.frames, seed=args.seed, target_variant=args.target_variant,
         size=args.size, progress=not args.quiet, start=args.start,
@@ -152,6 +157,22 @@ def _cmd_eval(args: argparse.Namespace) -> int:
         print(summary_line(result, "truth's neutral"), file=sys.stderr)
         if "auto_neutral" in result:
             print(summary_line(result["auto_neutral"], "tracker's neutral"), file=sys.stderr)
+    return 0
+
+
+def _cmd_eval_actor(args: argparse.Namespace) -> int:
+    """``eval synthetic --actor / --target``: any characters (eval.synthetic_actor)."""
+    if args.target_variant is not None or args.start != "rest":
+        raise CaptureError("--target-variant and --start go with the default avatar's loop; "
+                           "leave them out with --actor / --target")
+    result = evaluate_actor_synthetic(args.actor, args.target, frames=args.frames, seed=args.seed,
+                                      size=args.size, progress=not args.quiet)
+    text = json.dumps(result, indent=2)
+    if args.json:
+        write_text_atomic(args.json, text + "\n")
+    print(text)
+    if not args.quiet:
+        print(actor_summary_line(result, "truth's neutral"), file=sys.stderr)
     return 0
 
 
@@ -296,6 +317,9 @@ def _add_synth_parser(sub, common: argparse.ArgumentParser) -> None:
     p.add_argument("--no-expression", action="store_true", help="fixed expression, head motion only")
     p.add_argument("--face-exit", action="store_true", help="the face leaves the frame for a while")
     p.add_argument("--variant", default=None, help="render a built-in avatar variant")
+    p.add_argument("--actor", metavar="CHARACTER", default=None,
+                   help="render this ARKit character (.glb/.gltf/.npz) through a random ARKit performance "
+                        "instead of the default avatar ('default': the default avatar's own performance)")
     _add_start_option(p)
     p.set_defaults(func=_cmd_synth)
 
@@ -344,6 +368,11 @@ def _add_eval_synthetic_parser(evals, common: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed of the performance (default: 0)")
     p.add_argument("--size", type=int, default=512, help="frame size in pixels (default: 512)")
     p.add_argument("--target-variant", default=None, help="retarget onto another avatar, e.g. 'wide'")
+    p.add_argument("--actor", metavar="CHARACTER", default=None,
+                   help="render this ARKit character as the actor ('default': the default avatar); "
+                        "figures: ARKit curves and fidelity measures against its truth")
+    p.add_argument("--target", metavar="CHARACTER", default=None,
+                   help="with --actor: retarget onto this character ('default', the default: the default avatar)")
     p.add_argument("--json", metavar="PATH", help="also write the figures as JSON")
     _add_start_option(p)
     p.set_defaults(func=_cmd_eval)

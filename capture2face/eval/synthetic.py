@@ -76,7 +76,9 @@ import numpy as np
 from capture2face.maths.stats import pearson
 from capture2face.measures import MEASURES, character_measures, compare, source_measures
 from capture2face.retarget import RetargetOptions, retarget, shared_blendshapes
+from capture2face.retarget.arkit import arkit_curves
 from capture2face.retarget.gaze import eye_radius_iod
+from capture2face.rig.arkit_names import ARKIT_NAMES, arkit_morphs
 from capture2face.rig.avatar import default_avatar
 from capture2face.rig.face_rig import gaze_directions
 from capture2face.rig.influences import (
@@ -258,6 +260,7 @@ def score(track, animation, truth, source, target) -> dict:
         "neutral_frame": int(neutral),
         "neutral_bone_offset_cm": float(np.abs(animation.bone_positions[neutral] - target.bone_rest).max()),
         "target": target.name,
+        "arkit_curves": arkit_curve_figures(track, truth, use),
     }
     if target is not source:
         result.update(_cross_character_figures(animation, truth, source, target, bones, use))
@@ -505,3 +508,33 @@ def evaluate_synthetic(
     if start != "rest":  # the default's figures stay as they were
         result["start"] = start
     return result
+
+
+# ---- ARKit curves against the truth (issue 22) ------------------------------------------------
+# A curve "moved" in a clip when its true weight's range reaches this.
+ARKIT_MOVED_RANGE = 0.2
+
+
+def arkit_curve_figures(track, truth, use: np.ndarray) -> dict:
+    """Per ARKit name the actor has (and the tracker scores), over the frames ``use`` (F,)
+    bool: this project's ARKit curve (``retarget.arkit.arkit_curves(track)``, calibrated at
+    ``track.neutral_frame``) and MediaPipe's raw score against the true weight, and the
+    all-zero prediction: ``{"r", "mae", "mediapipe_r", "mediapipe_mae", "zero_mae",
+    "moved"}`` (``moved``: the truth's range is at least :data:`ARKIT_MOVED_RANGE`). Names
+    in ARKit's order."""
+    names = list(track.blendshape_names)
+    ours = arkit_curves(track)[use].astype(np.float64)
+    scores = np.asarray(track.blendshapes, np.float64)[use]
+    true_cols = {name: m for m, name in sorted(arkit_morphs(truth.blend_names).items(), reverse=True)}
+    out = {}
+    for name in ARKIT_NAMES:
+        if name not in true_cols or name not in names:
+            continue
+        s = names.index(name)
+        t = truth.blend_weights[use, true_cols[name]].astype(np.float64)
+        out[name] = {
+            "r": pearson(ours[:, s], t), "mae": float(np.abs(ours[:, s] - t).mean()),
+            "mediapipe_r": pearson(scores[:, s], t), "mediapipe_mae": float(np.abs(scores[:, s] - t).mean()),
+            "zero_mae": float(np.abs(t).mean()), "moved": bool(np.ptp(t) >= ARKIT_MOVED_RANGE),
+        }
+    return out

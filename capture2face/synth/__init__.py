@@ -2,7 +2,8 @@
 
 ``synthesize(path, SynthOptions(...))`` renders the default avatar through a smooth random
 performance (``synth.trajectories``) and writes ``clip.mp4`` plus ``clip.truth.npz``
-(``synth.truth.SyntheticTruth``) beside it, both atomically.
+(``synth.truth.SyntheticTruth``) beside it, both atomically. ``synthesize(..., actor=rig)``
+renders any ARKit character instead, through a random ARKit performance (``synth.actor``).
 """
 
 from __future__ import annotations
@@ -16,6 +17,8 @@ from capture2face.errors import CaptureError
 from capture2face.io.video_output import VideoWriter
 from capture2face.render import FrameState, Renderer, RenderOptions
 from capture2face.rig.avatar import default_avatar
+from capture2face.rig.face_rig import FaceRig
+from capture2face.synth.actor import random_arkit_performance, with_turning_eyes
 from capture2face.synth.trajectories import (
     DEFAULT_FOV_Y,
     Performance,
@@ -23,8 +26,18 @@ from capture2face.synth.trajectories import (
 )
 from capture2face.synth.truth import SyntheticTruth, compute_truth, truth_path
 
-__all__ = ["SynthOptions", "SyntheticClip", "SyntheticTruth", "Performance", "synthesize",
-           "random_performance", "render_performance", "truth_path"]
+__all__ = [
+    "Performance",
+    "SynthOptions",
+    "SyntheticClip",
+    "SyntheticTruth",
+    "actor_rig",
+    "random_arkit_performance",
+    "random_performance",
+    "render_performance",
+    "synthesize",
+    "truth_path",
+]
 
 
 @dataclass
@@ -75,6 +88,19 @@ def make_performance(rig, options: SynthOptions) -> Performance:
     )
 
 
+def actor_rig(actor: FaceRig) -> FaceRig:
+    """The rig an ARKit actor is rendered and measured with: ``actor`` with turning eyes
+    (:func:`~capture2face.synth.actor.with_turning_eyes`), so the gaze is seen."""
+    return with_turning_eyes(actor)
+
+
+def _check_actor_options(options: SynthOptions) -> None:
+    if options.variant is not None:
+        raise CaptureError("--variant renders a built-in avatar; leave it out with --actor")
+    if options.start != "rest" or not options.expression or options.face_exit:
+        raise CaptureError("an --actor performance starts at rest, with expression, and keeps the face in frame")
+
+
 def render_performance(truth: SyntheticTruth, renderer, frames=None):
     """Yield the (H, W, 3) uint8 frames of ``truth`` (all, or the indices ``frames``)
     rendered by an open ``Renderer`` of the same rig."""
@@ -90,17 +116,29 @@ def render_performance(truth: SyntheticTruth, renderer, frames=None):
         ))
 
 
-def synthesize(path: str | os.PathLike, options: SynthOptions | None = None, progress: bool = True) -> SyntheticClip:
+def synthesize(path: str | os.PathLike, options: SynthOptions | None = None, progress: bool = True,
+               actor: FaceRig | None = None) -> SyntheticClip:
     """Render a synthetic performance to ``path`` (.mp4) and its truth to ``<stem>.truth.npz``.
+
+    ``actor``: an ARKit character to render (see :func:`actor_rig`; its performance:
+    :func:`~capture2face.synth.actor.random_arkit_performance`), or None: the default avatar
+    (``options.variant``) through :func:`make_performance`.
 
     Frames stream straight to the encoder, so memory does not grow with the clip's length.
     """
     options = options or SynthOptions()
     if options.size < 64 or options.size % 2:
         raise CaptureError(f"--size must be an even number of pixels >= 64 (got {options.size})")
-    rig = default_avatar(variant=options.variant)
-    perf = make_performance(rig, options)
-    truth = compute_truth(rig, perf, options.size, options.size, options.variant, options.wrinkles)
+    if actor is None:
+        rig = default_avatar(variant=options.variant)
+        perf = make_performance(rig, options)
+        truth = compute_truth(rig, perf, options.size, options.size, options.variant, options.wrinkles)
+    else:
+        _check_actor_options(options)
+        rig = actor_rig(actor)
+        perf = random_arkit_performance(rig, options.frames, options.seed, options.fps, options.head_motion,
+                                        options.fov_y)
+        truth = compute_truth(rig, perf, options.size, options.size, None, options.wrinkles, actor=rig.name)
     video_path, tpath = os.fspath(path), truth_path(path)
     render_opts = RenderOptions(size=options.size, wrinkles=options.wrinkles, fov_y_degrees=options.fov_y)
     with Renderer.create_from_options(rig, render_opts) as renderer, \

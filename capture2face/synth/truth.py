@@ -9,8 +9,10 @@ import numpy as np
 
 from capture2face.camera import project
 from capture2face.io.npz import load_dataclass, save_dataclass
+from capture2face.rig.arkit_names import is_automatic
 from capture2face.rig.deform import deform
 from capture2face.rig.face_rig import FaceRig, landmark_points
+from capture2face.rig.feature_points import feature_positions
 from capture2face.rig.influences import region_influence, rig_influences, zone_weights
 
 FORMAT = "capture2face.SyntheticTruth/1"
@@ -62,6 +64,10 @@ class SyntheticTruth:
         eye_rotation: (F, 2, 2) float32 yaw, pitch (degrees) of the right and left eye
             (``Animation.eye_rotation``'s convention); None in files written before gaze.
         wrinkles: the wrinkle driver the video was rendered with.
+        actor: the character rendered ("" for the default avatar, ``variant`` says which);
+            its ``blend_names`` are its morphs (an ARKit actor's bones stay at rest and its
+            ``influences`` are those of its automatic feature points,
+            :func:`capture2face.rig.feature_points.feature_positions`).
     """
 
     times: np.ndarray
@@ -89,6 +95,7 @@ class SyntheticTruth:
     head_angles: np.ndarray
     wrinkles: str = "auto"
     eye_rotation: np.ndarray | None = None
+    actor: str = ""
 
     @property
     def n_frames(self) -> int:
@@ -133,15 +140,18 @@ def deformed_landmarks(rig: FaceRig, bone_positions: np.ndarray, blend_weights: 
 
 
 def compute_truth(rig: FaceRig, perf, width: int, height: int, variant: str | None = None,
-                  wrinkles: str = "auto") -> SyntheticTruth:
-    """Everything a test or benchmark compares against, from a ``Performance``."""
+                  wrinkles: str = "auto", actor: str = "") -> SyntheticTruth:
+    """Everything a test or benchmark compares against, from a ``Performance`` (``actor``:
+    the rendered character's name, "" for the default avatar)."""
     eyes = getattr(perf, "eye_rotation", None)
     landmarks_head = deformed_landmarks(rig, perf.bone_positions, perf.blend_weights, eye_rotation=eyes)
     landmarks_px = project(landmarks_head, perf.head_pose, perf.fov_y, (width, height)).astype(np.float32)
     canon = landmarks_px[:, :N_CANONICAL]
     # project() gives NaN behind the camera; NaN compares False, so those count as outside.
     inside = (canon[..., 0] >= 0) & (canon[..., 0] < width) & (canon[..., 1] >= 0) & (canon[..., 1] < height)
-    influences = rig_influences(perf.bone_positions, rig)
+    # Automatic feature points (an ARKit character's) are where its morphs carry them.
+    influences = rig_influences(feature_positions(rig, perf.blend_weights) if is_automatic(rig)
+                                else perf.bone_positions, rig)
     return SyntheticTruth(
         times=perf.times.astype(np.float64),
         fps=float(perf.fps),
@@ -168,5 +178,6 @@ def compute_truth(rig: FaceRig, perf, width: int, height: int, variant: str | No
         head_angles=perf.head_angles.astype(np.float32),
         wrinkles=wrinkles,
         eye_rotation=None if eyes is None else np.asarray(eyes, np.float32),
+        actor=actor,
     )
 

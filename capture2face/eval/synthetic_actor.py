@@ -1,0 +1,238 @@
+"""Closed loop with any ARKit character as the actor (``eval synthetic --actor / --target``).
+
+:mod:`capture2face.eval.synthetic` renders the default avatar and retargets it onto itself
+(or a variant of the same topology), so it can compare bones, morphs and wrinkle influences
+one for one. Here the actor is any character with ARKit-named morphs (an ICT-FaceKit head:
+:func:`capture2face.synth.actor.random_arkit_performance`) or the default avatar, and the
+target any character, of another topology too. What can be compared then:
+
+* ``arkit_curves``: per ARKit name the actor has, this project's ARKit curves and
+  MediaPipe's raw scores against the true weights
+  (:func:`capture2face.eval.synthetic.arkit_curve_figures`);
+* ``measures``: per fidelity measure (:data:`capture2face.measures.MEASURES`) the chain of
+  ``eval synthetic``: the tracker's raw landmarks and the solved target against the truth,
+  the truth being the actor's own landmark points deformed by its true weights (so the
+  character's gain is the target's motion in its own inter-ocular units over the actor's
+  in its own); each with ``moved`` (the truth's range reaches ``measures``'
+  ``MIN_RANGE_IOD``, eyes ``MIN_RANGE_EYE``, what ``eval fidelity`` judges);
+* ``blendweight_*``: the target's solved morph weights against the true ones, morphs
+  paired by ARKit name (as ``eval synthetic``'s figures of the same names, over the
+  ``blendweight_morphs`` shared names; ``_active_`` where the truth's std exceeds
+  ``ACTIVE_STD``);
+* the tracker's landmark error, the mouth opening's gain and r, the gaze errors, as in
+  ``eval synthetic``;
+* ``goals``: the issue's goals for realistic actors (:data:`ACTOR_GOALS`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from capture2face.character.load import load_character
+from capture2face.errors import CaptureError
+from capture2face.eval.synthetic import (
+    ACTIVE_STD,
+    _landmark_figures,
+    _mouth_figures,
+    arkit_curve_figures,
+    gaze_errors,
+    measure_chain,
+)
+from capture2face.maths.stats import pearson
+from capture2face.measures import (
+    EYE_MEASURES,
+    MEASURES,
+    MIN_RANGE_EYE,
+    MIN_RANGE_IOD,
+    character_measures,
+    source_measures,
+)
+from capture2face.retarget import RetargetOptions, retarget
+from capture2face.retarget.gaze import eye_radius_iod
+from capture2face.rig.arkit_names import arkit_morphs
+from capture2face.rig.avatar import default_avatar
+from capture2face.synth import SynthOptions, actor_rig, synthesize
+from capture2face.tracking import TrackOptions, track_clip
+
+# The curves the issue's goals name: r >= 0.9 and an MAE below MediaPipe's where they move.
+GOAL_CURVES = ("jawOpen", "eyeBlinkLeft", "eyeBlinkRight", "browInnerUp", "mouthSmileLeft", "mouthSmileRight",
+               "browDownLeft", "browDownRight")
+CURVE_R_GOAL = 0.9
+MEASURE_R_GOAL, MEASURE_GAIN = 0.9, (0.8, 1.25)
+ACTOR_GOALS: dict[str, str] = {
+    "arkit_curves": f"r >= {CURVE_R_GOAL} and MAE below MediaPipe's on {', '.join(GOAL_CURVES)} where they move",
+    "measures": f"character r >= {MEASURE_R_GOAL} and gain {MEASURE_GAIN[0]}-{MEASURE_GAIN[1]} "
+                "against the truth on every measure that moves",
+}
+
+
+def resolve_characters(actor, target):
+    """(actor rig, target rig) for ``eval synthetic --actor A --target T``: None or "default"
+    is the default avatar; a file is loaded (:func:`load_character`); the actor gets
+    turning eyes (:func:`capture2face.synth.actor_rig`). The actor rig is None for the
+    default avatar (rendered by the default performance); the target defaults to the
+    default avatar."""
+    def load(which):
+        return None if which is None or str(which) == "default" else load_character(which)
+
+    actor_loaded = load(actor)
+    target_rig = load(target) or default_avatar()
+    return (None if actor_loaded is None else actor_rig(actor_loaded)), target_rig
+
+
+def _arkit_weight_figures(truth, animation, target, use: np.ndarray) -> dict:
+    """The target's solved weights against the actor's true ones, paired by ARKit name."""
+    true_cols = {name: m for m, name in sorted(arkit_morphs(truth.blend_names).items(), reverse=True)}
+    pairs = [(true_cols[name], m, name) for m, name in sorted(arkit_morphs(target.morph_names).items())
+             if name in true_cols]
+    if not pairs:
+        return {"blendweight_morphs": 0}
+    t_cols, p_cols, names = zip(*pairs)
+    w_true = truth.blend_weights[use][:, list(t_cols)].astype(np.float64)
+    w_pred = animation.blend_weights[use][:, list(p_cols)].astype(np.float64)
+    active = np.flatnonzero(w_true.std(0) > ACTIVE_STD)
+    per_morph = {names[k]: pearson(w_pred[:, k], w_true[:, k]) for k in active}
+    out = {
+        "blendweight_morphs": len(pairs),
+        "blendweight_mae": float(np.abs(w_pred - w_true).mean()),
+        "baseline_zero_blendweight_mae": float(np.abs(w_true).mean()),
+        "blendweight_active_morphs": len(active),
+        "blendweight_active_r": float(np.mean(list(per_morph.values()))) if len(active) else float("nan"),
+        "blendweight_active_r_per_morph": per_morph,
+    }
+    if len(active):
+        out["blendweight_active_mae"] = float(np.abs(w_pred[:, active] - w_true[:, active]).mean())
+        out["baseline_zero_blendweight_active_mae"] = float(np.abs(w_true[:, active]).mean())
+    return out
+
+
+def _mark_moved(chain: dict, measures_true: np.ndarray) -> dict:
+    """``chain`` (:func:`measure_chain`) with ``moved`` and ``truth_range`` per measure."""
+    for k, name in enumerate(MEASURES):
+        span = float(np.ptp(measures_true[:, k]))
+        chain[name]["truth_range"] = span
+        chain[name]["moved"] = bool(span >= (MIN_RANGE_EYE if name in EYE_MEASURES else MIN_RANGE_IOD))
+    return chain
+
+
+def score_actor(track, animation, truth, actor, target) -> dict:
+    """Compare a track and its retargeted animation with the truth of any actor.
+
+    Args:
+        track: the tracker's output on the synthetic clip (its ``neutral_frame`` the one
+            retargeted from).
+        animation: ``retarget(track, target)``.
+        truth: the clip's ``SyntheticTruth``, rendered from ``actor`` (a FaceRig).
+    Returns:
+        dict of figures (see the module docstring), plain floats, ints, bools.
+    """
+    use = np.asarray(track.presence, bool) & np.asarray(truth.face_visible, bool)
+    if not use.any():
+        raise CaptureError("no frame of the synthetic clip has both a tracked and a visible face")
+    measures_true = character_measures(actor, truth.bone_positions[use], truth.blend_weights[use])
+    measures_solved = character_measures(target, animation.bone_positions[use], animation.blend_weights[use])
+    chain = measure_chain(measures_true, source_measures(track)[use], measures_solved)
+    return {
+        "frames": int(track.n_frames),
+        "frames_scored": int(use.sum()),
+        "actor": actor.name,
+        "target": target.name,
+        **_landmark_figures(track, truth, use),
+        **_arkit_weight_figures(truth, animation, target, use),
+        **_mouth_figures(measures_true, measures_solved),
+        **gaze_errors(animation, truth, use),
+        "measures": _mark_moved(chain, measures_true),
+        "arkit_curves": arkit_curve_figures(track, truth, use),
+        "neutral_frame": int(track.neutral_frame),
+    }
+
+
+def actor_goals(result: dict) -> dict:
+    """The :data:`ACTOR_GOALS` judged on a :func:`score_actor` result: per goal the curves
+    or measures judged (those that move), those that miss, and ``met``."""
+    curves = result["arkit_curves"]
+    judged = [n for n in GOAL_CURVES if n in curves and curves[n]["moved"]]
+    curve_miss = [n for n in judged if not (curves[n]["r"] >= CURVE_R_GOAL
+                                            and curves[n]["mae"] < curves[n]["mediapipe_mae"])]
+    measures = result["measures"]
+    moving = [n for n in MEASURES if measures[n]["moved"]]
+    lo, hi = MEASURE_GAIN
+    measure_miss = [n for n in moving if not (measures[n]["character"]["r"] >= MEASURE_R_GOAL
+                                              and lo <= measures[n]["character"]["gain"] <= hi)]
+    out = {
+        "arkit_curves": {"judged": judged, "missed": curve_miss, "met": bool(judged) and not curve_miss},
+        "measures": {"judged": moving, "missed": measure_miss, "met": bool(moving) and not measure_miss},
+    }
+    for name, entry in out.items():
+        entry["goal"] = ACTOR_GOALS[name]
+    out["all_met"] = all(out[k]["met"] for k in ACTOR_GOALS)
+    return out
+
+
+def evaluate_actor_track(track, truth, actor, target, options: RetargetOptions | None = None,
+                         auto_neutral: bool = True) -> dict:
+    """Retarget a tracked synthetic clip of ``actor`` onto ``target`` (FaceRigs) from the
+    truth's neutral hold and score it (:func:`score_actor`, with ``goals``); with
+    ``auto_neutral`` also from the tracker's own neutral pick (the nested
+    ``auto_neutral`` block, as ``eval synthetic``'s)."""
+    if options is None:  # the gaze is estimated with the actor's eyes
+        options = RetargetOptions(eye_radius_iod=eye_radius_iod(actor))
+    auto, held = int(track.neutral_frame), truth.pose_frames("neutral")
+
+    def run(neutral: int) -> dict:
+        posed = dataclasses.replace(track, neutral_frame=int(neutral))
+        start = time.perf_counter()
+        animation = retarget(posed, target, options)
+        elapsed = time.perf_counter() - start
+        result = score_actor(posed, animation, truth, actor, target)
+        result["retarget_ms_per_frame"] = 1000.0 * elapsed / max(1, track.n_frames)
+        result["goals"] = actor_goals(result)
+        return result
+
+    first = int(held[0]) if len(held) else auto
+    result = run(first)
+    result["neutral_frame_auto"] = auto
+    if auto_neutral:
+        result["auto_neutral"] = run(auto) if auto != first else {
+            k: v for k, v in result.items() if k != "neutral_frame_auto"}
+    return result
+
+
+def evaluate_actor_synthetic(actor=None, target=None, frames: int = 300, seed: int = 0, size: int = 512,
+                             progress: bool = True, workdir: str | Path | None = None,
+                             options: RetargetOptions | None = None) -> dict:
+    """Render ``frames`` frames of ``actor`` (a character file, a FaceRig, or None /
+    "default": the default avatar), track them, retarget onto ``target`` (likewise; None:
+    the default avatar) and score against the truth (:func:`evaluate_actor_track`).
+
+    Args:
+        workdir: where the synthetic clip goes (default: a temporary folder, removed).
+    """
+    rig, target_rig = resolve_characters(actor, target)
+    with tempfile.TemporaryDirectory(prefix="capture2face-eval-") as tmp:
+        folder = Path(workdir) if workdir else Path(tmp)
+        clip = synthesize(folder / "synthetic.mp4", SynthOptions(frames=frames, seed=seed, size=size),
+                          progress=progress, actor=rig)
+        track = track_clip(clip.video_path, TrackOptions(), progress=progress)
+    source = rig if rig is not None else default_avatar()
+    result = evaluate_actor_track(track, clip.truth, source, target_rig, options)
+    result.update({"seed": int(seed), "size": int(size)})
+    return result
+
+
+def actor_summary_line(result: dict, label: str = "") -> str:
+    """One line: the goal curves' r (MediaPipe's), the measures' tracker and character gains."""
+    curves = result["arkit_curves"]
+    cs = ", ".join(f"{n} {curves[n]['r']:.2f} ({curves[n]['mediapipe_r']:.2f})" for n in GOAL_CURVES
+                   if n in curves and curves[n]["moved"])
+    ms = ", ".join(f"{n} {m['tracker']['gain']:.2f}/{m['character']['gain']:.2f} r {m['character']['r']:.2f}"
+                   for n, m in result["measures"].items() if m["moved"])
+    g = result["goals"]
+    return (f"{label + ': ' if label else ''}{result['actor']} -> {result['target']}: curves r (MediaPipe's) "
+            f"{cs}; measures tracker/character gain {ms}; goals met "
+            f"{sum(g[k]['met'] for k in ACTOR_GOALS)}/{len(ACTOR_GOALS)}")
