@@ -244,12 +244,12 @@ def score(track, animation, truth, source, target) -> dict:
     result = {
         "frames": int(track.n_frames),
         "frames_scored": int(use.sum()),
-        **_landmark_figures(track, truth, use),
+        **landmark_figures(track, truth, use),
         **bone_figures,
         "blendweight_mae": float(np.abs(w_pred - w_true).mean()),
         **_shared_blendshape_figures(track, target, w_true, w_pred, use),
         **_active_morph_figures(target, w_true, w_pred),
-        **_mouth_figures(measures_true, measures_solved),
+        **mouth_figures(measures_true, measures_solved),
         **gaze_errors(animation, truth, use),
         **wrinkle_figures,
         # Trivial predictors, for scale: rest bones, zero weights, zero influences.
@@ -267,7 +267,7 @@ def score(track, animation, truth, source, target) -> dict:
     return add_ratios(result)
 
 
-def _landmark_figures(track, truth, use: np.ndarray) -> dict:
+def landmark_figures(track, truth, use: np.ndarray) -> dict:
     """The tracker: landmark pixels against the projected truth, per frame / inter-ocular px."""
     lm_true = truth.landmarks_px[use, :468].astype(np.float64)
     lm_pred = track.landmarks_px[use, :468].astype(np.float64)
@@ -324,7 +324,7 @@ def _active_morph_figures(target, w_true: np.ndarray, w_pred: np.ndarray) -> dic
     }
 
 
-def _mouth_figures(measures_true: np.ndarray, measures_solved: np.ndarray) -> dict:
+def mouth_figures(measures_true: np.ndarray, measures_solved: np.ndarray) -> dict:
     """The mouth opening among the fidelity measures: the solve's gain and r against the truth."""
     mouth = list(MEASURES).index("mouth_open")
     mouth_true, mouth_pred = measures_true[:, mouth], measures_solved[:, mouth]
@@ -447,10 +447,7 @@ def evaluate_track(track, truth, target_variant: str | None = None,
         options = RetargetOptions(eye_radius_iod=eye_radius_iod(source))
 
     def run(neutral: int | None) -> dict:
-        posed = track  # None: the tracker's own rest
-        if neutral is not None:
-            rest = frame_rest(track.landmarks_head, track.blendshapes, list(track.blendshape_names), neutral)
-            posed = dataclasses.replace(track, neutral_frame=int(neutral), **rest_fields(rest))
+        posed = track if neutral is None else rested_on(track, neutral)  # None: the tracker's own rest
         start = time.perf_counter()
         animation = retarget(posed, target, options)
         elapsed = time.perf_counter() - start
@@ -468,6 +465,12 @@ def evaluate_track(track, truth, target_variant: str | None = None,
         result["auto_neutral"] = run(None)
         result["rest_offsets_iod"] = rest_offsets(track, held)
     return result
+
+
+def rested_on(track, frame: int):
+    """``track`` resting on one frame (every region), as ``--neutral-frame`` makes it."""
+    rest = frame_rest(track.landmarks_head, track.blendshapes, list(track.blendshape_names), frame)
+    return dataclasses.replace(track, neutral_frame=int(frame), **rest_fields(rest))
 
 
 def rest_offsets(track, neutral_frames: np.ndarray) -> dict[str, float]:

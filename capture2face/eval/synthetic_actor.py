@@ -26,7 +26,6 @@ target any character, of another topology too. What can be compared then:
 
 from __future__ import annotations
 
-import dataclasses
 import tempfile
 import time
 from pathlib import Path
@@ -37,11 +36,13 @@ from capture2face.character.load import load_character
 from capture2face.errors import CaptureError
 from capture2face.eval.synthetic import (
     ACTIVE_STD,
-    _landmark_figures,
-    _mouth_figures,
     arkit_curve_figures,
     gaze_errors,
+    landmark_figures,
     measure_chain,
+    mouth_figures,
+    rest_offsets,
+    rested_on,
 )
 from capture2face.maths.stats import pearson
 from capture2face.measures import (
@@ -142,9 +143,9 @@ def score_actor(track, animation, truth, actor, target) -> dict:
         "frames_scored": int(use.sum()),
         "actor": actor.name,
         "target": target.name,
-        **_landmark_figures(track, truth, use),
+        **landmark_figures(track, truth, use),
         **_arkit_weight_figures(truth, animation, target, use),
-        **_mouth_figures(measures_true, measures_solved),
+        **mouth_figures(measures_true, measures_solved),
         **gaze_errors(animation, truth, use),
         "measures": _mark_moved(chain, measures_true),
         "arkit_curves": arkit_curve_figures(track, truth, use),
@@ -178,14 +179,14 @@ def evaluate_actor_track(track, truth, actor, target, options: RetargetOptions |
                          auto_neutral: bool = True) -> dict:
     """Retarget a tracked synthetic clip of ``actor`` onto ``target`` (FaceRigs) from the
     truth's neutral hold and score it (:func:`score_actor`, with ``goals``); with
-    ``auto_neutral`` also from the tracker's own neutral pick (the nested
-    ``auto_neutral`` block, as ``eval synthetic``'s)."""
+    ``auto_neutral`` also from the tracker's own rest (the nested ``auto_neutral`` block and
+    ``rest_offsets_iod``, as ``eval synthetic``'s)."""
     if options is None:  # the gaze is estimated with the actor's eyes
         options = RetargetOptions(eye_radius_iod=eye_radius_iod(actor))
     auto, held = int(track.neutral_frame), truth.pose_frames("neutral")
 
-    def run(neutral: int) -> dict:
-        posed = dataclasses.replace(track, neutral_frame=int(neutral))
+    def run(neutral: int | None) -> dict:
+        posed = track if neutral is None else rested_on(track, neutral)  # None: the tracker's own rest
         start = time.perf_counter()
         animation = retarget(posed, target, options)
         elapsed = time.perf_counter() - start
@@ -194,12 +195,12 @@ def evaluate_actor_track(track, truth, actor, target, options: RetargetOptions |
         result["goals"] = actor_goals(result)
         return result
 
-    first = int(held[0]) if len(held) else auto
+    first = int(held[0]) if len(held) else None
     result = run(first)
     result["neutral_frame_auto"] = auto
-    if auto_neutral:
-        result["auto_neutral"] = run(auto) if auto != first else {
-            k: v for k, v in result.items() if k != "neutral_frame_auto"}
+    if auto_neutral and first is not None:
+        result["auto_neutral"] = run(None)
+        result["rest_offsets_iod"] = rest_offsets(track, held)
     return result
 
 
