@@ -59,7 +59,11 @@ MIN_RANGE_EYE = 0.3
 R_MIN, GAIN_MIN, GAIN_MAX = 0.9, 0.8, 1.25
 
 # ARKit curve -> (measure it is judged against, sign of the expected correlation, r goal).
-# Brow height is the mean of both brows; eye opening falls as the blink rises.
+# Brow height is the mean of both brows; eye opening falls as the blink rises. Judged from
+# the actor's rest, one-sided as the curves are (ClipFidelity._arkit_figures); browInnerUp
+# only where the brows rise: their raise reaches 0.04 IOD on d6, d11, d12 and 0.01-0.03 on
+# the others (as WRINKLE_CHECKS judges the forehead).
+ARKIT_BROW_JUDGED = 0.04
 ARKIT_CHECKS: dict[str, tuple[str, float, float]] = {
     "jawOpen": ("mouth_open", 1.0, 0.9),
     "eyeBlinkLeft": ("eye_left", -1.0, 0.9),
@@ -248,7 +252,9 @@ def direct_weights(rig, scores: np.ndarray, names: list[str]) -> np.ndarray:
 # neutral frame (which may hold an expression). The mouth's by jawOpen alone: the sum of all
 # mouth scores took smiles and pouts with the lips apart (0.10 IOD on d11).
 BROW_DOWN = ("browDownLeft", "browDownRight")
-REST_SCORES = {"brows": ("browInnerUp", "browOuterUpLeft", "browOuterUpRight", *BROW_DOWN), "mouth": ("jawOpen",)}
+REST_SCORES = {"brows": ("browInnerUp", "browOuterUpLeft", "browOuterUpRight", *BROW_DOWN), "mouth": ("jawOpen",),
+               "eyes": ("eyeBlinkLeft", "eyeBlinkRight", "eyeSquintLeft", "eyeSquintRight", "eyeWideLeft",
+                        "eyeWideRight")}
 REST_SHARE, REST_MIN_FRAMES = 0.1, 3
 # Levels: region -> measure ("brow": both brows' mean). At the actor's rest frames the
 # character's level above its own rest should match the actor's above its rest: 0 for the
@@ -335,6 +341,8 @@ class ClipFidelity:
             actor's rest (:func:`rest_frames`), whether the brows ever lower; None: no
             level or wrinkle checks.
         character_rest: (6,) the character's measures at its own rest (levels), or None.
+        source_rest: (6,) the actor's measures at its rest (each region's rest frames, as
+            the ARKit curves are calibrated), or None.
         wrinkles: (T, 2) the animation's forehead "stretch" and glabella "compress" region
             influences (:data:`WRINKLE_REGIONS`), or None (no wrinkle checks).
     """
@@ -355,6 +363,7 @@ class ClipFidelity:
     score_names: list[str] = field(default_factory=list)
     character_rest: np.ndarray | None = None
     wrinkles: np.ndarray | None = None
+    source_rest: np.ndarray | None = None
 
     def figures(self) -> dict:
         """Per measure r, gain, source range, judged and faithful for the character and
@@ -364,15 +373,7 @@ class ClipFidelity:
         if self.left_out:
             out["left_out"] = dict(self.left_out)
         out["measures"], out["summary"] = self._measure_figures()
-        brow = self.brow()
-        for name, (measure, sign, goal) in ARKIT_CHECKS.items():
-            if name not in self.arkit_names:
-                continue
-            geo = brow if measure == "brow" else self.source[:, list(MEASURES).index(measure)]
-            curve = self.arkit[:, self.arkit_names.index(name)]
-            r = sign * pearson(geo, curve)
-            out["arkit"][name] = {"against": measure, "r": round(r, 3), "goal": goal, "max": round(float(curve.max()), 3),
-                                  "met": bool(r >= goal)}
+        out["arkit"] = self._arkit_figures()
         out["arkit_source"] = self.arkit_source
         if self.gaze is not None and self.gaze_scores is not None:
             out["gaze"] = {}
@@ -389,6 +390,28 @@ class ClipFidelity:
             out["levels"] = self._level_figures()
         if self.scores is not None and self.wrinkles is not None:
             out["wrinkles"] = self._wrinkle_figures()
+        return out
+
+    def _arkit_figures(self) -> dict:
+        """Each :data:`ARKIT_CHECKS` curve's r with its geometry, one-sided from the actor's
+        rest as the curve is (a frown is browDown, not a negative browInnerUp; eyes wider
+        than at rest are eyeWide): ``max(sign * (measure - rest), 0)`` with ``source_rest``;
+        signed without it. browInnerUp is judged where the brows rise
+        :data:`ARKIT_BROW_JUDGED` above rest (99th percentile)."""
+        out = {}
+        for name, (measure, sign, goal) in ARKIT_CHECKS.items():
+            if name not in self.arkit_names:
+                continue
+            cols = BROW_COLUMNS if measure == "brow" else [list(MEASURES).index(measure)]
+            geo = sign * self.source[:, cols].mean(1)
+            judged = True
+            if self.source_rest is not None:
+                geo = np.maximum(geo - sign * float(np.mean(self.source_rest[cols])), 0.0)
+                judged = measure != "brow" or float(np.percentile(geo, 99)) >= ARKIT_BROW_JUDGED
+            curve = self.arkit[:, self.arkit_names.index(name)]
+            r = pearson(geo, curve)
+            out[name] = {"against": measure, "r": round(r, 3), "goal": goal, "max": round(float(curve.max()), 3),
+                         "judged": judged, "met": bool(judged and r >= goal)}
         return out
 
     def brow(self) -> np.ndarray:
@@ -503,7 +526,23 @@ def clip_fidelity(track, animation, rig, name: str = "") -> ClipFidelity:
                         arkit=np.asarray(arkit[keep], np.float64), arkit_names=names, arkit_source=which,
                         gaze=gaze, gaze_scores=gaze_scores, curves=curves, left_out=landmark_faults(rig),
                         scores=scores[keep].astype(np.float64), score_names=list(track.blendshape_names),
-                        character_rest=character_rest_measures(rig), wrinkles=_kept(wrinkle_series(animation), keep))
+                        character_rest=character_rest_measures(rig), wrinkles=_kept(wrinkle_series(animation), keep),
+                        source_rest=source_rest_measures(track, source))
+
+
+def source_rest_measures(track, source: np.ndarray) -> np.ndarray:
+    """(6,) the actor's measures at rest: each measure's median over its region's rest
+    frames (the brows', the eyes', the mouth's), or of the rest's landmarks for a rest from
+    outside the clip. ``source``: (F, 6) :func:`source_measures`."""
+    rest = actor_rest(track)
+    out = measures_from_points(rest.landmarks[None].astype(np.float64), rest.face.astype(np.float64))[0]
+    region = {"mouth_open": "mouth", "mouth_width": "mouth", "brow_right": "brows", "brow_left": "brows",
+              "eye_right": "eyes", "eye_left": "eyes"}
+    for k, name in enumerate(MEASURES):
+        frames = np.asarray(rest.frames.get(region[name], ()), np.int64)
+        if len(frames):
+            out[k] = np.median(source[frames, k])
+    return out
 
 
 def _kept(values: np.ndarray | None, keep: np.ndarray) -> np.ndarray | None:

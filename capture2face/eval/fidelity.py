@@ -63,7 +63,7 @@ def summary_line(results: list[dict]) -> str:
     judged = sum(r["summary"]["judged"] for r in results)
     ok = sum(r["summary"]["faithful"] for r in results)
     beats = sum(r["summary"]["not_worse_than_direct"] for r in results)
-    arkit = [a for r in results for a in r["arkit"].values()]
+    arkit = [a for r in results for a in r["arkit"].values() if a.get("judged", True)]
     gaze = [g for r in results for g in r.get("gaze", {}).values() if g["judged"]]
     with_curves = [r["summary"]["not_worse_than_curves"] for r in results if "not_worse_than_curves" in r["summary"]]
     curves = (f", {sum(with_curves)}/{judged} not worse than the curves-only drive"
