@@ -13,7 +13,7 @@ from combinations people make:
   viseme-like mouth shape: funnel, pucker, closed lips, rolls, presses, stretches...),
   silent spells between them;
 * **blinks** every 1.5-5 s (0.25 s, both eyes; some winks);
-* **gaze** as the default's (``trajectories._random_gaze``): the eyes turn (where the rig
+* **gaze** as the default's (``trajectories.random_gaze``): the eyes turn (where the rig
   has turning eyes, :func:`with_turning_eyes`) and the eyeLook weights follow the angles
   (1 at :data:`EYE_LOOK_FULL_DEG`);
 * head motion and light as the default's; the neutral held over the first frames (the
@@ -32,6 +32,7 @@ from capture2face.camera import face_centre_and_height
 from capture2face.errors import CaptureError
 from capture2face.rig.arkit_names import ARKIT_NAMES, GAZE_SCORES, arkit_morphs
 from capture2face.rig.face_rig import FaceRig, landmark_points
+from capture2face.rig.features import smoothstep
 from capture2face.synth.trajectories import (
     DEFAULT_FOV_Y,
     HOLD_SECONDS,
@@ -41,17 +42,16 @@ from capture2face.synth.trajectories import (
     ROLL_LIMIT,
     TRANSLATION_LIMIT,
     YAW_LIMIT,
+    Keys,
     Performance,
-    _exact_holds,
-    _hold_labelled_keys,
-    _interpolate,
-    _key_frames,
-    _Keys,
-    _random_gaze,
-    _random_lights,
-    _smoothstep,
-    _Values,
+    Values,
+    exact_holds,
     head_poses,
+    hold_labelled_keys,
+    interpolate,
+    key_frames,
+    random_gaze,
+    random_lights,
 )
 
 EYE_LOOK_FULL_DEG = 30.0  # an eyeLook weight of 1 turns the eye this far
@@ -196,8 +196,8 @@ def _blinks(rng: np.random.Generator, frames: int, fps: float) -> np.ndarray:
     while at < t[-1]:
         peak = rng.uniform(0.85, 1.0)
         eyes = np.ones(2) if rng.random() >= WINK_SHARE else np.eye(2)[rng.integers(2)]
-        shape = np.where(t < at, _smoothstep((t - at + BLINK_CLOSE) / BLINK_CLOSE),
-                         1.0 - _smoothstep((t - at) / BLINK_OPEN))
+        shape = np.where(t < at, smoothstep((t - at + BLINK_CLOSE) / BLINK_CLOSE),
+                         1.0 - smoothstep((t - at) / BLINK_OPEN))
         out = np.maximum(out, peak * shape[:, None] * eyes[None])
         at += rng.uniform(*BLINK_EVERY)
     return out
@@ -213,13 +213,13 @@ def _eye_looks(gaze: np.ndarray) -> np.ndarray:
     return out
 
 
-def _arkit_frames(rng: np.random.Generator, k: _Keys, expression: np.ndarray, frames: int, fps: float,
+def _arkit_frames(rng: np.random.Generator, k: Keys, expression: np.ndarray, frames: int, fps: float,
                   gaze: np.ndarray | None) -> np.ndarray:
     """(F, 52) ARKit weights per frame: expression keys (interpolated by the caller into
     ``expression``), speech and blinks eased in after the neutral hold, eyeLooks of the gaze."""
     held = np.flatnonzero(k.label == KEY_NEUTRAL)
     after = k.keys[held[-1]] if held.size else 0
-    onset = _smoothstep((np.arange(frames) - after) / max(1.0, ONSET_SECONDS * fps))[:, None]
+    onset = smoothstep((np.arange(frames) - after) / max(1.0, ONSET_SECONDS * fps))[:, None]
     w = expression + onset * _speech(rng, frames, fps)
     blinks = onset * _blinks(rng, frames, fps)
     for e, side in enumerate(("Right", "Left")):
@@ -247,7 +247,7 @@ def random_arkit_performance(rig: FaceRig, frames: int, seed: int = 0, fps: floa
     if frames < 2 * hold + 4:
         raise CaptureError(f"{frames} frames are too few for an ARKit performance (at least {2 * hold + 4})")
     rng = np.random.default_rng([seed, 22])
-    keys = _key_frames(frames, fps, rng, hold, 1)
+    keys = key_frames(frames, fps, rng, hold, 1)
     K = len(keys)
     angles = rng.uniform(-1.0, 1.0, (K, 3)) * [YAW_LIMIT, PITCH_LIMIT, ROLL_LIMIT]
     _, height = face_centre_and_height(rig)
@@ -257,16 +257,16 @@ def random_arkit_performance(rig: FaceRig, frames: int, seed: int = 0, fps: floa
     angles[0] *= 0.3  # start near frontal so the tracker locks on at once
     expression = _expression_keys(rng, K)
     expression[0] = 0.0
-    gaze = _random_gaze(np.random.default_rng([seed, 14]), K)
+    gaze = random_gaze(np.random.default_rng([seed, 14]), K)
     gaze[0] = 0.0
     bones = np.repeat(rig.bone_rest[None].astype(np.float64), K, 0)
     label = np.full(K, KEY_FREE)
     label[0] = KEY_NEUTRAL
-    k = _Keys(keys, _Values(bones, expression, angles, offset, _random_lights(rng, K), gaze), label)
-    k = _hold_labelled_keys(k, hold, frames)
+    k = Keys(keys, Values(bones, expression, angles, offset, random_lights(rng, K), gaze), label)
+    k = hold_labelled_keys(k, hold, frames)
     f = np.arange(frames, dtype=np.float64)
-    c = _interpolate(k, f)
-    key_pose = _exact_holds(k, c, frames)
+    c = interpolate(k, f)
+    key_pose = exact_holds(k, c, frames)
     eyes = c.gaze if rig.has_eyes else None
     arkit = _arkit_frames(rng, k, c.weights, frames, fps, eyes)
     weights = np.zeros((frames, rig.n_morphs))

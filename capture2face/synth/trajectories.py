@@ -21,6 +21,7 @@ from capture2face.camera import face_centre_and_height, framing_distance
 from capture2face.errors import CaptureError
 from capture2face.maths.rotations import rotation_ypr
 from capture2face.rig.face_rig import FaceRig
+from capture2face.rig.features import smoothstep
 
 # MediaPipe's geometry pipeline assumes this vertical field of view (degrees) for its
 # facial transformation matrix; rendering with it makes the tracker's head pose comparable.
@@ -100,7 +101,7 @@ def head_poses(rig: FaceRig, angles_deg: np.ndarray, offset: np.ndarray, fov_y: 
 
 # ---- keyframes ------------------------------------------------------------------------
 
-def _key_frames(frames: int, fps: float, rng: np.random.Generator, hold: int, n_holds: int) -> np.ndarray:
+def key_frames(frames: int, fps: float, rng: np.random.Generator, hold: int, n_holds: int) -> np.ndarray:
     """Frame indices of the free keys: 0 first, frames - 1 last, 0.5-1.5 s apart on
     average, with room reserved for ``n_holds`` holds of ``hold`` frames."""
     span = frames - 1 - n_holds * (hold - 1)
@@ -143,7 +144,7 @@ class _KeyDraws:
 
 
 @dataclass
-class _Values:
+class Values:
     """The performance's values at N times (its keys, or every frame), float64."""
 
     bones: np.ndarray  # (N, B, 3) cm, head coordinates
@@ -153,17 +154,17 @@ class _Values:
     light: np.ndarray  # (N, 3) light directions
     gaze: np.ndarray  # (N, 2, 2) eye yaw, pitch (degrees)
 
-    def map(self, fn) -> "_Values":
+    def map(self, fn) -> "Values":
         """``fn`` applied to every array."""
-        return _Values(*(fn(getattr(self, f.name)) for f in fields(self)))
+        return Values(*(fn(getattr(self, f.name)) for f in fields(self)))
 
 
 @dataclass
-class _Keys:
+class Keys:
     """The performance at its keys: frame indices, values and ``key_pose`` labels."""
 
     keys: np.ndarray  # (K,) frame indices
-    values: _Values
+    values: Values
     label: np.ndarray  # (K,) KEY_FREE, KEY_NEUTRAL or KEY_POSE0 + p
 
 
@@ -188,12 +189,12 @@ def _random_draws(rig: FaceRig, rng: np.random.Generator, seed: int, K: int, sca
     angles = rng.uniform(-1.0, 1.0, (K, 3)) * [YAW_LIMIT, PITCH_LIMIT, ROLL_LIMIT]
     _, height = face_centre_and_height(rig)
     offset = rng.uniform(-1.0, 1.0, (K, 3)) * TRANSLATION_LIMIT * height
-    light = _random_lights(rng, K)
-    gaze = _random_gaze(np.random.default_rng([seed, 14]), K)  # own stream: the rest stays as it was
+    light = random_lights(rng, K)
+    gaze = random_gaze(np.random.default_rng([seed, 14]), K)  # own stream: the rest stays as it was
     return _KeyDraws(ab, offsets, morphs, angles, offset, light, gaze)
 
 
-def _key_values(rig: FaceRig, keys: np.ndarray, d: _KeyDraws, space: _PoseSpace, head_motion: bool) -> _Keys:
+def _key_values(rig: FaceRig, keys: np.ndarray, d: _KeyDraws, space: _PoseSpace, head_motion: bool) -> Keys:
     """Bones and morph weights from each key's pose mixture plus its draws; every key free."""
     ab, travel, si, ci = d.ab, space.travel, space.si, space.ci
     bones = space.rest + ab[:, :1, None] * travel[si] + ab[:, 1:, None] * travel[ci] + d.offsets
@@ -204,10 +205,10 @@ def _key_values(rig: FaceRig, keys: np.ndarray, d: _KeyDraws, space: _PoseSpace,
         angles[:] = 0.0
         offset[:] = 0.0
     angles[0] *= 0.3  # start near frontal so the tracker locks on at once
-    return _Keys(keys, _Values(bones, weights, angles, offset, d.light, d.gaze), label)
+    return Keys(keys, Values(bones, weights, angles, offset, d.light, d.gaze), label)
 
 
-def _hold_one_expression(rig: FaceRig, k: _Keys, d: _KeyDraws, space: _PoseSpace) -> None:
+def _hold_one_expression(rig: FaceRig, k: Keys, d: _KeyDraws, space: _PoseSpace) -> None:
     """One mild expression, held throughout (``expression=False``)."""
     K, travel, si, ci = len(k.keys), space.travel, space.si, space.ci
     k.values.bones[:] = space.rest + 0.35 * travel[si] + 0.15 * travel[ci] + 0.5 * d.offsets[K // 2]
@@ -215,7 +216,7 @@ def _hold_one_expression(rig: FaceRig, k: _Keys, d: _KeyDraws, space: _PoseSpace
                            + 0.5 * d.morphs[K // 2], 0, 1)
 
 
-def _place_reference_poses(rig: FaceRig, k: _Keys, rest: np.ndarray, start: str = "rest") -> None:
+def _place_reference_poses(rig: FaceRig, k: Keys, rest: np.ndarray, start: str = "rest") -> None:
     """Neutral on key 0, the reference poses on the free keys nearest evenly spread
     fractions of the clip (clear of the face-exit window in the middle). A performance that
     does not start at rest (``start``) takes its neutral mid-clip and its poses later, so
@@ -239,7 +240,7 @@ def _place_reference_poses(rig: FaceRig, k: _Keys, rest: np.ndarray, start: str 
             k.label[i] = KEY_POSE0 + p - 1
 
 
-def _hold_labelled_keys(k: _Keys, hold: int, frames: int) -> _Keys:
+def hold_labelled_keys(k: Keys, hold: int, frames: int) -> Keys:
     """Hold each labelled key: duplicate it ``hold - 1`` frames later and shift the rest."""
     label = k.label
     dup = np.where(label != KEY_FREE, hold - 1, 0)
@@ -248,10 +249,10 @@ def _hold_labelled_keys(k: _Keys, hold: int, frames: int) -> _Keys:
     end_keys = keys + dup
     keys = np.stack([keys, end_keys], 1)[np.arange(2)[None] < rep[:, None]]
     keys[-1] = frames - 1  # absorb rounding
-    return _Keys(keys, k.values.map(lambda x: np.repeat(x, rep, 0)), np.repeat(label, rep, 0))
+    return Keys(keys, k.values.map(lambda x: np.repeat(x, rep, 0)), np.repeat(label, rep, 0))
 
 
-def _interpolate(k: _Keys, f: np.ndarray) -> _Values:
+def interpolate(k: Keys, f: np.ndarray) -> Values:
     """Monotone cubic (PCHIP) through the keys at frames ``f``; weights clipped to [0, 1],
     light directions normalized."""
     def interp(values: np.ndarray) -> np.ndarray:
@@ -264,7 +265,7 @@ def _interpolate(k: _Keys, f: np.ndarray) -> _Values:
     return out
 
 
-def _exact_holds(k: _Keys, c: _Values, frames: int) -> np.ndarray:
+def exact_holds(k: Keys, c: Values, frames: int) -> np.ndarray:
     """Exact values on held frames (interpolation is exact there up to rounding); returns
     the (F,) ``key_pose`` labels."""
     key_pose = np.full(frames, KEY_FREE, np.int8)
@@ -286,12 +287,7 @@ RAISED_AMOUNT = 0.7  # "raised": this share of the stretch pose's brow travel, a
 RAISED_MORPHS = {"browInnerUp": 0.6, "browOuterUpLeft": 0.4, "browOuterUpRight": 0.4}  # ...these morphs
 
 
-def _smoothstep(x: np.ndarray) -> np.ndarray:
-    x = np.clip(x, 0.0, 1.0)
-    return x * x * (3.0 - 2.0 * x)
-
-
-def _start_held(rig: FaceRig, c: _Values, key_pose: np.ndarray, d: _KeyDraws, space: _PoseSpace,
+def _start_held(rig: FaceRig, c: Values, key_pose: np.ndarray, d: _KeyDraws, space: _PoseSpace,
                 fps: float) -> None:
     """Hold one expression (a frown-like compress mixture plus key 0's own draws) from frame
     0 until before the first labelled hold (at most :data:`HELD_MAX_SECONDS`), easing into
@@ -299,14 +295,14 @@ def _start_held(rig: FaceRig, c: _Values, key_pose: np.ndarray, d: _KeyDraws, sp
     held = np.flatnonzero(key_pose != KEY_FREE)
     end = min(int(held[0]) if held.size else len(key_pose), round(HELD_MAX_SECONDS * fps))
     ramp = max(1, min(round(START_RAMP_SECONDS * fps), end // 3))
-    m = 1.0 - _smoothstep((np.arange(len(key_pose)) - (end - ramp)) / ramp)  # (F,) 1 held .. 0 free
+    m = 1.0 - smoothstep((np.arange(len(key_pose)) - (end - ramp)) / ramp)  # (F,) 1 held .. 0 free
     bones = space.rest + 0.6 * space.travel[space.ci] + d.offsets[0]
     weights = np.clip(0.6 * rig.pose_morph_weights[space.ci] + d.morphs[0], 0.0, 1.0)
     c.bones[:] = m[:, None, None] * bones + (1.0 - m[:, None, None]) * c.bones
     c.weights[:] = m[:, None] * weights + (1.0 - m[:, None]) * c.weights
 
 
-def _start_raised(rig: FaceRig, c: _Values, key_pose: np.ndarray, space: _PoseSpace, fps: float) -> None:
+def _start_raised(rig: FaceRig, c: Values, key_pose: np.ndarray, space: _PoseSpace, fps: float) -> None:
     """Raise the brows (the stretch pose's brow bones and the brow-raising morphs) on every
     free frame, easing out around the labelled holds, which stay exact."""
     ramp = max(1, round(START_RAMP_SECONDS * fps / 2))
@@ -358,18 +354,18 @@ def random_performance(
         )
     space = _pose_space(rig)
 
-    keys = _key_frames(frames, fps, rng, hold, n_poses + 1 if expression else 0)
+    keys = key_frames(frames, fps, rng, hold, n_poses + 1 if expression else 0)
     draws = _random_draws(rig, rng, seed, len(keys), space.scale)
     k = _key_values(rig, keys, draws, space, head_motion)
     if not expression:
         _hold_one_expression(rig, k, draws, space)
     else:
         _place_reference_poses(rig, k, space.rest, start)
-        k = _hold_labelled_keys(k, hold, frames)
+        k = hold_labelled_keys(k, hold, frames)
 
     f = np.arange(frames, dtype=np.float64)
-    c = _interpolate(k, f)
-    key_pose = _exact_holds(k, c, frames)
+    c = interpolate(k, f)
+    key_pose = exact_holds(k, c, frames)
     if start == "held":
         _start_held(rig, c, key_pose, draws, space, fps)
     elif start == "raised":
@@ -394,7 +390,7 @@ def random_performance(
     )
 
 
-def _random_gaze(rng: np.random.Generator, n: int) -> np.ndarray:
+def random_gaze(rng: np.random.Generator, n: int) -> np.ndarray:
     """(n, 2, 2) yaw, pitch per eye (degrees) at the keys: some straight ahead, the rest
     uniform within the gaze limits, both eyes together up to a small vergence."""
     yaw = rng.uniform(-GAZE_YAW_LIMIT, GAZE_YAW_LIMIT, n)
@@ -408,7 +404,7 @@ def _random_gaze(rng: np.random.Generator, n: int) -> np.ndarray:
     return out
 
 
-def _random_lights(rng: np.random.Generator, n: int) -> np.ndarray:
+def random_lights(rng: np.random.Generator, n: int) -> np.ndarray:
     """(n, 3) unit directions towards a key light in front of the face: from above and
     to either side, never grazing (a tracker needs the face lit)."""
     azimuth = np.radians(rng.uniform(-40.0, 40.0, n))
