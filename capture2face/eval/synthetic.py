@@ -447,12 +447,8 @@ def evaluate_track(track, truth, target_variant: str | None = None,
         options = RetargetOptions(eye_radius_iod=eye_radius_iod(source))
 
     def run(neutral: int | None) -> dict:
-        posed = track if neutral is None else rested_on(track, neutral)  # None: the tracker's own rest
-        start = time.perf_counter()
-        animation = retarget(posed, target, options)
-        elapsed = time.perf_counter() - start
-        result = score(posed, animation, truth, source, target)
-        result["retarget_ms_per_frame"] = 1000.0 * elapsed / max(1, track.n_frames)
+        result = retarget_and_score(track, target, options, neutral,
+                                    lambda posed, animation: score(posed, animation, truth, source, target))
         result["goals"] = goals(result)
         return result
 
@@ -464,6 +460,19 @@ def evaluate_track(track, truth, target_variant: str | None = None,
     if auto_neutral and first is not None:
         result["auto_neutral"] = run(None)
         result["rest_offsets_iod"] = rest_offsets(track, held)
+    return result
+
+
+def retarget_and_score(track, target, options: RetargetOptions, neutral: int | None, score_fn) -> dict:
+    """``score_fn(track, animation)`` of ``track`` retargeted onto ``target``, resting on
+    the frame ``neutral`` (:func:`rested_on`) or, None, on the tracker's own rest; with
+    ``retarget_ms_per_frame``."""
+    posed = track if neutral is None else rested_on(track, neutral)
+    start = time.perf_counter()
+    animation = retarget(posed, target, options)
+    elapsed = time.perf_counter() - start
+    result = score_fn(posed, animation)
+    result["retarget_ms_per_frame"] = 1000.0 * elapsed / max(1, track.n_frames)
     return result
 
 

@@ -27,7 +27,6 @@ target any character, of another topology too. What can be compared then:
 from __future__ import annotations
 
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -42,7 +41,7 @@ from capture2face.eval.synthetic import (
     measure_chain,
     mouth_figures,
     rest_offsets,
-    rested_on,
+    retarget_and_score,
 )
 from capture2face.maths.stats import pearson
 from capture2face.measures import (
@@ -53,7 +52,7 @@ from capture2face.measures import (
     character_measures,
     source_measures,
 )
-from capture2face.retarget import RetargetOptions, retarget
+from capture2face.retarget import RetargetOptions
 from capture2face.retarget.gaze import eye_radius_iod
 from capture2face.rig.arkit_names import arkit_morphs
 from capture2face.rig.avatar import default_avatar
@@ -186,12 +185,8 @@ def evaluate_actor_track(track, truth, actor, target, options: RetargetOptions |
     auto, held = int(track.neutral_frame), truth.pose_frames("neutral")
 
     def run(neutral: int | None) -> dict:
-        posed = track if neutral is None else rested_on(track, neutral)  # None: the tracker's own rest
-        start = time.perf_counter()
-        animation = retarget(posed, target, options)
-        elapsed = time.perf_counter() - start
-        result = score_actor(posed, animation, truth, actor, target)
-        result["retarget_ms_per_frame"] = 1000.0 * elapsed / max(1, track.n_frames)
+        result = retarget_and_score(track, target, options, neutral,
+                                    lambda posed, animation: score_actor(posed, animation, truth, actor, target))
         result["goals"] = actor_goals(result)
         return result
 
