@@ -252,9 +252,7 @@ def direct_weights(rig, scores: np.ndarray, names: list[str]) -> np.ndarray:
 # neutral frame (which may hold an expression). The mouth's by jawOpen alone: the sum of all
 # mouth scores took smiles and pouts with the lips apart (0.10 IOD on d11).
 BROW_DOWN = ("browDownLeft", "browDownRight")
-REST_SCORES = {"brows": ("browInnerUp", "browOuterUpLeft", "browOuterUpRight", *BROW_DOWN), "mouth": ("jawOpen",),
-               "eyes": ("eyeBlinkLeft", "eyeBlinkRight", "eyeSquintLeft", "eyeSquintRight", "eyeWideLeft",
-                        "eyeWideRight")}
+REST_SCORES = {"brows": ("browInnerUp", "browOuterUpLeft", "browOuterUpRight", *BROW_DOWN), "mouth": ("jawOpen",)}
 REST_SHARE, REST_MIN_FRAMES = 0.1, 3
 # Levels: region -> measure ("brow": both brows' mean). At the actor's rest frames the
 # character's level above its own rest should match the actor's above its rest: 0 for the

@@ -407,13 +407,13 @@ def wrinkle_reference(bones: np.ndarray, rig, rest: ActorRest) -> np.ndarray:
     """(B, 3) where each bone sits at the actor's rest of its region, less its rest
     position: the wrinkles' reference poses are measured from there.
 
-    The solve maps the rest onto the character's rest, but a region's rest frames are a
-    median of frames whose head coordinates carry the tracker's registration (MediaPipe's
-    fitted head pose shrinks the upper face as the jaw opens: brows 2 mm lower while
-    talking on one clip), so the brows of a talking actor sat below rest and drew frown
-    lines. Measured from the bones' own median over the region's rest frames, a wrinkle
-    appears only where the region moves away from its rest. Zero for a rest of one frame
-    (pinned to rest) or from outside the clip (no frames).
+    The network maps the whole face's rest onto the character's rest, but a region's own
+    rest can lie elsewhere: brows raised on the face's calmest frames, or head coordinates
+    that move with the jaw (MediaPipe's fitted head pose shrinks the upper face as the jaw
+    opens: brows 2 mm lower while talking on one clip, frown lines through all of it).
+    Measured from the bones' median over their region's rest frames, a wrinkle appears only
+    where the region leaves its own rest. Zero for a rest of one frame (pinned to rest) and
+    for one from outside the clip (no frames).
 
     Args:
         bones: (F, B, 3) the bones (or feature points) the influences are evaluated on.
