@@ -403,9 +403,18 @@ def _gaze(track, rest: ActorRest, options: RetargetOptions) -> np.ndarray | None
     return gaze.eye_rotation(track.landmarks_head, rest.landmarks, options.eye_radius_iod)
 
 
+# The regions whose wrinkles are measured from their own rest (wrinkle_reference). The
+# eyes' and the mouth's rest frames lie with the whole face's, which the network maps onto
+# the character's rest; a shift measured there only adds noise, amplified where a reference
+# pose moves a point little (a chin feature 0.06 cm: a 0.1 cm shift folded an ICT head's
+# chin at rest, 0.61).
+WRINKLE_REST_REGIONS = ("brows",)
+
+
 def wrinkle_reference(bones: np.ndarray, rig, rest: ActorRest) -> np.ndarray:
-    """(B, 3) where each bone sits at the actor's rest of its region, less its rest
-    position: the wrinkles' reference poses are measured from there.
+    """(B, 3) where each bone of the :data:`WRINKLE_REST_REGIONS` sits at the actor's rest
+    of its region, less its rest position (0 for the others): the wrinkles' reference poses
+    are measured from there.
 
     The network maps the whole face's rest onto the character's rest, but a region's own
     rest can lie elsewhere: brows raised on the face's calmest frames, or head coordinates
@@ -421,7 +430,8 @@ def wrinkle_reference(bones: np.ndarray, rig, rest: ActorRest) -> np.ndarray:
     shift = np.zeros((rig.n_bones, 3), np.float32)
     regions = landmark_regions()
     for b, lm in enumerate(np.asarray(rig.bone_landmarks)):
-        frames = rest.frames.get(REGIONS[regions[lm]], ()) if 0 <= lm < len(regions) else ()
+        region = REGIONS[regions[lm]] if 0 <= lm < len(regions) else None
+        frames = rest.frames.get(region, ()) if region in WRINKLE_REST_REGIONS else ()
         if b > 0 and len(frames):
             shift[b] = np.median(np.asarray(bones[np.asarray(frames)][:, b], np.float64), 0) - rig.bone_rest[b]
     return shift

@@ -10,8 +10,9 @@ median of those frames' head-coordinate landmarks and scores (the median also ta
 the jitter a single frame carries).
 
 What reads it: the ARKit calibration (each score's rest, each geometric curve's rest),
-the gaze (straight ahead: the eyes' rest) and the wrinkles (each bone's reference is its
-median over its region's rest frames, :func:`capture2face.retarget.driver.wrinkle_reference`).
+the gaze (straight ahead: the eyes' rest) and the brows' wrinkles (each brow bone's
+reference is its median over the brows' rest frames,
+:func:`capture2face.retarget.driver.wrinkle_reference`).
 The feature-point network maps one consistent face onto the character's rest: ``face``,
 the median of the frames calmest over all regions together. A face assembled from each
 region's own frames lies askew, because MediaPipe's fitted head pose (and so the head
@@ -109,11 +110,12 @@ class ActorRest:
 @functools.lru_cache(maxsize=1)
 def landmark_regions() -> np.ndarray:
     """(478,) int index into :data:`REGIONS` of each tracker landmark: the eyes' within
-    :data:`EYE_REACH_CM` of their contours (and the irises), every other landmark the
-    region of its nearest brow or mouth feature."""
+    :data:`EYE_REACH_CM` of their contours (and the irises), every other landmark above the
+    eyes the region of its nearest brow or mouth feature, and below them the mouth's."""
     vertices = load_canonical_mesh().vertices.astype(np.float64)
     near = {r: np.linalg.norm(vertices[:, None] - vertices[None, list(_FEATURES[r])], axis=-1).min(1) for r in REGIONS}
-    out = np.where(near["brows"] < near["mouth"], REGIONS.index("brows"), REGIONS.index("mouth"))
+    above_eyes = vertices[:, 1] > vertices[list(_FEATURES["eyes"]), 1].mean()  # below them: cheeks, the mouth's
+    out = np.where((near["brows"] < near["mouth"]) & above_eyes, REGIONS.index("brows"), REGIONS.index("mouth"))
     out[near["eyes"] < EYE_REACH_CM] = REGIONS.index("eyes")
     return np.concatenate([out, np.full(10, REGIONS.index("eyes"))]).astype(np.int64)
 
