@@ -338,7 +338,7 @@ def rest_warnings(rest: ActorRest, names: list[str]) -> list[str]:
             out.append(f"the {region} never relax in this clip ({names[k]} {rest.scores[k]:.2f} at their calmest): "
                        f"their curves and wrinkles are measured from that expression")
     if out:
-        out[-1] += "; give a frame at rest with --neutral-frame N"
+        out[-1] += "; give a frame at rest (--neutral-frame N) or a take at rest (--neutral-image, --neutral-clip)"
     return out
 
 
