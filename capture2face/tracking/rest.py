@@ -63,12 +63,13 @@ _PAIRS = {"lip_gap": ((13, 14),), "brow_height": ((105, 33), (334, 263)),
 IOD_PAIR = (33, 263)
 BROW_SCALE = 0.03  # brows this far (IOD) from their rest height cost as much
 LID_SCALE = 0.25  # a lid this fraction of its rest opening away from it costs as much
-# How much of the whole face's cost a region's rest frames weigh. The eyes' and the mouth's
-# scores miss some of their motion (on the synthetic avatar the eyes' calmest-scoring frames
-# were wide open, 0.03 IOD), so the calm face steadies them; the brows take none: the head
-# coordinates move with the jaw (the brows 2 mm lower while talking on one clip), and brows
-# rested on the closed-mouth frames drew frown lines through all the talking.
-OTHERS_WEIGHT = {"brows": 0.0, "eyes": 0.25, "mouth": 0.25}
+# How much of the whole face's cost a region's rest frames weigh (1: the face's frames).
+# The eyes' scores miss wide eyes on some faces (the synthetic avatar's calmest-scoring eyes
+# were 0.025 IOD wider than its neutral's; the face's, within 0.006), so the eyes rest with
+# the face; the mouth leans on it a little; the brows not at all: the head coordinates move
+# with the jaw (the brows 2 mm lower while talking on one clip), and brows rested on the
+# closed-mouth frames drew frown lines through all the talking.
+OTHERS_WEIGHT = {"brows": 0.0, "eyes": 1.0, "mouth": 0.25}
 REFERENCE_SHARE = 0.2  # the share of calmest-scoring frames whose median sets a measure's rest value
 # Each region's rest is the median of its REST_SHARE most relaxed tracked frames, at least
 # REST_MIN_FRAMES (fewer on shorter clips) and at most REST_MAX_FRAMES.
