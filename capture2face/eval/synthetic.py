@@ -66,7 +66,6 @@ bones under the target's reference poses.
 
 from __future__ import annotations
 
-import dataclasses
 import tempfile
 import time
 from pathlib import Path
@@ -88,7 +87,7 @@ from capture2face.rig.influences import (
 )
 from capture2face.synth import SynthOptions, synthesize
 from capture2face.tracking import TrackOptions, track_clip
-from capture2face.tracking.rest import GEOMETRY, actor_rest, frame_rest, rest_fields, rest_geometry
+from capture2face.tracking.rest import GEOMETRY, actor_rest, rest_geometry, with_frame_rest
 
 # A morph is active in a clip when its true weight's std over the scored frames exceeds this.
 ACTIVE_STD = 0.02
@@ -248,7 +247,7 @@ def score(track, animation, truth, source, target) -> dict:
         **bone_figures,
         "blendweight_mae": float(np.abs(w_pred - w_true).mean()),
         **_shared_blendshape_figures(track, target, w_true, w_pred, use),
-        **_active_morph_figures(target, w_true, w_pred),
+        **active_morph_figures(list(target.morph_names), w_true, w_pred),
         **mouth_figures(measures_true, measures_solved),
         **gaze_errors(animation, truth, use),
         **wrinkle_figures,
@@ -311,10 +310,14 @@ def _shared_blendshape_figures(track, target, w_true: np.ndarray, w_pred: np.nda
     }
 
 
-def _active_morph_figures(target, w_true: np.ndarray, w_pred: np.ndarray) -> dict:
-    """Morphs active in the clip: does the solve follow them (r), and by how much (MAE)?"""
+def active_morph_figures(names: list[str], w_true: np.ndarray, w_pred: np.ndarray) -> dict:
+    """Morphs active in the clip: does the solve follow them (r), and by how much (MAE)?
+
+    Args:
+        names: the morph name of each column of ``w_true`` and ``w_pred`` (F, M).
+    """
     active = np.flatnonzero(w_true.std(0) > ACTIVE_STD)
-    per_morph = {str(target.morph_names[m]): pearson(w_pred[:, m], w_true[:, m]) for m in active}
+    per_morph = {str(names[m]): pearson(w_pred[:, m], w_true[:, m]) for m in active}
     return {
         "blendweight_active_morphs": int(len(active)),
         "blendweight_active_r": float(np.mean(list(per_morph.values()))) if len(active) else float("nan"),
@@ -465,21 +468,15 @@ def evaluate_track(track, truth, target_variant: str | None = None,
 
 def retarget_and_score(track, target, options: RetargetOptions, neutral: int | None, score_fn) -> dict:
     """``score_fn(track, animation)`` of ``track`` retargeted onto ``target``, resting on
-    the frame ``neutral`` (:func:`rested_on`) or, None, on the tracker's own rest; with
-    ``retarget_ms_per_frame``."""
-    posed = track if neutral is None else rested_on(track, neutral)
+    the frame ``neutral`` (:func:`~capture2face.tracking.rest.with_frame_rest`) or, None,
+    on the tracker's own rest; with ``retarget_ms_per_frame``."""
+    posed = track if neutral is None else with_frame_rest(track, neutral)
     start = time.perf_counter()
     animation = retarget(posed, target, options)
     elapsed = time.perf_counter() - start
     result = score_fn(posed, animation)
     result["retarget_ms_per_frame"] = 1000.0 * elapsed / max(1, track.n_frames)
     return result
-
-
-def rested_on(track, frame: int):
-    """``track`` resting on one frame (every region), as ``--neutral-frame`` makes it."""
-    rest = frame_rest(track.landmarks_head, track.blendshapes, list(track.blendshape_names), frame)
-    return dataclasses.replace(track, neutral_frame=int(frame), **rest_fields(rest))
 
 
 def rest_offsets(track, neutral_frames: np.ndarray) -> dict[str, float]:

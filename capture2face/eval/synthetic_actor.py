@@ -34,7 +34,7 @@ import numpy as np
 from capture2face.character.load import load_character
 from capture2face.errors import CaptureError
 from capture2face.eval.synthetic import (
-    ACTIVE_STD,
+    active_morph_figures,
     arkit_curve_figures,
     gaze_errors,
     landmark_figures,
@@ -43,7 +43,6 @@ from capture2face.eval.synthetic import (
     rest_offsets,
     retarget_and_score,
 )
-from capture2face.maths.stats import pearson
 from capture2face.measures import (
     EYE_MEASURES,
     MEASURES,
@@ -95,20 +94,9 @@ def _arkit_weight_figures(truth, animation, target, use: np.ndarray) -> dict:
     t_cols, p_cols, names = zip(*pairs)
     w_true = truth.blend_weights[use][:, list(t_cols)].astype(np.float64)
     w_pred = animation.blend_weights[use][:, list(p_cols)].astype(np.float64)
-    active = np.flatnonzero(w_true.std(0) > ACTIVE_STD)
-    per_morph = {names[k]: pearson(w_pred[:, k], w_true[:, k]) for k in active}
-    out = {
-        "blendweight_morphs": len(pairs),
-        "blendweight_mae": float(np.abs(w_pred - w_true).mean()),
-        "baseline_zero_blendweight_mae": float(np.abs(w_true).mean()),
-        "blendweight_active_morphs": len(active),
-        "blendweight_active_r": float(np.mean(list(per_morph.values()))) if len(active) else float("nan"),
-        "blendweight_active_r_per_morph": per_morph,
-    }
-    if len(active):
-        out["blendweight_active_mae"] = float(np.abs(w_pred[:, active] - w_true[:, active]).mean())
-        out["baseline_zero_blendweight_active_mae"] = float(np.abs(w_true[:, active]).mean())
-    return out
+    return {"blendweight_morphs": len(pairs), "blendweight_mae": float(np.abs(w_pred - w_true).mean()),
+            "baseline_zero_blendweight_mae": float(np.abs(w_true).mean()),
+            **active_morph_figures(list(names), w_true, w_pred)}
 
 
 def _mark_moved(chain: dict, measures_true: np.ndarray) -> dict:

@@ -243,7 +243,7 @@ def _report(clip, final: Path, rig: FaceRig, track, info, options: RunOptions, o
         "fps": float(track.fps),
         "source_size": [int(track.width), int(track.height)],
         "neutral_frame": int(track.neutral_frame),
-        "rest": rest_report(actor_rest(track)),
+        "rest": rest_report(actor_rest(track), list(track.blendshape_names)),
         "seconds": {k: round(v, 3) for k, v in seconds.items()},
         "fps_processing": n / seconds["total"],
         "track_fps": n / seconds["track"],

@@ -27,10 +27,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from capture2face.io.framestore import take_points
 from capture2face.maths.stats import pearson
 from capture2face.tracking.filtering import OneEuro, one_euro
-from capture2face.tracking.rest import ActorRest, actor_rest
+from capture2face.tracking.rest import ActorRest, actor_rest, pair_distances
 from capture2face.tracking.tracker import TrackOptions
 
 # curve -> landmark pairs whose distance is its geometric measure (two pairs: the mean).
@@ -73,24 +72,6 @@ def calibrate_scores(scores: np.ndarray, rest: np.ndarray) -> np.ndarray:
     return np.clip((np.asarray(scores, np.float64) - rest) / (1.0 - rest), 0.0, 1.0)
 
 
-def geometric_measures(landmarks_head, chunk: int = 512) -> tuple[np.ndarray, np.ndarray]:
-    """(F, 4) distances in cm of the :data:`GEOMETRIC` measures (columns in its order),
-    and the inter-ocular distance (F,) cm.
-
-    Args:
-        landmarks_head: (F, L, 3) head-coordinate landmarks, cm (an array or a disk-backed
-            FrameArray: read a block of frames at a time).
-    """
-    pairs = [pair for pairs in GEOMETRIC.values() for pair in pairs]
-    ids = sorted({i for p in pairs for i in p} | set(IOD_PAIR))
-    col = {i: k for k, i in enumerate(ids)}
-    pts = take_points(landmarks_head, ids, chunk)  # ~10 landmarks
-    out = np.empty((len(pts), len(GEOMETRIC)))
-    for k, measure_pairs in enumerate(GEOMETRIC.values()):
-        out[:, k] = np.mean([np.linalg.norm(pts[:, col[a]] - pts[:, col[b]], axis=-1) for a, b in measure_pairs], 0)
-    return out, np.linalg.norm(pts[:, col[IOD_PAIR[0]]] - pts[:, col[IOD_PAIR[1]]], axis=-1)
-
-
 def restore_detail(distance: np.ndarray, score: np.ndarray, times: np.ndarray, sign: float) -> np.ndarray:
     """(F,) ``distance`` (cm, landmark-filtered) plus the fast motion the landmark filter
     removed, taken from ``score`` (F,) mapped to cm by a least-squares fit; ``sign``: +1
@@ -118,8 +99,8 @@ def arkit_curves(track, rest: ActorRest | None = None) -> np.ndarray:
     geometric = {}  # column -> its curve from the geometry (F,)
     wanted = [k for k, name in enumerate(GEOMETRIC) if name in names]
     if wanted and len(raw) >= 3:
-        dist, _ = geometric_measures(track.landmarks_head)
-        rest_dist, rest_iod = geometric_measures(rest.landmarks[None])
+        dist, _ = pair_distances(track.landmarks_head, GEOMETRIC)
+        rest_dist, rest_iod = pair_distances(rest.landmarks[None], GEOMETRIC)
         iod = max(float(rest_iod[0]), 1e-6)
         for k in wanted:
             name = list(GEOMETRIC)[k]

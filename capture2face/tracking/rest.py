@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -89,8 +89,6 @@ class ActorRest:
         frames: region (:data:`REGIONS`, and ``"face"``) -> (K,) int frames it took; empty
             when the rest came from outside the clip.
         source: "clip", "frame N", "image PATH" or "clip PATH".
-        geometry: region -> {measure: value} at rest (:data:`GEOMETRY`, IOD) and its
-            scores' largest (:func:`rest_figures`).
     """
 
     face: np.ndarray
@@ -98,7 +96,6 @@ class ActorRest:
     scores: np.ndarray
     frames: dict[str, np.ndarray]
     source: str = "clip"
-    geometry: dict[str, dict[str, float]] = field(default_factory=dict)
 
     @property
     def single_frame(self) -> int | None:
@@ -129,16 +126,25 @@ def region_score_columns(names: list[str], gaze: bool = True) -> dict[str, list[
                 and (gaze or not n.startswith("eyeLook"))] for r in REGIONS}
 
 
+def pair_distances(landmarks_head, measures: dict[str, tuple], chunk: int = 512) -> tuple[np.ndarray, np.ndarray]:
+    """(F, K) float64 each measure's mean distance (cm) over its landmark pairs (K measures,
+    in the dict's order) and the inter-ocular distance (F,) cm, of head-coordinate landmarks
+    (F, L, 3) (an array or a disk-backed FrameArray: only these points are read, ``chunk``
+    frames at a time)."""
+    ids = sorted({i for pairs in measures.values() for p in pairs for i in p} | set(IOD_PAIR))
+    col = {i: k for k, i in enumerate(ids)}
+    pts = take_points(landmarks_head, ids, chunk)
+    out = np.empty((len(pts), len(measures)))
+    for k, pairs in enumerate(measures.values()):
+        out[:, k] = np.mean([np.linalg.norm(pts[:, col[a]] - pts[:, col[b]], axis=-1) for a, b in pairs], 0)
+    return out, np.linalg.norm(pts[:, col[IOD_PAIR[0]]] - pts[:, col[IOD_PAIR[1]]], axis=-1)
+
+
 def rest_geometry(landmarks_head, chunk: int = 512) -> np.ndarray:
     """(F, 4) float64 :data:`GEOMETRY` of head-coordinate landmarks (F, L, 3) (an array or a
     disk-backed FrameArray), in inter-ocular distances of each frame."""
-    ids = sorted({i for pairs in _PAIRS.values() for p in pairs for i in p} | set(IOD_PAIR))
-    col = {i: k for k, i in enumerate(ids)}
-    pts = take_points(landmarks_head, ids, chunk)
-    iod = np.maximum(np.linalg.norm(pts[:, col[IOD_PAIR[0]]] - pts[:, col[IOD_PAIR[1]]], axis=-1), 1e-9)
-    cols = [np.mean([np.linalg.norm(pts[:, col[a]] - pts[:, col[b]], axis=-1) for a, b in _PAIRS[g]], 0) / iod
-            for g in GEOMETRY]
-    return np.stack(cols, 1)
+    dist, iod = pair_distances(landmarks_head, {g: _PAIRS[g] for g in GEOMETRY}, chunk)
+    return dist / np.maximum(iod, 1e-9)[:, None]
 
 
 def region_costs(scores: np.ndarray, names: list[str], geometry: np.ndarray, speed: np.ndarray,
@@ -208,9 +214,9 @@ def clip_rest(landmarks_head, scores: np.ndarray, names: list[str], pose: np.nda
     k = rest_frame_count(n_valid)
     total = cost.sum(1)
     share = np.array([OTHERS_WEIGHT[r] for r in REGIONS])
-    valid = np.isfinite(total)
-    own = np.full_like(cost, np.inf)
-    own[valid] = (1.0 - share) * cost[valid] + share * total[valid, None]
+    tracked = np.isfinite(total)
+    own = np.full_like(cost, np.inf)  # untracked frames stay out (0 x inf would let them in)
+    own[tracked] = (1.0 - share) * cost[tracked] + share * total[tracked, None]
     frames = {r: np.sort(np.argsort(c, kind="stable")[:k]) for r, c in zip((*REGIONS, FACE), (*own.T, total))}
     return _rest_of_frames(landmarks_head, scores, names, frames, "clip")
 
@@ -240,10 +246,8 @@ def _rest_of_frames(landmarks_head, scores: np.ndarray, names: list[str], frames
             continue
         landmarks[regions == i] = _median_rows(landmarks_head, frames[r])[regions == i]
         rest_scores[cols[r]] = np.median(scores[frames[r]][:, cols[r]], 0)
-    rest = ActorRest(face=face, landmarks=landmarks, scores=rest_scores.astype(np.float32), frames=frames,
+    return ActorRest(face=face, landmarks=landmarks, scores=rest_scores.astype(np.float32), frames=frames,
                      source=source)
-    rest.geometry = rest_figures(rest, names)
-    return rest
 
 
 def rest_figures(rest: ActorRest, names: list[str]) -> dict[str, dict[str, float]]:
@@ -260,11 +264,10 @@ def aligned_rest(rest: ActorRest, landmarks_head, valid: np.ndarray) -> ActorRes
     """A rest from outside the clip (a photo, another take) moved onto the clip's head
     coordinates: the similarity (scale, rotation, shift) that best lays its face oval and
     nose, which expressions barely move, onto the clip's median face."""
-    stable = _STABLE
     frames = np.flatnonzero(np.asarray(valid, bool))
     pick = frames[np.linspace(0, len(frames) - 1, min(len(frames), 60)).astype(int)] if len(frames) else np.arange(1)
-    target = np.median(np.stack([np.asarray(landmarks_head[int(f)], np.float64)[stable] for f in pick]), 0)
-    scale, rot, shift = similarity(rest.face[stable].astype(np.float64), target)
+    target = np.median(np.stack([np.asarray(landmarks_head[int(f)], np.float64)[_STABLE] for f in pick]), 0)
+    scale, rot, shift = similarity(rest.face[_STABLE].astype(np.float64), target)
     move = lambda pts: (scale * pts.astype(np.float64) @ rot.T + shift).astype(np.float32)  # noqa: E731
     return dataclasses.replace(rest, face=move(rest.face), landmarks=move(rest.landmarks),
                                frames={r: np.zeros(0, np.int64) for r in (*REGIONS, FACE)})
@@ -290,18 +293,15 @@ def rest_fields(rest: ActorRest) -> dict:
 def actor_rest(track) -> ActorRest:
     """The rest a :class:`~capture2face.tracking.track.Track` carries; for a track without
     one (saved before rests were, or built by hand) its neutral frame's."""
-    names = list(track.blendshape_names)
     if track.rest_face is None or track.rest_landmarks is None or track.rest_scores is None:
-        return frame_rest(track.landmarks_head, track.blendshapes, names, track.neutral_frame)
+        return frame_rest(track.landmarks_head, track.blendshapes, list(track.blendshape_names), track.neutral_frame)
     keys = (*REGIONS, FACE)
     frames = np.zeros((len(keys), 0), np.int32) if track.rest_frames is None else np.asarray(track.rest_frames)
-    rest = ActorRest(face=np.asarray(track.rest_face, np.float32),
+    return ActorRest(face=np.asarray(track.rest_face, np.float32),
                      landmarks=np.asarray(track.rest_landmarks, np.float32),
                      scores=np.asarray(track.rest_scores, np.float32),
                      frames={r: frames[i][frames[i] >= 0] for i, r in enumerate(keys)},
                      source=track.rest_source or "clip")
-    rest.geometry = rest_figures(rest, names)
-    return rest
 
 
 def with_clip_rest(track):
@@ -309,6 +309,12 @@ def with_clip_rest(track):
     rest = clip_rest(track.landmarks_head, track.blendshapes, list(track.blendshape_names), track.head_pose,
                      track.times, track.presence)
     return dataclasses.replace(track, **rest_fields(rest))
+
+
+def with_frame_rest(track, frame: int):
+    """``track`` resting on one frame (every region), as ``--neutral-frame`` makes it."""
+    rest = frame_rest(track.landmarks_head, track.blendshapes, list(track.blendshape_names), frame)
+    return dataclasses.replace(track, neutral_frame=int(frame), **rest_fields(rest))
 
 
 # A region "never relaxes" when, at its calmest frames, a score of its own (gaze left out)
@@ -324,10 +330,11 @@ def rest_warnings(rest: ActorRest, names: list[str]) -> list[str]:
     if not len(rest.frames.get(FACE, ())):
         return []  # a rest from outside the clip: the user chose it
     cols = region_score_columns(names, gaze=False)
+    figures = rest_figures(rest, names)
     out = []
     for region in REGIONS:
         if region == "mouth":
-            gap = rest.geometry[region]["lip_gap"]
+            gap = figures[region]["lip_gap"]
             if gap > NEVER_RELAXED[region]:
                 out.append(f"the lips never close in this clip ({gap:.2f} inter-ocular distances apart at their "
                            "calmest): mouth shapes are measured from parted lips")
@@ -343,11 +350,11 @@ def rest_warnings(rest: ActorRest, names: list[str]) -> list[str]:
     return out
 
 
-def rest_report(rest: ActorRest) -> dict:
+def rest_report(rest: ActorRest, names: list[str]) -> dict:
     """report.json's ``rest``: where it came from and, per region (and the face), the frames
-    it took (their count and first ones) and its geometry."""
+    it took and its figures (:func:`rest_figures`; ``names``: the scores')."""
+    figures = rest_figures(rest, names)
     out: dict = {"source": rest.source}
     for region in (*REGIONS, FACE):
-        frames = [int(f) for f in rest.frames.get(region, ())]
-        out[region] = {"frames": frames, **rest.geometry.get(region, {})}
+        out[region] = {"frames": [int(f) for f in rest.frames.get(region, ())], **figures.get(region, {})}
     return out
