@@ -76,6 +76,9 @@ def test_arkit_curves_have_arkit_meaning_on_a_synthetic_track():
         full = pose == 1
         assert c[full].min() > 0.9 > raw[full].max(), name  # the full pose reads ~1, the raw score less
         assert np.corrcoef(c, pose)[0, 1] > 0.97, name
+    # Along the way too: 0.4 IOD of lip gap is ARKit's (ICT-FaceKit's) jawOpen 1, so half of it reads 0.5.
+    jaw = curves[:, NAMES.index("jawOpen")]
+    assert np.abs(jaw - truth["jawOpen"]).max() < 0.12
     # A curve without a geometry check: calibrated to the neutral, full range kept.
     smile = curves[:, NAMES.index("mouthSmileLeft")]
     assert smile[NEUTRAL] < 0.02 and smile[truth["jawOpen"] == 1].min() > 0.95

@@ -9,7 +9,9 @@ absent); clips are 60 frames at 320 px to keep the suite fast (the benchmark's f
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -27,6 +29,8 @@ from capture2face.synth import SyntheticTruth, SynthOptions, actor_rig, synthesi
 from capture2face.synth.actor import random_arkit_performance
 from capture2face.synth.trajectories import KEY_NEUTRAL
 from capture2face.tracking import TrackOptions, track_clip
+
+TOOLS = Path(__file__).resolve().parents[1] / "tools"
 
 
 @pytest.fixture(scope="module")
@@ -188,3 +192,20 @@ def test_cli_eval_synthetic_actor_json(tmp_path):
     assert result["frames"] == 40 and result["target"] == "default" and "auto_neutral" in result
     assert {"arkit_curves", "measures", "goals", "landmark_nme_iod"} <= set(result)
     assert set(result["measures"]["mouth_open"]) >= {"tracker", "character", "moved"}
+
+
+def test_mirrored_ict_identity_is_the_model_face_for_the_opposite_weights(tmp_path):
+    """tools/mirror_identity.py: ict-a + (ict-a - ict-b), with every morph shared, is a third
+    ICT identity (the unseen actor of docs/accuracy.md's figures)."""
+    a_path, b_path = shared_character("ict-a.glb"), shared_character("ict-b.glb")
+    spec = importlib.util.spec_from_file_location("mirror_identity", TOOLS / "mirror_identity.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    tool.mirror_identity(a_path, b_path, tmp_path / "ict-c.glb")
+    assert not list(tmp_path.glob("*.partial"))
+    a, b, c = (load_character(p) for p in (a_path, b_path, tmp_path / "ict-c.glb"))
+    np.testing.assert_allclose(c.vertices, 2 * a.vertices - b.vertices, atol=1e-5)
+    assert np.abs(c.vertices - a.vertices).mean() > 0.05  # cm: a face of its own, as far from the neutral as ict-b
+    np.testing.assert_array_equal(c.morph_positions, a.morph_positions)
+    np.testing.assert_allclose(np.linalg.norm(c.normals, axis=1), 1.0, atol=1e-4)
+    assert c.morph_names == a.morph_names and c.landmark_vertices.shape == a.landmark_vertices.shape

@@ -41,10 +41,11 @@ GEOMETRIC: dict[str, tuple[tuple[int, int], ...]] = {
 }
 IOD_PAIR = (33, 263)  # outer eye corners: the face's size
 # The geometric measure at which a curve reads 1: jaw and brows in inter-ocular distances
-# above rest (an inner-lip gap of ~2.7 cm on a 9 cm face is a wide-open jaw: the real
-# clips' wide-open jaws reach 0.33-0.52; brows rise ~0.7 cm), eyes as the fraction of the neutral opening closed (MediaPipe's mesh keeps the
-# lids ~0.2 apart when closed).
-FULL_RANGE = {"jawOpen": 0.3, "eyeBlinkLeft": 0.75, "eyeBlinkRight": 0.75, "browInnerUp": 0.08}
+# above rest, eyes as the fraction of the neutral opening closed. jawOpen: ICT-FaceKit's
+# ARKit-scaled jawOpen at 1 parts the inner lips by 0.40-0.41 IOD on all its heads (3.7 cm;
+# the real clips' wide-open jaws reach 0.33-0.52); eyes: its eyeBlink closes 0.66-0.74 of
+# the opening (MediaPipe's mesh keeps the lids apart); brows rise ~0.7 cm.
+FULL_RANGE = {"jawOpen": 0.4, "eyeBlinkLeft": 0.75, "eyeBlinkRight": 0.75, "browInnerUp": 0.08}
 # The fitted gain may exceed 1 / FULL_RANGE by this factor at most (a score that saturates
 # early would otherwise clip most of the motion at 1).
 MAX_GAIN_FACTOR = 2.0
