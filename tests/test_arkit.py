@@ -88,6 +88,21 @@ def test_arkit_curves_have_arkit_meaning_on_a_synthetic_track():
     assert curves[:, NAMES.index("eyeBlinkLeft")].max() < 0.05  # the still eye: jitter only
 
 
+
+def test_lids_lowered_without_a_blink_score_are_not_a_blink():
+    """Eyes looking down (or squinting) lower the lids while MediaPipe's blink score stays at
+    rest: ARKit calls that eyeLookDown / eyeSquint, so eyeBlink stays near 0 there, while the
+    blink itself (score and lids together) still reads ~1."""
+    track, truth = synthetic_track()
+    lm = np.array(track.landmarks_head)
+    k = np.arange(F)
+    look = _ramp(k, 55, 12)  # the right upper lid lowers a third of the way, no blink score
+    lm[:, 159, 1] -= 0.33 * (lm[NEUTRAL, 159, 1] - lm[NEUTRAL, 145, 1]) * look
+    curves = arkit_curves(dataclasses.replace(track, landmarks_head=lm.astype(np.float32)))
+    blink = curves[:, NAMES.index("eyeBlinkRight")]
+    assert blink[look == 1].max() < 0.05  # ungated: 0.42 (a third closed, full range 0.75)
+    assert blink[truth["eyeBlinkRight"] == 1].min() > 0.9
+
 def test_retarget_fills_the_arkit_curves_and_livelink_writes_them(tmp_path):
     import csv
 
