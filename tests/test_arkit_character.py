@@ -591,3 +591,34 @@ def test_a_scanned_head_is_framed_on_its_face_not_its_bust():
     assert 0.8 * default_height < height < 1.2 * default_height, (height, default_height)
     nose = rig.vertices[rig.landmark_vertices[1]]
     assert abs(centre[1] - nose[1]) < 0.25 * height  # centred on the face, not below it
+
+
+@pytest.mark.parametrize("name", ["ict-a.glb", "ict-b.glb"])
+def test_a_scanned_head_folds_only_where_its_pose_moves_it(name):
+    """ICT's "compress" pose (browDown + eyeSquint + noseSneer) moves its chin's feature
+    points by 0.06-0.12 cm: given a part in that pose, pressed lips drew the compress map's
+    folds on the chin at rest (compress.mp4 of d18). A feature the pose barely moves takes
+    no part; the brows still fold with a frown."""
+    from capture2face.character.auto_wrinkles import MIN_POSE_SHARE
+    from capture2face.pipeline import load_character
+    from capture2face.rig import influences as inf
+    from capture2face.rig.feature_points import feature_positions
+
+    rig = load_character(shared_character(name))
+    travel = np.linalg.norm(rig.pose_bones - rig.bone_rest[None], axis=-1)  # (P, B)
+    share = travel / travel.max(1, keepdims=True)
+    assert (share[travel > 1e-6] >= MIN_POSE_SHARE).all()
+    by = _by_arkit(rig)
+    k = np.arange(60)
+    press, frown = (np.clip(1 - np.abs(k - c) / 10, 0, 1) for c in (15, 45))
+    w = np.zeros((len(k), rig.n_morphs), np.float32)
+    for morph in ("mouthPressLeft", "mouthPressRight", "mouthShrugLower"):
+        w[:, by[morph]] = 0.6 * press
+    for morph in ("browDownLeft", "browDownRight"):
+        w[:, by[morph]] = frown
+    regions = inf.region_influence(inf.rig_influences(feature_positions(rig, w), rig), rig)
+    compress = rig.pose_names.index("compress")
+    chin = regions[:, rig.region_names.index("chin"), compress]
+    glabella = regions[:, rig.region_names.index("glabella"), compress]
+    assert chin.max() < 0.05  # with the chin in the pose: 0.6 and more
+    assert glabella[frown > 0.9].min() > 0.3 and glabella[press > 0.9].max() < 0.05

@@ -56,6 +56,9 @@ POSES = {
     "compress": ("browDownLeft", "browDownRight", "eyeSquintLeft", "eyeSquintRight", "noseSneerLeft",
                  "noseSneerRight"),
 }
+# A feature point takes part in a reference pose where it travels at least this share of
+# the pose's largest travel (the default avatar's own poses move every bone at least 0.2 of it).
+MIN_POSE_SHARE = 0.2
 # A face vertex further than this (in inter-ocular distances) from every fitted avatar
 # skin vertex is not face (hair, ears, neck): it keeps its own skin and no region.
 _FACE_REACH_IOD = 0.08
@@ -93,7 +96,12 @@ def automatic_wrinkles(rig: FaceRig) -> FaceRig:
                 pose_w[p, by_name[n]] = 1.0
     pose_bones = np.repeat(rest[None], len(pose_names), 0)
     verts, bary, _ = landmark_support(rig, feature_lm)  # (n, 3) each: barycentric on the surface
-    pose_bones[:, B0:] += np.einsum("pm,mnjc,nj->pnc", pose_w, rig.morph_positions[:, verts], bary)
+    travel = np.einsum("pm,mnjc,nj->pnc", pose_w, rig.morph_positions[:, verts], bary)  # (P, n, 3)
+    length = np.linalg.norm(travel, axis=-1)
+    # A feature the pose barely moves would reach full influence on any small motion (an
+    # ICT chin travels 0.06 cm in "compress" and folded at rest): it takes no part.
+    travel[length < MIN_POSE_SHARE * length.max(1, keepdims=True)] = 0.0
+    pose_bones[:, B0:] += travel
     # Groups: as the avatar groups the same bones; the rig's own joints alone.
     groups = np.concatenate([np.arange(B0), B0 + avatar.bone_groups[face_bones]]).astype(np.int32)
     _, groups = np.unique(groups, return_inverse=True)
