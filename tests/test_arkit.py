@@ -88,7 +88,6 @@ def test_arkit_curves_have_arkit_meaning_on_a_synthetic_track():
     assert curves[:, NAMES.index("eyeBlinkLeft")].max() < 0.05  # the still eye: jitter only
 
 
-
 def test_lids_lowered_without_a_blink_score_are_not_a_blink():
     """Eyes looking down (or squinting) lower the lids while MediaPipe's blink score stays at
     rest: ARKit calls that eyeLookDown / eyeSquint, so eyeBlink stays near 0 there, while the
@@ -102,6 +101,7 @@ def test_lids_lowered_without_a_blink_score_are_not_a_blink():
     blink = curves[:, NAMES.index("eyeBlinkRight")]
     assert blink[look == 1].max() < 0.05  # ungated: 0.42 (a third closed, full range 0.75)
     assert blink[truth["eyeBlinkRight"] == 1].min() > 0.9
+
 
 def test_retarget_fills_the_arkit_curves_and_livelink_writes_them(tmp_path):
     import csv

@@ -597,7 +597,7 @@ def test_a_scanned_head_is_framed_on_its_face_not_its_bust():
 def test_a_scanned_head_folds_only_where_its_pose_moves_it(name):
     """ICT's "compress" pose (browDown + eyeSquint + noseSneer) moves its chin's feature
     points by 0.06-0.12 cm: given a part in that pose, pressed lips drew the compress map's
-    folds on the chin at rest (compress.mp4 of d18). A feature the pose barely moves takes
+    folds on the chin at rest (d18's compare.mp4 on ict-a). A feature the pose barely moves takes
     no part; the brows still fold with a frown."""
     from capture2face.character.auto_wrinkles import MIN_POSE_SHARE
     from capture2face.pipeline import load_character

@@ -21,7 +21,7 @@ import numpy as np
 import pygltflib
 
 
-def _vec3(gltf: pygltflib.GLTF2, blob: bytes, accessor: int) -> tuple[int, np.ndarray]:
+def _vec3(gltf: pygltflib.GLTF2, blob: bytes | bytearray, accessor: int) -> tuple[int, np.ndarray]:
     """Byte offset and (N, 3) float32 data of a tightly packed VEC3 float accessor."""
     acc = gltf.accessors[accessor]
     view = gltf.bufferViews[acc.bufferView]
@@ -43,7 +43,7 @@ def mirror_identity(neutral: Path, other: Path, out: Path, amount: float = 1.0) 
                 ia, ib = getattr(prim_a.attributes, attribute), getattr(prim_b.attributes, attribute)
                 if ia is None or ib is None:
                     continue
-                offset, xa = _vec3(a, bytes(blob), ia)
+                offset, xa = _vec3(a, blob, ia)
                 _, xb = _vec3(b, other_blob, ib)
                 if xa.shape != xb.shape:
                     raise SystemExit(f"mesh {mesh_a.name}: the two heads differ in vertex count")
@@ -66,7 +66,13 @@ def main() -> None:
     parser.add_argument("out", type=Path, help="the new head (.glb)")
     parser.add_argument("--amount", type=float, default=1.0, help="how far past the neutral (default 1)")
     args = parser.parse_args()
-    mirror_identity(args.neutral, args.other, args.out, args.amount)
+    for path in (args.neutral, args.other):
+        if not path.is_file():
+            raise SystemExit(f"{path}: no such file")
+    try:
+        mirror_identity(args.neutral, args.other, args.out, args.amount)
+    except Exception as exc:  # noqa: BLE001 - an unreadable or unmatched pair: one line, not a traceback
+        raise SystemExit(f"cannot mirror {args.neutral} about {args.other}: {exc}") from None
     print(args.out)
 
 
