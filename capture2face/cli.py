@@ -141,6 +141,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _print_json(result: dict, path: str | None) -> None:
+    """``result`` as JSON on stdout and, with ``path``, written there (atomically)."""
+    text = json.dumps(result, indent=2)
+    if path:
+        write_text_atomic(path, text + "\n")
+    print(text)
+
+
 def _cmd_eval(args: argparse.Namespace) -> int:
     if args.actor is not None or args.target is not None:
         return _cmd_eval_actor(args)
@@ -148,12 +156,8 @@ def _cmd_eval(args: argparse.Namespace) -> int:
         frames=args.frames, seed=args.seed, target_variant=args.target_variant,
         size=args.size, progress=not args.quiet, start=args.start,
     )
-    text = json.dumps(result, indent=2)
-    if args.json:
-        write_text_atomic(args.json, text + "\n")
-    print(text)
+    _print_json(result, args.json)
     if not args.quiet:  # the ratios and goals at a glance; stdout stays plain JSON
-
         print(summary_line(result, "truth's neutral"), file=sys.stderr)
         if "auto_neutral" in result:
             print(summary_line(result["auto_neutral"], "tracker's neutral"), file=sys.stderr)
@@ -167,10 +171,7 @@ def _cmd_eval_actor(args: argparse.Namespace) -> int:
                            "leave them out with --actor / --target")
     result = evaluate_actor_synthetic(args.actor, args.target, frames=args.frames, seed=args.seed,
                                       size=args.size, progress=not args.quiet)
-    text = json.dumps(result, indent=2)
-    if args.json:
-        write_text_atomic(args.json, text + "\n")
-    print(text)
+    _print_json(result, args.json)
     if not args.quiet:
         print(actor_summary_line(result, "truth's neutral"), file=sys.stderr)
     return 0
@@ -215,10 +216,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         result = bench.memory_check(long_seconds=args.memory_seconds, size=args.size, progress=not args.quiet)
     else:
         result = bench.run_bench(size=args.size, frames=args.frames, progress=not args.quiet)
-    text = json.dumps(result, indent=2)
-    if args.json:
-        write_text_atomic(args.json, text + "\n")
-    print(text)
+    _print_json(result, args.json)
     if not args.quiet:  # the main figures and goals at a glance; stdout stays plain JSON
         print(bench.summary_line(result), file=sys.stderr)
     return 0

@@ -39,7 +39,7 @@ from capture2face.maths.stats import pearson
 from capture2face.rig.arkit_names import GAZE_SCORES, arkit_morphs, arkit_weights
 from capture2face.rig.face_rig import landmark_points, landmark_support
 from capture2face.tracking.head_pose import head_landmarks
-from capture2face.tracking.rest import actor_rest
+from capture2face.tracking.rest import IOD_PAIR, actor_rest
 
 # name -> (landmark a, landmark b): the measure is |p_a - p_b|.
 MEASURES: dict[str, tuple[int, int]] = {
@@ -52,7 +52,6 @@ MEASURES: dict[str, tuple[int, int]] = {
 }
 EYE_MEASURES = ("eye_right", "eye_left")
 BROW_COLUMNS = [list(MEASURES).index("brow_right"), list(MEASURES).index("brow_left")]  # the brows' mean
-IOD_PAIR = (33, 263)
 LOWPASS_HZ = 8.0
 MIN_RANGE_IOD = 0.04
 MIN_RANGE_EYE = 0.3

@@ -524,17 +524,22 @@ def evaluate_synthetic(
 ARKIT_MOVED_RANGE = 0.2
 
 
+def arkit_columns(morph_names: list[str]) -> dict[str, int]:
+    """ARKit name -> the first of ``morph_names``' columns that carries it."""
+    return {name: m for m, name in sorted(arkit_morphs(morph_names).items(), reverse=True)}
+
+
 def arkit_curve_figures(track, truth, use: np.ndarray) -> dict:
     """Per ARKit name the actor has (and the tracker scores), over the frames ``use`` (F,)
     bool: this project's ARKit curve (``retarget.arkit.arkit_curves(track)``, calibrated at
-    ``track.neutral_frame``) and MediaPipe's raw score against the true weight, and the
+    the track's rest) and MediaPipe's raw score against the true weight, and the
     all-zero prediction: ``{"r", "mae", "mediapipe_r", "mediapipe_mae", "zero_mae",
     "moved"}`` (``moved``: the truth's range is at least :data:`ARKIT_MOVED_RANGE`). Names
     in ARKit's order."""
     names = list(track.blendshape_names)
     ours = arkit_curves(track)[use].astype(np.float64)
     scores = np.asarray(track.blendshapes, np.float64)[use]
-    true_cols = {name: m for m, name in sorted(arkit_morphs(truth.blend_names).items(), reverse=True)}
+    true_cols = arkit_columns(truth.blend_names)
     out = {}
     for name in ARKIT_NAMES:
         if name not in true_cols or name not in names:

@@ -35,6 +35,7 @@ from capture2face.character.load import load_character
 from capture2face.errors import CaptureError
 from capture2face.eval.synthetic import (
     active_morph_figures,
+    arkit_columns,
     arkit_curve_figures,
     gaze_errors,
     landmark_figures,
@@ -86,7 +87,7 @@ def resolve_characters(actor, target):
 
 def _arkit_weight_figures(truth, animation, target, use: np.ndarray) -> dict:
     """The target's solved weights against the actor's true ones, paired by ARKit name."""
-    true_cols = {name: m for m, name in sorted(arkit_morphs(truth.blend_names).items(), reverse=True)}
+    true_cols = arkit_columns(truth.blend_names)
     pairs = [(true_cols[name], m, name) for m, name in sorted(arkit_morphs(target.morph_names).items())
              if name in true_cols]
     if not pairs:

@@ -31,17 +31,17 @@ import numpy as np
 
 from capture2face.maths.stats import pearson
 from capture2face.tracking.filtering import OneEuro, one_euro
-from capture2face.tracking.rest import ActorRest, actor_rest, pair_distances
+from capture2face.tracking.rest import GEOMETRY_PAIRS, ActorRest, actor_rest, pair_distances
 from capture2face.tracking.tracker import TrackOptions
 
-# curve -> landmark pairs whose distance is its geometric measure (two pairs: the mean).
+# curve -> landmark pairs whose distance is its geometric measure (two pairs: the mean):
+# the rest's own geometry, so a curve's rest is where its region's rest was judged.
 GEOMETRIC: dict[str, tuple[tuple[int, int], ...]] = {
-    "jawOpen": ((13, 14),),
-    "eyeBlinkLeft": ((386, 374),),
-    "eyeBlinkRight": ((159, 145),),
-    "browInnerUp": ((105, 33), (334, 263)),
+    "jawOpen": GEOMETRY_PAIRS["lip_gap"],
+    "eyeBlinkLeft": GEOMETRY_PAIRS["lid_left"],
+    "eyeBlinkRight": GEOMETRY_PAIRS["lid_right"],
+    "browInnerUp": GEOMETRY_PAIRS["brow_height"],
 }
-IOD_PAIR = (33, 263)  # outer eye corners: the face's size
 # The geometric measure at which a curve reads 1: jaw and brows in inter-ocular distances
 # above rest, eyes as the fraction of the neutral opening closed. jawOpen: ICT-FaceKit's
 # ARKit-scaled jawOpen at 1 parts the inner lips by 0.40-0.41 IOD on all its heads (3.7 cm;

@@ -28,10 +28,8 @@ from __future__ import annotations
 import numpy as np
 
 from capture2face.io.framestore import take_points
-from capture2face.retarget.arkit import (
-    IOD_PAIR,  # the outer eye corners: the face's size
-)
 from capture2face.rig.face_rig import landmark_points
+from capture2face.tracking.rest import IOD_PAIR  # the outer eye corners: the face's size
 
 # Right eye (the subject's right, -x) first, as everywhere: (iris landmarks, corners, lids).
 EYES = (

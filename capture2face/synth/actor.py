@@ -28,7 +28,6 @@ import numpy as np
 from scipy.interpolate import interp1d
 from scipy.ndimage import uniform_filter1d
 
-from capture2face.camera import face_centre_and_height
 from capture2face.errors import CaptureError
 from capture2face.rig.arkit_names import ARKIT_NAMES, GAZE_SCORES, arkit_morphs
 from capture2face.rig.face_rig import FaceRig, landmark_points
@@ -38,10 +37,6 @@ from capture2face.synth.trajectories import (
     HOLD_SECONDS,
     KEY_FREE,
     KEY_NEUTRAL,
-    PITCH_LIMIT,
-    ROLL_LIMIT,
-    TRANSLATION_LIMIT,
-    YAW_LIMIT,
     Keys,
     Performance,
     Values,
@@ -51,7 +46,9 @@ from capture2face.synth.trajectories import (
     interpolate,
     key_frames,
     random_gaze,
+    random_head,
     random_lights,
+    settle_head,
 )
 
 EYE_LOOK_FULL_DEG = 30.0  # an eyeLook weight of 1 turns the eye this far
@@ -249,12 +246,8 @@ def random_arkit_performance(rig: FaceRig, frames: int, seed: int = 0, fps: floa
     rng = np.random.default_rng([seed, 22])
     keys = key_frames(frames, fps, rng, hold, 1)
     K = len(keys)
-    angles = rng.uniform(-1.0, 1.0, (K, 3)) * [YAW_LIMIT, PITCH_LIMIT, ROLL_LIMIT]
-    _, height = face_centre_and_height(rig)
-    offset = rng.uniform(-1.0, 1.0, (K, 3)) * TRANSLATION_LIMIT * height
-    if not head_motion:
-        angles[:], offset[:] = 0.0, 0.0
-    angles[0] *= 0.3  # start near frontal so the tracker locks on at once
+    angles, offset = random_head(rig, rng, K)
+    settle_head(angles, offset, head_motion)
     expression = _expression_keys(rng, K)
     expression[0] = 0.0
     gaze = random_gaze(np.random.default_rng([seed, 14]), K)

@@ -186,9 +186,7 @@ def _random_draws(rig: FaceRig, rng: np.random.Generator, seed: int, K: int, sca
     for k in range(K):
         chosen = rng.choice(M, size=min(M, rng.integers(0, 4)), replace=False)
         morphs[k, chosen] = rng.uniform(0.1, 0.7, len(chosen))
-    angles = rng.uniform(-1.0, 1.0, (K, 3)) * [YAW_LIMIT, PITCH_LIMIT, ROLL_LIMIT]
-    _, height = face_centre_and_height(rig)
-    offset = rng.uniform(-1.0, 1.0, (K, 3)) * TRANSLATION_LIMIT * height
+    angles, offset = random_head(rig, rng, K)
     light = random_lights(rng, K)
     gaze = random_gaze(np.random.default_rng([seed, 14]), K)  # own stream: the rest stays as it was
     return _KeyDraws(ab, offsets, morphs, angles, offset, light, gaze)
@@ -200,12 +198,25 @@ def _key_values(rig: FaceRig, keys: np.ndarray, d: _KeyDraws, space: _PoseSpace,
     bones = space.rest + ab[:, :1, None] * travel[si] + ab[:, 1:, None] * travel[ci] + d.offsets
     weights = np.clip(d.morphs + ab[:, :1] * rig.pose_morph_weights[si] + ab[:, 1:] * rig.pose_morph_weights[ci], 0, 1)
     label = np.full(len(keys), KEY_FREE)
-    angles, offset = d.angles, d.offset
+    settle_head(d.angles, d.offset, head_motion)
+    return Keys(keys, Values(bones, weights, d.angles, d.offset, d.light, d.gaze), label)
+
+
+def random_head(rig: FaceRig, rng: np.random.Generator, K: int) -> tuple[np.ndarray, np.ndarray]:
+    """(K, 3) head angles (yaw, pitch, roll, degrees) and (K, 3) offsets (cm) at the keys,
+    uniform within the limits (the offsets scaled by the face's height)."""
+    angles = rng.uniform(-1.0, 1.0, (K, 3)) * [YAW_LIMIT, PITCH_LIMIT, ROLL_LIMIT]
+    _, height = face_centre_and_height(rig)
+    offset = rng.uniform(-1.0, 1.0, (K, 3)) * TRANSLATION_LIMIT * height
+    return angles, offset
+
+
+def settle_head(angles: np.ndarray, offset: np.ndarray, head_motion: bool) -> None:
+    """In place: a still head without ``head_motion``; the first key near frontal either way."""
     if not head_motion:
         angles[:] = 0.0
         offset[:] = 0.0
     angles[0] *= 0.3  # start near frontal so the tracker locks on at once
-    return Keys(keys, Values(bones, weights, angles, offset, d.light, d.gaze), label)
 
 
 def _hold_one_expression(rig: FaceRig, k: Keys, d: _KeyDraws, space: _PoseSpace) -> None:

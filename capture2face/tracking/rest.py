@@ -58,9 +58,9 @@ _SCORE_PREFIXES = {"brows": ("brow",), "eyes": ("eye",), "mouth": ("mouth", "jaw
 # Geometry (:func:`rest_geometry`'s columns, inter-ocular distances): lip gap, brow height
 # above the outer eye corners (mean of both), the lids' openings (right, left).
 GEOMETRY = ("lip_gap", "brow_height", "lid_right", "lid_left")
-_PAIRS = {"lip_gap": ((13, 14),), "brow_height": ((105, 33), (334, 263)),
-          "lid_right": ((159, 145),), "lid_left": ((386, 374),)}
-IOD_PAIR = (33, 263)
+GEOMETRY_PAIRS = {"lip_gap": ((13, 14),), "brow_height": ((105, 33), (334, 263)),
+                  "lid_right": ((159, 145),), "lid_left": ((386, 374),)}
+IOD_PAIR = (33, 263)  # the outer eye corners: the face's size
 BROW_SCALE = 0.03  # brows this far (IOD) from their rest height cost as much
 LID_SCALE = 0.25  # a lid this fraction of its rest opening away from it costs as much
 # How much of the whole face's cost a region's rest frames weigh (1: the face's frames).
@@ -143,7 +143,7 @@ def pair_distances(landmarks_head, measures: dict[str, tuple], chunk: int = 512)
 def rest_geometry(landmarks_head, chunk: int = 512) -> np.ndarray:
     """(F, 4) float64 :data:`GEOMETRY` of head-coordinate landmarks (F, L, 3) (an array or a
     disk-backed FrameArray), in inter-ocular distances of each frame."""
-    dist, iod = pair_distances(landmarks_head, {g: _PAIRS[g] for g in GEOMETRY}, chunk)
+    dist, iod = pair_distances(landmarks_head, {g: GEOMETRY_PAIRS[g] for g in GEOMETRY}, chunk)
     return dist / np.maximum(iod, 1e-9)[:, None]
 
 
