@@ -229,7 +229,7 @@ def ensure_validator() -> None:
         return
     proc = subprocess.run(
         ["npm", "install", "--no-audit", "--no-fund", "--prefix", str(VALIDATOR_TOOLS)],
-        cwd=VALIDATOR_TOOLS, capture_output=True, text=True, timeout=600,
+        cwd=VALIDATOR_TOOLS, capture_output=True, text=True, timeout=600, check=False,
     )
     if proc.returncode != 0:
         raise RuntimeError(f"npm install gltf-validator failed:\n{proc.stdout}\n{proc.stderr}")
@@ -238,7 +238,8 @@ def ensure_validator() -> None:
 def validate(path) -> dict:
     """The validator's JSON report for ``path`` (``report['issues']['numErrors']`` etc.)."""
     ensure_validator()
-    proc = subprocess.run(["node", str(VALIDATOR_SCRIPT), str(path)], capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(["node", str(VALIDATOR_SCRIPT), str(path)], capture_output=True, text=True, timeout=600,
+                          check=False)
     if proc.returncode not in (0, 1):
         raise RuntimeError(f"glTF validator failed to run on {path}: {proc.stderr}")
     return json.loads(proc.stdout)

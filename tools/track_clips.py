@@ -48,9 +48,9 @@ def cached_track(clip: str | os.PathLike, cache: str | os.PathLike, force: bool 
     folder = Path(cache) / clip.stem
     stamp = _stamp(clip)
     path, stamp_path = folder / "track.npz", folder / "source.json"
-    if not force and path.is_file() and stamp_path.is_file():
-        if json.loads(stamp_path.read_text(encoding="utf-8")) == stamp:
-            return Track.load(path)
+    if (not force and path.is_file() and stamp_path.is_file()
+            and json.loads(stamp_path.read_text(encoding="utf-8")) == stamp):
+        return Track.load(path)
     folder.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="capture2face-track-") as work:
         track = track_stage(clip, RunOptions(), progress=progress, workdir=work)
