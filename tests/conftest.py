@@ -1,4 +1,4 @@
-"""Shared pytest fixtures."""
+"""Shared pytest fixtures (plain helpers live in tests/helpers.py)."""
 
 from __future__ import annotations
 
@@ -6,25 +6,21 @@ from pathlib import Path
 
 import pytest
 
-SHARED_CLIPS = Path(__file__).resolve().parents[2] / "shared" / "clips"
-SHARED_CHARACTERS = Path(__file__).resolve().parents[2] / "shared" / "characters"
+
+@pytest.fixture(scope="session")
+def avatar():
+    """The built-in default avatar (a ``FaceRig``), built or read from the disk cache once."""
+    from capture2face import default_avatar
+
+    return default_avatar()
 
 
-def shared_clip(name: str) -> Path:
-    """A real recorded clip from ../shared/clips; skips the test when it is absent."""
-    path = SHARED_CLIPS / name
-    if not path.is_file():
-        pytest.skip(f"{path} not present (real clips live in ../shared/clips)")
-    return path
+@pytest.fixture(scope="session")
+def wide():
+    """The built-in avatar's 'wide' variant (another face shape, same topology)."""
+    from capture2face import default_avatar
 
-
-def shared_character(name: str) -> Path:
-    """A third-party head from ../shared/characters (ICT-FaceKit); skips the test when it
-    is absent."""
-    path = SHARED_CHARACTERS / name
-    if not path.is_file():
-        pytest.skip(f"{path} not present (third-party heads live in ../shared/characters)")
-    return path
+    return default_avatar(variant="wide")
 
 
 @pytest.fixture(scope="session")
@@ -47,21 +43,3 @@ def synthetic_clip(tmp_path_factory):
 
     path = tmp_path_factory.mktemp("synthetic") / "clip.mp4"
     return synthesize(path, SynthOptions(frames=60, size=512, seed=0), progress=False)
-
-
-def truncated_copy(clip: Path, folder: Path) -> Path:
-    """``clip`` remuxed with its index first (faststart), then cut at 60% of its bytes: a
-    clip whose decoding fails part way, the way a download cut short does."""
-    import av
-
-    faststart = folder / "faststart.mp4"
-    with av.open(str(clip)) as src, av.open(str(faststart), "w", options={"movflags": "faststart"}) as dst:
-        stream = dst.add_stream_from_template(src.streams.video[0])
-        for packet in src.demux(src.streams.video[0]):
-            if packet.size:
-                packet.stream = stream
-                dst.mux(packet)
-    data = faststart.read_bytes()
-    cut = folder / "cut.mp4"
-    cut.write_bytes(data[: len(data) * 6 // 10])
-    return cut

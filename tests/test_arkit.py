@@ -8,55 +8,10 @@ import zipfile
 
 import numpy as np
 import pytest
-from conftest import shared_clip
 
 from capture2face.retarget.animation import Animation
 from capture2face.retarget.arkit import arkit_curves, calibrate_scores
-from capture2face.tracking import TrackOptions
-from capture2face.tracking.filtering import one_euro
-from capture2face.tracking.head_pose import canonical_mesh
-from capture2face.tracking.landmarker import BLENDSHAPE_NAMES
-from capture2face.tracking.track import Track
-
-NAMES = list(BLENDSHAPE_NAMES)
-F, NEUTRAL, FPS = 100, 3, 30.0
-
-
-def _ramp(frames: np.ndarray, start: int, hold: int, length: int = 8) -> np.ndarray:
-    """0 before ``start``, rising over ``length`` frames, 1 for ``hold`` frames, falling."""
-    up = np.clip((frames - start) / length, 0, 1)
-    down = np.clip((start + length + hold + length - frames) / length, 0, 1)
-    return np.minimum(up, down)
-
-
-def synthetic_track() -> tuple[Track, dict[str, np.ndarray]]:
-    """A still canonical face that opens its jaw wide (0.4 inter-ocular distances of lip
-    gap), closes the right eye and raises its brows (landmarks filtered as the tracker
-    filters them), with MediaPipe-like scores: resting
-    above 0 at the neutral and compressed (a full pose scores 0.6-0.8)."""
-    verts = canonical_mesh().vertices.astype(np.float64)
-    base = np.concatenate([verts, verts[:478 - len(verts)]])
-    iod = np.linalg.norm(base[33] - base[263])
-    k = np.arange(F)
-    jaw, blink, brow = _ramp(k, 30, 15), _ramp(k, 80, 4, 3), _ramp(k, 50, 10)
-    lm = np.repeat(base[None], F, 0)
-    lm[:, 14, 1] -= 0.4 * iod * jaw  # lower lip drops
-    lm[:, 159, 1] -= 0.9 * (base[159, 1] - base[145, 1]) * blink  # right upper lid to 10% open
-    lm[:, [105, 334], 1] += 0.1 * iod * brow[:, None]
-    lm += np.random.default_rng(0).normal(0, 0.002, lm.shape)  # tracker jitter, cm
-    lm = one_euro(lm, k / FPS, TrackOptions().landmark_filter(), speed_axis=-1)  # as the tracker filters
-    scores = np.zeros((F, len(NAMES)))
-    scores[:, NAMES.index("jawOpen")] = 0.2 + 0.55 * jaw
-    scores[:, NAMES.index("eyeBlinkRight")] = 0.1 + 0.6 * blink
-    scores[:, NAMES.index("browInnerUp")] = 0.05 + 0.3 * brow
-    scores[:, NAMES.index("mouthSmileLeft")] = 0.3 + 0.7 * jaw  # a score with no geometry check
-    track = Track(
-        times=k / FPS, landmarks_px=np.zeros((F, 478, 2), np.float32), landmarks_depth=np.zeros((F, 478), np.float32),
-        landmarks_head=lm.astype(np.float32), presence=np.ones(F, bool), interpolated=np.zeros(F, bool),
-        held=np.zeros(F, bool), blendshapes=scores.astype(np.float32), blendshape_names=NAMES,
-        head_pose=np.tile(np.eye(4, dtype=np.float32), (F, 1, 1)), neutral_frame=NEUTRAL, width=64, height=64,
-        fps=FPS)
-    return track, {"jawOpen": jaw, "eyeBlinkRight": blink, "browInnerUp": brow}
+from tests.helpers import FPS, FRAMES, NAMES, NEUTRAL, ramp, shared_clip, synthetic_track
 
 
 def test_calibration_puts_the_rest_at_zero_and_keeps_one_at_one():
@@ -67,7 +22,7 @@ def test_calibration_puts_the_rest_at_zero_and_keeps_one_at_one():
 def test_arkit_curves_have_arkit_meaning_on_a_synthetic_track():
     track, truth = synthetic_track()
     curves = arkit_curves(track)
-    assert curves.shape == (F, 52) and curves.dtype == np.float32
+    assert curves.shape == (FRAMES, 52) and curves.dtype == np.float32
     assert curves.min() >= 0 and curves.max() <= 1
     for name, pose in truth.items():
         c = curves[:, NAMES.index(name)]
@@ -94,8 +49,8 @@ def test_lids_lowered_without_a_blink_score_are_not_a_blink():
     blink itself (score and lids together) still reads ~1."""
     track, truth = synthetic_track()
     lm = np.array(track.landmarks_head)
-    k = np.arange(F)
-    look = _ramp(k, 55, 12)  # the right upper lid lowers a third of the way, no blink score
+    k = np.arange(FRAMES)
+    look = ramp(k, 55, 12)  # the right upper lid lowers a third of the way, no blink score
     lm[:, 159, 1] -= 0.33 * (lm[NEUTRAL, 159, 1] - lm[NEUTRAL, 145, 1]) * look
     curves = arkit_curves(dataclasses.replace(track, landmarks_head=lm.astype(np.float32)))
     blink = curves[:, NAMES.index("eyeBlinkRight")]
@@ -112,7 +67,7 @@ def test_retarget_fills_the_arkit_curves_and_livelink_writes_them(tmp_path):
 
     track, _ = synthetic_track()
     anim = retarget(track, default_avatar())
-    assert anim.arkit_names == NAMES and anim.arkit_weights.shape == (F, 52)
+    assert anim.arkit_names == NAMES and anim.arkit_weights.shape == (FRAMES, 52)
     np.testing.assert_array_equal(anim.arkit_weights, arkit_curves(track))
     path = tmp_path / "livelink.csv"
     write_livelink_csv(anim, track, path)

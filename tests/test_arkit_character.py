@@ -12,8 +12,6 @@ import time
 
 import numpy as np
 import pytest
-from conftest import shared_character
-from test_arkit import NAMES, synthetic_track
 
 from capture2face.errors import CaptureError
 from capture2face.gltf import import_glb
@@ -21,11 +19,7 @@ from capture2face.gltf.arkit_export import export_arkit_character, part_order
 from capture2face.gltf.container import ARRAY_BUFFER, GlbBuilder, GlbReader
 from capture2face.rig.arkit_names import arkit_morphs, canonical_arkit, drive_mode
 from capture2face.rig.avatar import default_avatar
-
-
-@pytest.fixture(scope="module")
-def avatar():
-    return default_avatar()
+from tests.helpers import FPS, NAMES, shared_character, synthetic_track, validate
 
 
 @pytest.mark.parametrize("name, arkit", [
@@ -131,8 +125,6 @@ def _performed_track(rig, by: dict[str, int], truth: dict[str, np.ndarray], scor
     """A track whose landmarks are ``rig``'s own landmark points under the ``truth`` morph
     weights (F,) by ARKit name (an actor with the character's face: the weights to find),
     with MediaPipe-like ``scores`` (the others 0)."""
-    from test_arkit import FPS
-
     from capture2face.rig.face_rig import landmark_points
     from capture2face.tracking.track import Track
 
@@ -385,8 +377,6 @@ def test_animation_glb_of_the_users_character(tmp_path, avatar, skeleton):
         turned = np.einsum("fij,j->fi", track.head_pose[:, :3, :3].astype(np.float64), centre) + shift
         np.testing.assert_allclose(turned, np.broadcast_to(centre, turned.shape), atol=1e-5)
     np.testing.assert_allclose(np.abs(np.einsum("fi,fi->f", q, expect)), 1.0, atol=1e-5)
-    from gltf_validator import validate
-
     report = validate(out)
     assert report["issues"]["numErrors"] == 0, report["issues"]["messages"][:5]
 

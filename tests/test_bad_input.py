@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.conftest import truncated_copy
+from tests.helpers import truncated_copy, write_video
 
 ENV = dict(os.environ, GLOG_minloglevel="2", TF_CPP_MIN_LOG_LEVEL="2", PYTHONUNBUFFERED="1")
 
@@ -22,26 +22,6 @@ ENV = dict(os.environ, GLOG_minloglevel="2", TF_CPP_MIN_LOG_LEVEL="2", PYTHONUNB
 def cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "capture2face", *args], capture_output=True,
                           text=True, timeout=timeout, env=ENV)
-
-
-def write_video(path: Path, frames: int, size: int = 128, seed: int = 0, **mux_options) -> Path:
-    """A clip of smooth random colour blobs: a valid H.264 video with no face in it."""
-    import av
-
-    rng = np.random.default_rng(seed)
-    with av.open(str(path), "w", options=mux_options) as c:
-        s = c.add_stream("libx264", rate=25)
-        s.width = s.height = size
-        s.pix_fmt = "yuv420p"
-        base = rng.integers(0, 255, (8, 8, 3)).astype(np.float32)
-        for i in range(frames):
-            small = np.clip(base + 40 * np.sin(i / 5 + base / 40), 0, 255).astype(np.uint8)
-            img = np.kron(small, np.ones((size // 8, size // 8, 1), np.uint8))
-            for p in s.encode(av.VideoFrame.from_ndarray(img, format="rgb24")):
-                c.mux(p)
-        for p in s.encode():
-            c.mux(p)
-    return path
 
 
 def write_audio_only(path: Path) -> Path:

@@ -11,6 +11,8 @@ import time
 import numpy as np
 import pytest
 
+from tests.helpers import write_video
+
 KEYS = ["decode_fps", "mediapipe_fps", "track_fps", "track_fps_parallel", "retarget_ms_per_frame", "wrinkle_ms_per_frame", "render_fps_wrinkles_off",
         "render_fps_wrinkles_auto", "render_fps_wrinkles_dynamic", "encode_fps", "end_to_end_fps", "peak_rss_mb",
         "gl_renderer"]
@@ -97,9 +99,6 @@ def test_bench_cli_reports_every_figure(tmp_path):
 def test_looped_clip_repeats_the_source_exactly(tmp_path):
     from capture2face.bench import loop_clip
     from capture2face.io.video_input import iter_frames, open_video
-
-    sys.path.insert(0, os.path.dirname(__file__))
-    from test_bad_input import write_video
 
     src = write_video(tmp_path / "src.mp4", 25, size=64, seed=3)  # 1 s at 25 fps
     n = loop_clip(src, tmp_path / "long.mp4", seconds=3.5)

@@ -13,7 +13,7 @@ from capture2face.pipeline import RunOptions
 from capture2face.pipeline.options import input_files
 from capture2face.tracking import TrackOptions, track_clip
 from capture2face.tracking.rest import GEOMETRY, actor_rest, rest_geometry
-from tests.conftest import shared_clip
+from tests.helpers import shared_clip
 
 FRAMES = 60
 

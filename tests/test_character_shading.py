@@ -14,7 +14,6 @@ from pathlib import Path
 import numpy as np
 import pygltflib
 import pytest
-from conftest import shared_character
 
 from capture2face import default_avatar
 from capture2face.camera import framing_pose
@@ -25,6 +24,7 @@ from capture2face.render.skinning import Deformer
 from capture2face.rig.deform import deform
 from capture2face.rig.face_rig import FaceRig
 from capture2face.rig.mesh_ops import vertex_normals
+from tests.helpers import shared_character
 
 # An open "O" with raised brows and half-closed lids: the frame that turned Ready Player
 # Me's lower face dark red-brown when its derived morph normals were wrong.

@@ -8,82 +8,15 @@ import re
 
 import numpy as np
 import pytest
-from gltf_validator import problems, validate
 
 from capture2face.errors import CaptureError
 from capture2face.export.livelink import HEADER, head_angles, timecodes, write_livelink_csv
 from capture2face.gltf import export_glb, import_glb
 from capture2face.gltf.animation_export import head_rotations, read_animation_keyframe_count, read_glb_animation
-from capture2face.retarget.animation import Animation
-from capture2face.rig.face_rig import REGION_NAMES, ZONE_NAMES
+from tests.helpers import MEDIAPIPE_NAMES, make_animation, problems, rot_x, rot_y, rot_z, validate
 
 # Copied character for character from issue 6.
 ISSUE_HEADER = "Timecode,BlendShapeCount,EyeBlinkLeft,EyeLookDownLeft,EyeLookInLeft,EyeLookOutLeft,EyeLookUpLeft,EyeSquintLeft,EyeWideLeft,EyeBlinkRight,EyeLookDownRight,EyeLookInRight,EyeLookOutRight,EyeLookUpRight,EyeSquintRight,EyeWideRight,JawForward,JawRight,JawLeft,JawOpen,MouthClose,MouthFunnel,MouthPucker,MouthRight,MouthLeft,MouthSmileLeft,MouthSmileRight,MouthFrownLeft,MouthFrownRight,MouthDimpleLeft,MouthDimpleRight,MouthStretchLeft,MouthStretchRight,MouthRollLower,MouthRollUpper,MouthShrugLower,MouthShrugUpper,MouthPressLeft,MouthPressRight,MouthLowerDownLeft,MouthLowerDownRight,MouthUpperUpLeft,MouthUpperUpRight,BrowDownLeft,BrowDownRight,BrowInnerUp,BrowOuterUpLeft,BrowOuterUpRight,CheekPuff,CheekSquintLeft,CheekSquintRight,NoseSneerLeft,NoseSneerRight,TongueOut,HeadYaw,HeadPitch,HeadRoll,LeftEyeYaw,LeftEyePitch,LeftEyeRoll,RightEyeYaw,RightEyePitch,RightEyeRoll"
-
-MEDIAPIPE_NAMES = [
-    "_neutral", "browDownLeft", "browDownRight", "browInnerUp", "browOuterUpLeft", "browOuterUpRight",
-    "cheekPuff", "cheekSquintLeft", "cheekSquintRight", "eyeBlinkLeft", "eyeBlinkRight", "eyeLookDownLeft",
-    "eyeLookDownRight", "eyeLookInLeft", "eyeLookInRight", "eyeLookOutLeft", "eyeLookOutRight", "eyeLookUpLeft",
-    "eyeLookUpRight", "eyeSquintLeft", "eyeSquintRight", "eyeWideLeft", "eyeWideRight", "jawForward", "jawLeft",
-    "jawOpen", "jawRight", "mouthClose", "mouthDimpleLeft", "mouthDimpleRight", "mouthFrownLeft",
-    "mouthFrownRight", "mouthFunnel", "mouthLeft", "mouthLowerDownLeft", "mouthLowerDownRight", "mouthPressLeft",
-    "mouthPressRight", "mouthPucker", "mouthRight", "mouthRollLower", "mouthRollUpper", "mouthShrugLower",
-    "mouthShrugUpper", "mouthSmileLeft", "mouthSmileRight", "mouthStretchLeft", "mouthStretchRight",
-    "mouthUpperUpLeft", "mouthUpperUpRight", "noseSneerLeft", "noseSneerRight",
-]
-
-
-def rot_y(a):
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
-
-
-def rot_x(a):
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
-
-
-def rot_z(a):
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
-
-
-def make_animation(rig, frames=45, fps=30.0, seed=1, t0=0.0) -> Animation:
-    """A performance built by hand: bones = rest + small sinusoids (head still), morph
-    weights in [0, 1], a head turning (yaw, pitch, roll), random MediaPipe scores and
-    (different) random ARKit curves."""
-    t = t0 + np.arange(frames) / fps
-    B, M = rig.n_bones, rig.n_morphs
-    phase = np.arange(B)[None, :, None] * 0.7 + np.arange(3)[None, None, :]
-    bones = rig.bone_rest[None] + 0.3 * np.sin(2 * np.pi * 1.3 * t[:, None, None] + phase)
-    bones[:, 0] = rig.bone_rest[0]
-    weights = 0.5 + 0.5 * np.sin(2 * np.pi * 0.9 * t[:, None] + np.arange(M)[None])
-    yaw, pitch, roll = 0.4 * np.sin(2 * np.pi * 0.5 * t), 0.2 * np.sin(2 * np.pi * 0.7 * t), 0.1 * np.cos(t)
-    pose = np.tile(np.eye(4), (frames, 1, 1))
-    if frames:
-        pose[:, :3, :3] = [rot_y(a) @ rot_x(b) @ rot_z(c) for a, b, c in zip(yaw, pitch, roll)]
-    pose[:, :3, 3] = [0.5, -1.0, -45.0]
-    rng = np.random.default_rng(seed)
-    P, R = len(rig.pose_names), len(REGION_NAMES)
-    return Animation(
-        times=t, fps=fps, bone_names=list(rig.bone_names), bone_positions=bones.astype(np.float32),
-        head_pose=pose.astype(np.float32), blend_names=list(rig.morph_names),
-        blend_weights=weights.astype(np.float32), pose_names=list(rig.pose_names),
-        influences=np.zeros((frames, P, B), np.float32), rest_influence=np.ones((frames, B), np.float32),
-        region_names=list(REGION_NAMES), region_influence=np.zeros((frames, R, P), np.float32),
-        zone_names=list(ZONE_NAMES), zone_weights=np.zeros((frames, 8), np.float32),
-        mediapipe_blendshapes=rng.uniform(0, 1, (frames, len(MEDIAPIPE_NAMES))).astype(np.float32),
-        mediapipe_blendshape_names=list(MEDIAPIPE_NAMES), presence=np.ones(frames, bool),
-        character=rig.name, arkit_names=list(MEDIAPIPE_NAMES),
-        arkit_weights=rng.uniform(0, 1, (frames, len(MEDIAPIPE_NAMES))).astype(np.float32),
-    )
-
-
-@pytest.fixture(scope="module")
-def avatar():
-    from capture2face.rig.avatar import default_avatar
-
-    return default_avatar()
 
 
 @pytest.fixture(scope="module")

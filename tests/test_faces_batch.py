@@ -9,12 +9,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import shared_clip
 
 from capture2face.batch import _failure_line, resume_check, run_batch
 from capture2face.errors import CaptureError
 from capture2face.pipeline import OUTPUT_FILES, RunOptions, options_json
 from capture2face.tracking import TrackOptions, track_clip
+from tests.helpers import shared_clip
 
 CHEAP = dict(size=64, compare=False)
 

@@ -24,7 +24,7 @@ from capture2face.measures import (
 )
 from capture2face.pipeline.report_html import _fidelity_tables, _wrinkle_plots
 from capture2face.rig.avatar import default_avatar
-from tests.conftest import shared_clip
+from tests.helpers import shared_clip
 
 
 def _face(frames: int, gap: np.ndarray, eye_scale: np.ndarray) -> np.ndarray:

@@ -5,17 +5,10 @@ from __future__ import annotations
 import csv
 
 import numpy as np
-import pytest
 
 from capture2face.retarget.gaze import HUMAN_RADIUS_IOD, eye_radius_iod, eye_rotation
 from capture2face.synth.truth import deformed_landmarks
-
-
-@pytest.fixture(scope="module")
-def avatar():
-    from capture2face.rig.avatar import default_avatar
-
-    return default_avatar()
+from tests.helpers import make_animation, validate
 
 
 def _gaze_clip(rig, frames=60, seed=3):
@@ -62,7 +55,6 @@ def test_livelink_eye_columns_come_from_the_gaze(avatar, tmp_path):
     import dataclasses
 
     from capture2face.export.livelink import ANGLE_UNIT_DEG, HEADER, write_livelink_csv
-    from tests.test_export import make_animation
 
     anim = make_animation(avatar, frames=20)
     truth, _, _ = _gaze_clip(avatar, frames=20)
@@ -81,18 +73,12 @@ def test_livelink_eye_columns_come_from_the_gaze(avatar, tmp_path):
 
 def test_animation_glb_turns_the_eye_joints(avatar, tmp_path):
     import dataclasses
-    import sys
-    from pathlib import Path
 
     from scipy.spatial.transform import Rotation
-
-    sys.path.insert(0, str(Path(__file__).parent))
-    from gltf_validator import validate
 
     from capture2face.gltf import export_glb, import_glb
     from capture2face.gltf.animation_export import read_glb_animation
     from capture2face.rig.face_rig import eye_rotation_matrices
-    from tests.test_export import make_animation
 
     truth, _, _ = _gaze_clip(avatar, frames=20)
     anim = dataclasses.replace(make_animation(avatar, frames=20), eye_rotation=truth.astype(np.float32))

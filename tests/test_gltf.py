@@ -6,18 +6,11 @@ import json
 
 import numpy as np
 import pytest
-from gltf_validator import problems, validate
 
 from capture2face.errors import CaptureError
 from capture2face.gltf import export_glb, import_glb
 from capture2face.gltf.container import ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER, GlbBuilder, GlbReader, encode_png
-
-
-@pytest.fixture(scope="module")
-def avatar():
-    from capture2face.rig.avatar import default_avatar
-
-    return default_avatar()
+from tests.helpers import problems, validate
 
 
 @pytest.fixture(scope="module")

@@ -21,8 +21,7 @@ from capture2face.pipeline.report_html import _fidelity_tables
 from capture2face.rig.arkit_names import arkit_morphs
 from capture2face.rig.avatar import default_avatar
 from capture2face.rig.face_rig import FaceRig, landmark_points
-from tests.conftest import shared_character
-from tests.test_arkit import synthetic_track
+from tests.helpers import shared_character, synthetic_track
 
 
 def _shared_character(name: str) -> FaceRig:

@@ -4,7 +4,6 @@ passes and windowed retargeting give what the whole-clip computations give."""
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,15 +14,12 @@ from capture2face.io.framestore import FrameArray, take_points
 from capture2face.io.video_input import VideoInfo
 from capture2face.retarget import RetargetOptions, retarget
 from capture2face.retarget.windows import SpilledMedian, frame_windows
-from capture2face.rig.avatar import default_avatar
 from capture2face.synth.trajectories import random_performance
 from capture2face.tracking import Track, TrackOptions, build_track
 from capture2face.tracking.filtering import CausalOneEuro, OneEuro, one_euro
 from capture2face.tracking.head_pose import canonical_mesh
 from capture2face.tracking.landmarker import BLENDSHAPE_NAMES, N_LANDMARKS, FaceObservation
-
-sys.path.insert(0, str(Path(__file__).parent))
-from test_retarget import perfect_track  # noqa: E402
+from tests.helpers import perfect_track
 
 
 # ---- FrameArray ----------------------------------------------------------------------
@@ -181,22 +177,17 @@ def test_spilled_median_is_exact():
 
 
 @pytest.fixture(scope="module")
-def rig():
-    return default_avatar()
+def noisy_track(avatar):
+    perf = random_performance(avatar, 240, seed=5)
+    return perfect_track(avatar, perf, noise=0.05)
 
 
-@pytest.fixture(scope="module")
-def noisy_track(rig):
-    perf = random_performance(rig, 240, seed=5)
-    return perfect_track(rig, perf, noise=0.05)
-
-
-def test_windowed_retarget_matches_whole_clip(rig, noisy_track, monkeypatch):
+def test_windowed_retarget_matches_whole_clip(avatar, noisy_track, monkeypatch):
     whole_opts = RetargetOptions(window_frames=10**9)
     windowed = RetargetOptions(window_frames=100, window_overlap=40)
     assert len(frame_windows(noisy_track.n_frames, 100, 40)) == 4
     # Default solver: windows differ only by where ADMM stops (tolerance 1e-3).
-    a, b = retarget(noisy_track, rig, whole_opts), retarget(noisy_track, rig, windowed)
+    a, b = retarget(noisy_track, avatar, whole_opts), retarget(noisy_track, avatar, windowed)
     assert np.abs(a.bone_positions - b.bone_positions).max() < 2e-3
     assert np.abs(a.blend_weights - b.blend_weights).max() < 2e-3
     # Converged solves: the windows reproduce the whole-clip solution to float32 precision.
@@ -208,17 +199,17 @@ def test_windowed_retarget_matches_whole_clip(rig, noisy_track, monkeypatch):
         return solver
 
     monkeypatch.setattr(retarget_mod, "_joint_solver", converged)
-    a, b = retarget(noisy_track, rig, whole_opts), retarget(noisy_track, rig, windowed)
+    a, b = retarget(noisy_track, avatar, whole_opts), retarget(noisy_track, avatar, windowed)
     np.testing.assert_allclose(b.bone_positions, a.bone_positions, rtol=0, atol=2e-5)
     np.testing.assert_allclose(b.blend_weights, a.blend_weights, rtol=0, atol=2e-5)
     np.testing.assert_allclose(b.influences, a.influences, rtol=0, atol=2e-5)
     np.testing.assert_allclose(b.zone_weights, a.zone_weights, rtol=0, atol=2e-5)
 
 
-def test_windowed_retarget_direct_and_bone_only_modes(rig, noisy_track):
+def test_windowed_retarget_direct_and_bone_only_modes(avatar, noisy_track):
     for opts in (dict(joint_solve=False), dict(solve_blend_weights=False)):
-        a = retarget(noisy_track, rig, RetargetOptions(window_frames=10**9, **opts))
-        b = retarget(noisy_track, rig, RetargetOptions(window_frames=100, window_overlap=40, **opts))
+        a = retarget(noisy_track, avatar, RetargetOptions(window_frames=10**9, **opts))
+        b = retarget(noisy_track, avatar, RetargetOptions(window_frames=100, window_overlap=40, **opts))
         assert np.abs(a.bone_positions - b.bone_positions).max() < 2e-3
         assert np.abs(a.blend_weights - b.blend_weights).max() < 2e-3
 

@@ -20,7 +20,7 @@ import pytest
 from capture2face.errors import CaptureError
 from capture2face.io import staging
 from capture2face.io.staging import JOURNAL, OWNER_FILE, check_output_folder, clean_stale_staging, staged_folder
-from tests.conftest import truncated_copy
+from tests.helpers import truncated_copy
 
 KNOWN = ("avatar.mp4", "compare.mp4", "track.npz", "report.json")
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}

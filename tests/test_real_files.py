@@ -27,6 +27,7 @@ from scipy.spatial import cKDTree
 from capture2face.errors import CaptureError
 from capture2face.gltf import import_glb
 from capture2face.gltf.container import GlbReader, read_gltf_document, write_glb
+from tests.helpers import synthetic_track, validate
 
 DATA = Path(__file__).parent / "data" / "real_files"
 VARIANTS = ["pack-q.glb", "pack-c.glb", "pack-cc.glb", "pack-khr.glb", "pack-vpf.glb", "pack-vpn-vi.glb",
@@ -211,9 +212,6 @@ def test_ktx2_basis_textures_are_transcoded(tmp_path, base, encoder):
 
 
 def test_animation_glb_of_every_variant_is_valid_and_self_contained(tmp_path):
-    from gltf_validator import validate
-    from test_arkit import synthetic_track
-
     from capture2face.gltf.character import export_character_animation
     from capture2face.retarget import retarget
 
@@ -245,8 +243,6 @@ def test_animation_glb_loads_in_gltf_transform(tmp_path):
     and a Draco variant with its animation; skipped without npx."""
     pytest.importorskip("meshoptimizer")
     pytest.importorskip("DracoPy")
-    from test_arkit import synthetic_track
-
     from capture2face.gltf.character import export_character_animation
     from capture2face.retarget import retarget
 
@@ -266,7 +262,7 @@ THREE = Path(__file__).resolve().parents[1] / "tools" / "threejs_check"
 
 def _ensure_three() -> None:
     """three.js for node in tools/threejs_check/node_modules (git-ignored), installed from
-    its lock file on first use as the validator is (tests/gltf_validator.py); skips only
+    its lock file on first use as the validator is (tests/helpers.py); skips only
     without node and npm, or offline."""
     if shutil.which("node") is None or shutil.which("npm") is None:
         pytest.skip("node/npm not installed: cannot run three.js")
@@ -284,8 +280,6 @@ def test_animation_glb_plays_in_threejs(tmp_path):
     every morph influence equals the file's weights at that time."""
     _ensure_three()
     pytest.importorskip("meshoptimizer")
-    from test_arkit import synthetic_track
-
     from capture2face.gltf.character import export_character_animation
     from capture2face.retarget import retarget
 

@@ -154,13 +154,6 @@ def rig() -> FaceRig:
     return make_test_rig()
 
 
-@pytest.fixture(scope="session")
-def avatar() -> FaceRig:
-    from capture2face.rig.avatar import default_avatar
-
-    return default_avatar()
-
-
 RIGS = ["rig", "avatar"]  # the test patch (UV seam, known layout) and the default avatar
 
 

@@ -18,11 +18,9 @@ from capture2face.retarget.animation import Animation
 from capture2face.retarget.rbf import fit_feature_map
 from capture2face.retarget.solve import LinearRigModel, LinearSolver
 from capture2face.rig import influences as inf
-from capture2face.rig.avatar import default_avatar
-from capture2face.rig.deform import deform
 from capture2face.synth.trajectories import random_performance
 from capture2face.tracking.landmarker import BLENDSHAPE_NAMES
-from capture2face.tracking.track import Track
+from tests.helpers import perfect_track
 
 # The defaults carry strong morph priors and half-trust the tracker's depth motion, tuned
 # for a real tracker's noise; a noise-free track is recovered exactly with weak priors and
@@ -31,60 +29,24 @@ EXACT = RetargetOptions(morph_ridge=1e-4, sparsity=0.0, depth_motion=1.0)
 
 
 @pytest.fixture(scope="module")
-def rig():
-    return default_avatar()
-
-
-@pytest.fixture(scope="module")
-def wide():
-    return default_avatar(variant="wide")
-
-
-@pytest.fixture(scope="module")
-def performance(rig):
-    return random_performance(rig, 120, seed=3)
-
-
-def perfect_track(rig, perf, scale=1.0, angle_deg=0.0, shift=(0.0, 0.0, 0.0), noise=0.0,
-                  blendshapes=None, seed=0) -> Track:
-    """Landmarks of the CPU-deformed rig, as a tracker would report them (head coordinates
-    off by a similarity transform, plus optional noise)."""
-    frames = perf.n_frames
-    pos, _ = deform(rig, perf.bone_positions, perf.blend_weights)
-    lv = rig.landmark_vertices
-    lm = np.zeros((frames, len(lv), 3))
-    lm[:, lv >= 0] = pos[:, lv[lv >= 0]]
-    lm[:, lv < 0] = lm[:, lv >= 0].mean(1, keepdims=True)  # irises: somewhere, unused
-    a = np.radians(angle_deg)
-    rot = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
-    lm = scale * lm @ rot.T + np.asarray(shift)
-    lm += np.random.default_rng(seed).normal(0.0, noise, lm.shape)
-    names = list(BLENDSHAPE_NAMES)
-    return Track(
-        times=perf.times, landmarks_px=np.zeros((frames, len(lv), 2), np.float32),
-        landmarks_depth=np.zeros((frames, len(lv)), np.float32),
-        landmarks_head=lm.astype(np.float32), presence=np.ones(frames, bool),
-        interpolated=np.zeros(frames, bool), held=np.zeros(frames, bool),
-        blendshapes=(np.zeros((frames, len(names)), np.float32) if blendshapes is None else blendshapes),
-        blendshape_names=names, head_pose=perf.head_pose, neutral_frame=int(np.flatnonzero(perf.key_pose == 0)[0]),
-        width=512, height=512, fps=perf.fps,
-    )
+def performance(avatar):
+    return random_performance(avatar, 120, seed=3)
 
 
 # ---- influences (Dutreve §5.1-5.2) --------------------------------------------------
 
-def test_influence_is_one_at_reference_pose_and_zero_at_rest(rig):
-    at_pose = inf.pose_influences(rig.pose_bones, rig.bone_rest, rig.pose_bones)  # (P, P, B)
-    at_rest = inf.pose_influences(rig.bone_rest[None], rig.bone_rest, rig.pose_bones)
-    moving = np.linalg.norm(rig.pose_bones - rig.bone_rest, axis=2) > 1e-4  # (P, B)
-    for p in range(len(rig.pose_names)):
+def test_influence_is_one_at_reference_pose_and_zero_at_rest(avatar):
+    at_pose = inf.pose_influences(avatar.pose_bones, avatar.bone_rest, avatar.pose_bones)  # (P, P, B)
+    at_rest = inf.pose_influences(avatar.bone_rest[None], avatar.bone_rest, avatar.pose_bones)
+    moving = np.linalg.norm(avatar.pose_bones - avatar.bone_rest, axis=2) > 1e-4  # (P, B)
+    for p in range(len(avatar.pose_names)):
         np.testing.assert_array_equal(at_pose[p, p][moving[p]], 1.0)
         np.testing.assert_array_equal(at_pose[p, p][~moving[p]], 0.0)
     np.testing.assert_array_equal(at_rest, 0.0)
     np.testing.assert_array_equal(inf.rest_influence(at_rest), 1.0)
     # Half way to a pose: a half, for every bone that moves in it.
-    half = 0.5 * (rig.bone_rest + rig.pose_bones[0])
-    got = inf.pose_influences(half[None], rig.bone_rest, rig.pose_bones)[0, 0]
+    half = 0.5 * (avatar.bone_rest + avatar.pose_bones[0])
+    got = inf.pose_influences(half[None], avatar.bone_rest, avatar.pose_bones)[0, 0]
     np.testing.assert_allclose(got[moving[0]], 0.5, atol=1e-6)
 
 
@@ -94,29 +56,29 @@ def test_group_influences_average_members():
     np.testing.assert_allclose(out[0, 0], [0.3, 0.3, 1.0, 0.0], atol=1e-7)
 
 
-def test_region_and_zone_weights(rig):
-    at_pose = inf.rig_influences(rig.pose_bones, rig)  # frames = poses
-    region = inf.region_influence(at_pose, rig)
-    assert region.shape == (len(rig.pose_names), len(rig.region_names), len(rig.pose_names))
+def test_region_and_zone_weights(avatar):
+    at_pose = inf.rig_influences(avatar.pose_bones, avatar)  # frames = poses
+    region = inf.region_influence(at_pose, avatar)
+    assert region.shape == (len(avatar.pose_names), len(avatar.region_names), len(avatar.pose_names))
     assert region.min() >= 0.0 and region.max() <= 1.0 + 1e-6
     # Region influence = the region-weighted mean of the per-vertex bone masks (§5.2).
-    per_vertex = inf.vertex_influences(at_pose, rig.dense_skin_weights())  # (P, P, V)
-    rw = rig.region_weights / rig.region_weights.sum(1, keepdims=True)
+    per_vertex = inf.vertex_influences(at_pose, avatar.dense_skin_weights())  # (P, P, V)
+    rw = avatar.region_weights / avatar.region_weights.sum(1, keepdims=True)
     np.testing.assert_allclose(region, np.einsum("fpv,rv->frp", per_vertex, rw), atol=1e-5)
     # The stretch pose (brows up) lights the forehead for "stretch", not for "compress".
-    s, c = rig.pose_index("stretch"), rig.pose_index("compress")
-    fh = rig.region_names.index("forehead")
+    s, c = avatar.pose_index("stretch"), avatar.pose_index("compress")
+    fh = avatar.region_names.index("forehead")
     assert region[s, fh, s] > 0.1 and region[s, fh, c] < 0.5 * region[s, fh, s]
-    z = inf.zone_weights(np.ones((1, rig.n_morphs)) * 5, rig.zone_table)
+    z = inf.zone_weights(np.ones((1, avatar.n_morphs)) * 5, avatar.zone_table)
     assert z.min() >= -1.0 and z.max() <= 1.0
 
 
 # ---- RBF network -----------------------------------------------------------------------
 
 @pytest.mark.parametrize("smoothing,centers", [(0.0, None), (0.5, 24)])
-def test_network_maps_neutral_exactly(rig, wide, smoothing, centers):
-    lv = rig.landmark_vertices[rig.landmark_vertices >= 0]
-    src = rig.vertices[lv] * 1.07 + np.random.default_rng(1).normal(0, 0.05, (len(lv), 3))
+def test_network_maps_neutral_exactly(avatar, wide, smoothing, centers):
+    lv = avatar.landmark_vertices[avatar.landmark_vertices >= 0]
+    src = avatar.vertices[lv] * 1.07 + np.random.default_rng(1).normal(0, 0.05, (len(lv), 3))
     net = fit_feature_map(src, wide.vertices[lv], kernel="linear", smoothing=smoothing, n_centers=centers)
     np.testing.assert_allclose(net(src[None])[0], wide.vertices[lv], atol=1e-9)
 
@@ -213,92 +175,93 @@ def _bone_error_iod(anim, bones, rig):
     return np.linalg.norm(anim.bone_positions[:, face] - bones[:, face], axis=2) / rig.interocular()
 
 
-def test_perfect_track_recovers_bones_and_weights(rig, performance):
-    track = perfect_track(rig, performance, scale=1.08, angle_deg=4.0, shift=(0.3, -0.2, 0.5))
-    anim = retarget(track, rig, EXACT)
-    err = _bone_error_iod(anim, performance.bone_positions, rig)
+def test_perfect_track_recovers_bones_and_weights(avatar, performance):
+    track = perfect_track(avatar, performance, scale=1.08, angle_deg=4.0, shift=(0.3, -0.2, 0.5))
+    anim = retarget(track, avatar, EXACT)
+    err = _bone_error_iod(anim, performance.bone_positions, avatar)
     assert err.max() < 5e-3, err.max()
     assert np.median(err) < 1e-3
-    observable = np.abs(rig.morph_positions[:, rig.landmark_vertices[rig.landmark_vertices >= 0]]).max((1, 2)) > 1e-3
+    lv = avatar.landmark_vertices
+    observable = np.abs(avatar.morph_positions[:, lv[lv >= 0]]).max((1, 2)) > 1e-3
     w_err = np.abs(anim.blend_weights - performance.blend_weights)[:, observable]
     assert w_err.mean() < 0.01, w_err.mean()
-    truth_inf = inf.rig_influences(performance.bone_positions, rig)
+    truth_inf = inf.rig_influences(performance.bone_positions, avatar)
     assert np.abs(anim.influences - truth_inf).mean() < 0.01
 
 
-def test_joint_solve_beats_bone_equals_landmark(rig, performance):
-    track = perfect_track(rig, performance)
-    joint = _bone_error_iod(retarget(track, rig, EXACT), performance.bone_positions, rig)
+def test_joint_solve_beats_bone_equals_landmark(avatar, performance):
+    track = perfect_track(avatar, performance)
+    joint = _bone_error_iod(retarget(track, avatar, EXACT), performance.bone_positions, avatar)
     direct_opts = RetargetOptions(joint_solve=False, morph_ridge=1e-4, sparsity=0.0, depth_motion=1.0)
-    direct = _bone_error_iod(retarget(track, rig, direct_opts), performance.bone_positions, rig)
+    direct = _bone_error_iod(retarget(track, avatar, direct_opts), performance.bone_positions, avatar)
     assert np.percentile(joint, 95) < 0.5 * np.percentile(direct, 95)
 
 
-def test_neutral_frame_maps_exactly_and_animation_is_complete(rig, performance):
+def test_neutral_frame_maps_exactly_and_animation_is_complete(avatar, performance):
     names = list(BLENDSHAPE_NAMES)
     scores = np.random.default_rng(2).uniform(0, 1, (performance.n_frames, len(names))).astype(np.float32)
-    track = perfect_track(rig, performance, scale=0.95, noise=0.03, blendshapes=scores)
-    anim = retarget(track, rig, RetargetOptions(smoothing=0.1, temporal_smoothness=1.0))
+    track = perfect_track(avatar, performance, scale=0.95, noise=0.03, blendshapes=scores)
+    anim = retarget(track, avatar, RetargetOptions(smoothing=0.1, temporal_smoothness=1.0))
     n = track.neutral_frame
-    np.testing.assert_array_equal(anim.bone_positions[n], rig.bone_rest)
+    np.testing.assert_array_equal(anim.bone_positions[n], avatar.bone_rest)
     np.testing.assert_array_equal(anim.blend_weights[n], 0.0)
     np.testing.assert_array_equal(anim.influences[n], 0.0)
     np.testing.assert_array_equal(anim.rest_influence[n], 1.0)
-    F, B, M, P = track.n_frames, rig.n_bones, rig.n_morphs, len(rig.pose_names)
+    F, B, M, P = track.n_frames, avatar.n_bones, avatar.n_morphs, len(avatar.pose_names)
     assert anim.bone_positions.shape == (F, B, 3) and anim.blend_weights.shape == (F, M)
     assert anim.influences.shape == (F, P, B) and anim.rest_influence.shape == (F, B)
-    assert anim.region_influence.shape == (F, len(rig.region_names), P)
+    assert anim.region_influence.shape == (F, len(avatar.region_names), P)
     assert anim.zone_weights.shape == (F, 8) and np.abs(anim.zone_weights).max() <= 1.0
     assert anim.blend_weights.min() >= 0.0 and anim.blend_weights.max() <= 1.0
     np.testing.assert_array_equal(anim.mediapipe_blendshapes, scores)
     assert anim.mediapipe_blendshape_names == names
     np.testing.assert_array_equal(anim.head_pose, track.head_pose)
     np.testing.assert_array_equal(anim.times, track.times)
-    assert anim.pose_names == rig.pose_names and {"stretch", "compress"} <= set(anim.pose_names)
-    np.testing.assert_allclose(anim.zone_weights, inf.zone_weights(anim.blend_weights, rig.zone_table))
+    assert anim.pose_names == avatar.pose_names and {"stretch", "compress"} <= set(anim.pose_names)
+    np.testing.assert_allclose(anim.zone_weights, inf.zone_weights(anim.blend_weights, avatar.zone_table))
 
 
-def test_cross_character_neutral_and_motion_scale(rig, wide, performance):
+def test_cross_character_neutral_and_motion_scale(avatar, wide, performance):
     from capture2face.eval.synthetic import truth_on_target
 
-    track = perfect_track(rig, performance)
+    track = perfect_track(avatar, performance)
     anim = retarget(track, wide, EXACT)
     n = track.neutral_frame
     np.testing.assert_array_equal(anim.bone_positions[n], wide.bone_rest)
-    truth = truth_on_target(performance.bone_positions, rig, wide)
+    truth = truth_on_target(performance.bone_positions, avatar, wide)
     err = _bone_error_iod(anim, truth, wide)
     assert np.median(err) < 0.01 and np.percentile(err, 95) < 0.03
     # Sideways motion grows with the wider face: ratio of x displacement ~ width ratio.
-    face = np.arange(1, rig.n_bones)
-    dx_src = np.abs(performance.bone_positions[:, face, 0] - rig.bone_rest[face, 0]).mean()
+    face = np.arange(1, avatar.n_bones)
+    dx_src = np.abs(performance.bone_positions[:, face, 0] - avatar.bone_rest[face, 0]).mean()
     dx_tgt = np.abs(anim.bone_positions[:, face, 0] - wide.bone_rest[face, 0]).mean()
     skin = lambda r: r.vertices[r.material == 0]
-    width_ratio = np.ptp(skin(wide)[:, 0]) / np.ptp(skin(rig)[:, 0])
+    width_ratio = np.ptp(skin(wide)[:, 0]) / np.ptp(skin(avatar)[:, 0])
     assert width_ratio > 1.05
     assert abs(dx_tgt / dx_src - width_ratio) < 0.5 * (width_ratio - 1.0) + 0.03
 
 
-def test_character_without_landmark_vertices_uses_bone_landmarks(rig, performance):
+def test_character_without_landmark_vertices_uses_bone_landmarks(avatar, performance):
     names = list(BLENDSHAPE_NAMES)
     scores = np.random.default_rng(5).uniform(0, 1, (performance.n_frames, len(names))).astype(np.float32)
-    track = perfect_track(rig, performance, blendshapes=scores)
-    imported = rig.replace(landmark_vertices=np.full_like(rig.landmark_vertices, -1))
+    track = perfect_track(avatar, performance, blendshapes=scores)
+    imported = avatar.replace(landmark_vertices=np.full_like(avatar.landmark_vertices, -1))
     anim = retarget(track, imported, RetargetOptions(depth_motion=1.0))
     # Each bone follows its landmark's motion.
     lm = track.landmarks_head.astype(np.float64)
-    bl = rig.bone_landmarks
+    bl = avatar.bone_landmarks
     face = np.flatnonzero(bl >= 0)
-    expected = rig.bone_rest[face] + lm[:, bl[face]] - lm[track.neutral_frame, bl[face]]
+    expected = avatar.bone_rest[face] + lm[:, bl[face]] - lm[track.neutral_frame, bl[face]]
     np.testing.assert_allclose(anim.bone_positions[:, face], expected, atol=2e-3)
     # ARKit-named morphs take MediaPipe's scores.
-    shared = [(m, names.index(n)) for m, n in enumerate(rig.morph_names) if n in names]
+    shared = [(m, names.index(n)) for m, n in enumerate(avatar.morph_names) if n in names]
     assert shared
     for m, s in shared:
         np.testing.assert_array_equal(anim.blend_weights[:, m], scores[:, s])
 
 
-def test_animation_save_load_bit_exact(rig, performance, tmp_path):
-    anim = retarget(perfect_track(rig, performance, noise=0.02), rig)
+def test_animation_save_load_bit_exact(avatar, performance, tmp_path):
+    anim = retarget(perfect_track(avatar, performance, noise=0.02), avatar)
     anim.save(tmp_path / "animation.npz")
     back = Animation.load(tmp_path / "animation.npz")
     for field in anim.__dataclass_fields__:
@@ -310,10 +273,10 @@ def test_animation_save_load_bit_exact(rig, performance, tmp_path):
             assert a == b, field
 
 
-def test_reliability_weights_discount_wandering_points(rig, performance):
+def test_reliability_weights_discount_wandering_points(avatar, performance):
     # 40 landmarks wander 0.3 cm (a tracker's slow, view-dependent error): reweighting by
     # their residual over the clip discounts them.
-    track = perfect_track(rig, performance)
+    track = perfect_track(avatar, performance)
     rng = np.random.default_rng(0)
     bad = rng.choice(468, 40, replace=False)
     t = np.linspace(0.0, 2.0 * np.pi, performance.n_frames)[:, None]
@@ -321,19 +284,19 @@ def test_reliability_weights_discount_wandering_points(rig, performance):
     lm = track.landmarks_head.copy()
     lm[:, bad] += wander - wander[track.neutral_frame]
     track = dataclasses.replace(track, landmarks_head=lm.astype(np.float32))
-    plain = _bone_error_iod(retarget(track, rig, RetargetOptions(reweight_iterations=0, oval_weight=1.0,
+    plain = _bone_error_iod(retarget(track, avatar, RetargetOptions(reweight_iterations=0, oval_weight=1.0,
                                                                  depth_motion=1.0)),
-                            performance.bone_positions, rig)
-    irls = _bone_error_iod(retarget(track, rig, RetargetOptions(reweight_iterations=2, oval_weight=1.0,
+                            performance.bone_positions, avatar)
+    irls = _bone_error_iod(retarget(track, avatar, RetargetOptions(reweight_iterations=2, oval_weight=1.0,
                                                                 depth_motion=1.0)),
-                           performance.bone_positions, rig)
+                           performance.bone_positions, avatar)
     assert np.percentile(irls, 95) < 0.7 * np.percentile(plain, 95)
 
 
-def test_default_priors_stay_close_on_a_perfect_track(rig, performance):
+def test_default_priors_stay_close_on_a_perfect_track(avatar, performance):
     # The morph priors' cost (a perfect track's depth is worth all of it).
-    anim = retarget(perfect_track(rig, performance), rig, RetargetOptions(depth_motion=1.0))
-    err = _bone_error_iod(anim, performance.bone_positions, rig)
+    anim = retarget(perfect_track(avatar, performance), avatar, RetargetOptions(depth_motion=1.0))
+    err = _bone_error_iod(anim, performance.bone_positions, avatar)
     assert np.percentile(err, 95) < 0.03  # the morph priors cost some accuracy here
     zero = np.abs(performance.blend_weights).mean()
     assert np.abs(anim.blend_weights - performance.blend_weights).mean() < 0.85 * zero
@@ -341,15 +304,15 @@ def test_default_priors_stay_close_on_a_perfect_track(rig, performance):
     assert np.corrcoef(anim.blend_weights.ravel(), performance.blend_weights.ravel())[0, 1] > 0.7
 
 
-def test_depth_motion_scales_the_trackers_depth_motion_only(rig, performance):
+def test_depth_motion_scales_the_trackers_depth_motion_only(avatar, performance):
     from capture2face.retarget import feature_correspondence
     from capture2face.retarget.driver import _fit_network
     from capture2face.tracking.rest import actor_rest
 
-    track = perfect_track(rig, performance)
-    landmarks, target, _ = feature_correspondence(rig)
-    half = _fit_network(actor_rest(track), rig, landmarks, target, RetargetOptions(depth_motion=0.5))
-    full = _fit_network(actor_rest(track), rig, landmarks, target, RetargetOptions(depth_motion=1.0))
+    track = perfect_track(avatar, performance)
+    landmarks, target, _ = feature_correspondence(avatar)
+    half = _fit_network(actor_rest(track), avatar, landmarks, target, RetargetOptions(depth_motion=0.5))
+    full = _fit_network(actor_rest(track), avatar, landmarks, target, RetargetOptions(depth_motion=1.0))
     src = track.landmarks_head[:, landmarks].astype(np.float64)
     neutral = src[track.neutral_frame]
     damped = neutral + (src - neutral) * np.array([1.0, 1.0, 0.5])
@@ -362,21 +325,21 @@ def test_depth_motion_scales_the_trackers_depth_motion_only(rig, performance):
     assert np.abs(src[..., 2] - neutral[..., 2]).max() > 0.05  # the clip does move in depth
 
 
-def test_retarget_timing_is_measurable(rig, performance):
+def test_retarget_timing_is_measurable(avatar, performance):
     """The figure is the retarget call's wall time per frame: one run (repeats=1) timed
     from outside by an independent clock, divided by the track's frames."""
     import time
 
-    track = perfect_track(rig, performance)
+    track = perfect_track(avatar, performance)
     assert track.n_frames == 120
     start = time.perf_counter()
-    ms = retarget_ms_per_frame(track, rig, repeats=1)
+    ms = retarget_ms_per_frame(track, avatar, repeats=1)
     outside_ms = 1000.0 * (time.perf_counter() - start)
     # ms x frames is the call's time: within the outside clock's, and all but its overhead.
     assert 0.85 * outside_ms <= ms * track.n_frames <= outside_ms
     # Best of 3: at most a third of the three runs' time (and not a sliver of it).
     start = time.perf_counter()
-    best = retarget_ms_per_frame(track, rig, repeats=3)
+    best = retarget_ms_per_frame(track, avatar, repeats=3)
     outside_ms = 1000.0 * (time.perf_counter() - start)
     assert outside_ms / 10 <= best * track.n_frames <= outside_ms / 3
 

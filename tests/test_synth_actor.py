@@ -15,7 +15,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import shared_character
 
 from capture2face.character.load import load_character
 from capture2face.cli import main
@@ -29,6 +28,7 @@ from capture2face.synth import SyntheticTruth, SynthOptions, actor_rig, synthesi
 from capture2face.synth.actor import random_arkit_performance
 from capture2face.synth.trajectories import KEY_NEUTRAL
 from capture2face.tracking import TrackOptions, track_clip
+from tests.helpers import shared_character
 
 TOOLS = Path(__file__).resolve().parents[1] / "tools"
 

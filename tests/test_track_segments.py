@@ -13,6 +13,7 @@ import pytest
 from capture2face.io.video_input import frame_times, iter_frames, iter_segment, open_video
 from capture2face.tracking import TrackOptions, segments, track_clip
 from capture2face.tracking.tracker import Tracker
+from tests.helpers import truncated_copy
 
 EYES = (33, 263)
 
@@ -64,8 +65,6 @@ def test_segment_decoding_gives_the_frames_of_a_whole_decode(tmp_path):
 
 
 def test_damaged_clip_is_not_split(tmp_path, synthetic_clip):
-    from conftest import truncated_copy
-
     cut = truncated_copy(synthetic_clip.video_path, tmp_path)
     assert frame_times(cut) is None  # decoded from the start only, damage reported as before
 

@@ -1,0 +1,76 @@
+"""The measurement scripts in tools/ run from the repository, their figures are the CLI's,
+and the docs cite only commands anyone with the repository can run."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.helpers import REPO
+
+TOOLS = sorted((REPO / "tools").glob("*.py"))
+SAMPLE = REPO / "sample_videos" / "sample.mp4"
+ENV = dict(os.environ, GLOG_minloglevel="2", TF_CPP_MIN_LOG_LEVEL="2")
+# A script run from a machine path (`python /work/ref/x.py`, `bash /tmp/y.sh`) or named there.
+MACHINE_SCRIPT = re.compile(r"(?:python[\d.]*|bash|sh)\s+/(?:work|tmp)/\S+|/(?:work|tmp)/\S+\.(?:py|sh)\b")
+
+
+def _tool(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, *args], cwd=REPO, capture_output=True, text=True, timeout=timeout,
+                          env=ENV, check=False)
+
+
+@pytest.mark.parametrize("script", TOOLS, ids=[t.stem for t in TOOLS])
+def test_every_tool_prints_its_help(script):
+    done = _tool(os.fspath(script.relative_to(REPO)), "--help", timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "usage:" in done.stdout
+
+
+def test_the_measurement_tools_are_there():
+    assert {"track_clips", "fidelity_on_tracks", "wrinkle_goals"} <= {t.stem for t in TOOLS}
+
+
+def _doc_files() -> list[Path]:
+    docs = [p for p in (REPO / "docs").rglob("*.md") if "history" not in p.relative_to(REPO / "docs").parts]
+    return [REPO / "README.md", *sorted(docs)]
+
+
+def test_machine_script_pattern_finds_what_it_should():
+    assert MACHINE_SCRIPT.search("tracks (`python /work/ref/fid.py [CHARACTER]`)")
+    assert MACHINE_SCRIPT.search("see /tmp/x/goals21.py")
+    assert not MACHINE_SCRIPT.search("`python tools/fidelity_on_tracks.py --character ict-a.glb`")
+
+
+def test_docs_run_no_script_from_a_machine_path():
+    """Figures come from the CLI or tools/: no doc (docs/history aside) runs a script at a
+    machine path (/work/..., /tmp/...)."""
+    found = [f"{doc.relative_to(REPO)}:{n}: {m.group(0)}"
+             for doc in _doc_files() for n, line in enumerate(doc.read_text(encoding="utf-8").splitlines(), 1)
+             for m in MACHINE_SCRIPT.finditer(line)]
+    assert found == []
+
+
+@pytest.mark.slow
+def test_fidelity_on_tracks_gives_eval_fidelitys_figures(tmp_path):
+    """tools/fidelity_on_tracks.py's JSON (a cached track, then the retarget and the
+    measures) equals ``capture2face eval fidelity``'s on the same clip, to the last digit."""
+    cli = _tool("-m", "capture2face", "eval", "fidelity", os.fspath(SAMPLE), "--json", os.fspath(tmp_path / "cli.json"),
+                "--quiet")
+    assert cli.returncode == 0, cli.stderr[-2000:]
+    args = ["tools/fidelity_on_tracks.py", os.fspath(SAMPLE), "--cache", os.fspath(tmp_path / "tracks")]
+    first = _tool(*args, "--json", os.fspath(tmp_path / "tool.json"))
+    assert first.returncode == 0, first.stderr[-2000:]
+    assert (tmp_path / "tracks" / "sample" / "track.npz").is_file()
+    again = _tool(*args, "--json", os.fspath(tmp_path / "again.json"))  # from the cache this time
+    assert again.returncode == 0, again.stderr[-2000:]
+    expected = json.loads((tmp_path / "cli.json").read_text())
+    assert json.loads((tmp_path / "tool.json").read_text()) == expected
+    assert json.loads((tmp_path / "again.json").read_text()) == expected
+    assert first.stdout.splitlines()[-1] == cli.stdout.splitlines()[-1]  # the summary line
