@@ -26,7 +26,8 @@ from capture2face.rig.face_rig import FaceRig
 
 
 def build_avatar(variant: str = "default") -> FaceRig:
-    """Build the avatar from scratch (no cache). See :func:`default_avatar`."""
+    """Build the avatar from scratch (no cache). See
+    :func:`~capture2face.rig.avatar.cache.default_avatar`."""
     face = build_face_mesh(variant)
     mb = MorphBuilder(face.pos, face.tris, face.normals)
     sets = vertex_sets(face, mb)
