@@ -14,7 +14,7 @@ def _points(svg: str) -> list[np.ndarray]:
 
 
 def test_svg_plot_draws_each_series_inside_its_frame():
-    from capture2face.pipeline.report_html import svg_plot
+    from capture2face.pipeline.report import svg_plot
 
     t = np.linspace(0.0, 2.0, 11)
     up, down = t / 2, 1 - t / 2
@@ -35,7 +35,7 @@ def test_svg_plot_draws_each_series_inside_its_frame():
 
 
 def test_svg_plot_breaks_lines_at_nan_and_keeps_peaks_when_decimating():
-    from capture2face.pipeline.report_html import svg_plot
+    from capture2face.pipeline.report import svg_plot
 
     y = np.array([0.0, 1.0, np.nan, np.nan, 2.0, 3.0, 4.0])
     assert len(_points(svg_plot(np.arange(7.0), [("y", y, "#000")]))) == 2
@@ -51,7 +51,7 @@ def test_svg_plot_breaks_lines_at_nan_and_keeps_peaks_when_decimating():
 
 
 def test_poster_frames_pick_the_strongest_expressions():
-    from capture2face.pipeline.report_html import choose_poster_frames
+    from capture2face.pipeline.report import choose_poster_frames
 
     n = 120
     names = ["jawOpen", "browInnerUp", "eyeBlinkLeft", "eyeBlinkRight"]
@@ -73,7 +73,7 @@ def test_poster_frames_pick_the_strongest_expressions():
 
 
 def test_page_without_video_or_fidelity_still_renders():
-    from capture2face.pipeline.report_html import render_report_html
+    from capture2face.pipeline.report import render_report_html
 
     n = 40
     anim = SimpleNamespace(
@@ -92,7 +92,7 @@ def test_page_without_video_or_fidelity_still_renders():
 
 
 def test_break_gaps_inserts_a_nan_row_where_frames_are_missing():
-    from capture2face.pipeline.report_html import break_gaps
+    from capture2face.pipeline.report import break_gaps
 
     t = np.array([0.0, 0.1, 0.2, 0.9, 1.0])
     v = np.arange(10.0).reshape(5, 2)
@@ -105,12 +105,31 @@ def test_break_gaps_inserts_a_nan_row_where_frames_are_missing():
 def test_facts_say_where_each_regions_rest_came_from():
     """report.html's facts name each region's rest frames (as runs) and its geometry, or
     the take it came from."""
-    from capture2face.pipeline.report_html import _facts_table
+    from capture2face.pipeline.report.tables import facts_table
 
     rest = {"source": "clip", "brows": {"frames": [5, 6, 7, 8, 30], "brow_height": 0.31, "largest_score": 0.3},
             "eyes": {"frames": [1]}, "mouth": {"frames": []}, "face": {"frames": [0, 1, 2]}}
-    html = _facts_table({"rest": rest})
+    html = facts_table({"rest": rest})
     assert "<td>rest: brows</td><td>5–8, 30 (5 frames); brow height 0.31, largest score 0.3</td>" in html
     assert "<td>rest: eyes</td><td>1 (1 frame)</td>" in html and "<td>rest: mouth</td><td>none</td>" in html
     assert "<td>rest: whole face</td><td>0–2 (3 frames)</td>" in html
-    assert "from the image /a/b.jpg (every region)" in _facts_table({"rest": {"source": "image /a/b.jpg"}})
+    assert "from the image /a/b.jpg (every region)" in facts_table({"rest": {"source": "image /a/b.jpg"}})
+
+
+def test_the_raster_picture_draws_the_svg_geometry():
+    from capture2face.pipeline.report.plots import LinePlot, line_runs, plot_layout
+    from capture2face.pipeline.report.raster import bgr, raster_plot, raster_plots
+
+    t = np.linspace(0.0, 2.0, 50)
+    y = np.where(t < 1.0, t, np.nan)  # a gap: two runs would be one without it
+    y[-10:] = 0.5
+    plot = LinePlot(t, [("up", y, "#E66100")], title="a × b", y_range=(0.0, 1.0))
+    img = raster_plot(plot, width=400, height=120)
+    layout = plot_layout(plot.times, plot.series, plot.y_range, 400, 120)
+    assert img.shape == (layout.height, 400, 3) and img.dtype == np.uint8
+    runs = line_runs(layout.area, layout.x, layout.data[0])
+    assert len(runs) == 2
+    for px, py in runs:  # each run's inner points are drawn in the series' colour (antialiased)
+        ink = img[np.round(py[1:-1]).astype(int), np.round(px[1:-1]).astype(int)].astype(int)
+        assert np.mean(np.abs(ink - bgr("#E66100")).sum(1) < 150) > 0.9
+    assert raster_plots([plot, plot], width=400, height=120).shape == (2 * layout.height, 400, 3)

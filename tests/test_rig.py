@@ -5,10 +5,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from capture2face.rig import avatar as avatar_mod
-from capture2face.rig import avatar_parts, mesh_ops
 from capture2face.rig import maps as maps_mod
-from capture2face.rig.avatar import BONES, default_avatar
+from capture2face.rig import mesh_ops
+from capture2face.rig.avatar import (
+    BONES,
+    LIP_LOWER_LINES,
+    LIP_PAIRS,
+    LIP_UPPER_LINES,
+    default_avatar,
+    forget_built,
+)
+from capture2face.rig.avatar import parts as avatar_parts
 from capture2face.rig.canonical import load_canonical_mesh
 from capture2face.rig.deform import deform
 from capture2face.rig.face_rig import REGION_NAMES, ZONE_NAMES, FaceRig
@@ -49,9 +56,9 @@ def test_geometry(avatar, canon):
     assert len(skin_tris) >= 3000
     np.testing.assert_array_equal(avatar.landmark_vertices[:468], np.arange(468))
     # The canonical vertices, except the lips, which are closed at rest.
-    lips = np.isin(np.arange(468), avatar_mod.LIP_UPPER_LINES + avatar_mod.LIP_LOWER_LINES)
+    lips = np.isin(np.arange(468), LIP_UPPER_LINES + LIP_LOWER_LINES)
     np.testing.assert_allclose(avatar.vertices[:468][~lips], canon.vertices[~lips], atol=1e-6)
-    for upper, lower in avatar_mod._LIP_PAIRS:
+    for upper, lower in LIP_PAIRS:
         assert np.linalg.norm(avatar.vertices[upper] - avatar.vertices[lower]) < 1e-5
     assert np.linalg.norm(canon.vertices[13] - canon.vertices[14]) > 0.4
     assert avatar.triangles.min() >= 0 and avatar.triangles.max() < avatar.n_vertices
@@ -608,17 +615,17 @@ def test_save_load_bit_exact(avatar, tmp_path):
 
 def test_cache_is_reused(tmp_path, monkeypatch, avatar):
     monkeypatch.setenv("CAPTURE2FACE_CACHE", str(tmp_path))
-    avatar_mod._MEMO.clear()
+    forget_built()
     try:
         first = default_avatar()
         files = list(tmp_path.glob("avatar-default-*.rig.npz"))
         assert len(files) == 1
-        avatar_mod._MEMO.clear()
+        forget_built()
         again = default_avatar()  # from the file this time
         np.testing.assert_array_equal(again.morph_positions, first.morph_positions)
         np.testing.assert_array_equal(first.vertices, avatar.vertices)
     finally:
-        avatar_mod._MEMO.clear()
+        forget_built()
 
 
 def test_wide_variant(avatar, wide):

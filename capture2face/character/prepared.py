@@ -18,9 +18,7 @@ import json
 import os
 from pathlib import Path
 
-from capture2face.errors import CaptureError
-from capture2face.io.atomic import write_bytes_atomic
-from capture2face.rig.avatar import cache_dir
+from capture2face.io.cache import UNWRITABLE, cache_dir, load_entry, prune_entries, store_entry
 from capture2face.rig.face_rig import FaceRig
 from capture2face.runtime.log import log
 
@@ -86,34 +84,24 @@ def prepared_dir() -> Path:
 def load_prepared(key: str) -> tuple[FaceRig, list[str]] | None:
     """The cached rig and its warnings, or None (absent, or unreadable: prepared again)."""
     rig_path, said_path = prepared_dir() / f"{key}.rig.npz", prepared_dir() / f"{key}.said.json"
-    if not rig_path.is_file():
-        return None
-    try:
+
+    def read(path: Path) -> tuple[FaceRig, list[str]]:
         said = json.loads(said_path.read_text(encoding="utf-8"))
-        rig = FaceRig.load(rig_path)
-        os.utime(rig_path)  # recently used: kept by _prune
+        rig = FaceRig.load(path)
+        os.utime(path)  # recently used: kept by pruning
         return rig, [str(s) for s in said]
-    except (OSError, ValueError, TypeError, CaptureError) as exc:
-        log.debug("prepared character %s unreadable (%s): preparing it again", key, exc)
-        return None
+
+    return load_entry(rig_path, read, lambda exc: log.debug("prepared character %s unreadable (%s): preparing it "
+                                                             "again", key, exc))
 
 
 def store_prepared(key: str, rig: FaceRig, said: list[str]) -> None:
     """Keep ``rig`` (and what its preparation warned) for the next use; a cache that
     cannot be written costs the next run the preparation, nothing else."""
     try:
-        prepared_dir().mkdir(parents=True, exist_ok=True)
-        write_bytes_atomic(prepared_dir() / f"{key}.said.json", json.dumps(said).encode())
-        rig.save(prepared_dir() / f"{key}.rig.npz")
-        _prune(prepared_dir())
-    except (OSError, CaptureError) as exc:
+        store_entry(prepared_dir() / f"{key}.said.json", lambda tmp: tmp.write_bytes(json.dumps(said).encode()))
+        store_entry(prepared_dir() / f"{key}.rig.npz", rig.save)  # last: the entry is complete once it is there
+        prune_entries(prepared_dir(), ".rig.npz", KEEP, (".said.json",))
+    except UNWRITABLE as exc:
         log.warning("cannot cache the prepared character in %s (%s); it is prepared again next time",
                     prepared_dir(), exc)
-
-
-def _prune(folder: Path) -> None:
-    """Only the :data:`KEEP` most recently used entries stay."""
-    entries = sorted(folder.glob("*.rig.npz"), key=lambda p: p.stat().st_mtime_ns, reverse=True)
-    for old in entries[KEEP:]:
-        for path in (old, old.with_name(old.name.replace(".rig.npz", ".said.json"))):
-            path.unlink(missing_ok=True)

@@ -9,8 +9,6 @@ import os
 import tempfile
 from pathlib import Path
 
-import numpy as np
-
 from capture2face.character.load import load_character
 from capture2face.errors import CaptureError
 from capture2face.io.atomic import atomic_path
@@ -27,6 +25,8 @@ from capture2face.measures import (
     clip_fidelity,
 )
 from capture2face.pipeline import RunOptions, retarget_stage, track_stage
+from capture2face.pipeline.report.figures import fidelity_line_plots
+from capture2face.pipeline.report.raster import raster_plots
 from capture2face.retarget.animation import Animation
 from capture2face.tracking.track import Track
 
@@ -135,34 +135,15 @@ def wrinkle_table(results: list[dict]) -> str:
 
 
 # ---- picture ------------------------------------------------------------------------------
-def plot(fid: ClipFidelity, path: str | os.PathLike, width: int = 960, row: int = 110) -> None:
-    """A PNG: each measure over time, source (white), character (orange), direct (blue)."""
+def plot(fid: ClipFidelity, path: str | os.PathLike, width: int = 960, row: int = 170,
+         figures: dict | None = None) -> None:
+    """A PNG of report.html's fidelity plots (:func:`~capture2face.pipeline.report.figures.fidelity_line_plots`):
+    each measure over time, source (black), character (orange), direct (blue), then the
+    wrinkle checks; ``row`` px high each, titled with ``figures`` (default ``fid.figures()``)."""
     import cv2
 
-    names = list(MEASURES)
-    img = np.full((row * len(names) + 30, width, 3), 24, np.uint8)
-    x0, x1 = 120, width - 10
-    n = len(fid.times)
-    xs = x0 + (np.arange(n) / max(1, n - 1)) * (x1 - x0)
-    colours = {"source": (235, 235, 235), "character": (40, 150, 255), "direct": (230, 140, 60)}  # BGR
-    for k, name in enumerate(names):
-        top = 10 + k * row
-        series = {"source": fid.source[:, k], "character": fid.character[:, k], "direct": fid.direct[:, k]}
-        lo = min(float(s.min()) for s in series.values()) if n else 0.0
-        hi = max(float(s.max()) for s in series.values()) if n else 1.0
-        span = max(hi - lo, 1e-6)
-        cv2.rectangle(img, (x0, top), (x1, top + row - 14), (60, 60, 60), 1)
-        cv2.putText(img, name, (8, top + 20), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (220, 220, 220), 1, cv2.LINE_AA)
-        cv2.putText(img, f"{hi:.3f}", (8, top + 40), cv2.FONT_HERSHEY_SIMPLEX, 0.38, (150, 150, 150), 1, cv2.LINE_AA)
-        cv2.putText(img, f"{lo:.3f}", (8, top + row - 18), cv2.FONT_HERSHEY_SIMPLEX, 0.38, (150, 150, 150), 1,
-                    cv2.LINE_AA)
-        for label, values in series.items():
-            ys = top + (row - 16) - (values - lo) / span * (row - 20)
-            pts = np.stack([xs, ys], 1).round().astype(np.int32)
-            cv2.polylines(img, [pts], False, colours[label], 1, cv2.LINE_AA)
-    legend_y = img.shape[0] - 8
-    for i, (label, colour) in enumerate(colours.items()):
-        cv2.putText(img, label, (x0 + 110 * i, legend_y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, colour, 1, cv2.LINE_AA)
+    plots = fidelity_line_plots(fid, fid.figures() if figures is None else figures)
+    img = raster_plots(plots, width, row)
     path = Path(path)
     with atomic_path(path) as tmp:  # keeps the .png suffix OpenCV picks the format from
         if not cv2.imwrite(str(tmp), img):
@@ -182,7 +163,7 @@ def evaluate_fidelity(paths: list[str | os.PathLike], character=None, plot_dir: 
         if plot_dir is not None:
             Path(plot_dir).mkdir(parents=True, exist_ok=True)
             picture = Path(plot_dir) / f"{fid.name}.fidelity.png"
-            plot(fid, picture)
+            plot(fid, picture, figures=res)
             res["picture"] = os.fspath(picture)
         results.append(res)
     return {"clips": results, "summary": summary_line(results)}

@@ -8,7 +8,8 @@ from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from capture2face.rig import mesh_ops
-from capture2face.rig.avatar_landmarks import BROW_INNER_R, BROW_OUTER_R, BROW_R
+from capture2face.rig.avatar.landmarks import BROW_INNER_R, BROW_OUTER_R, BROW_R
+from capture2face.rig.avatar.layout import Head, Mouth, Teeth
 
 
 class MorphBuilder:
@@ -197,3 +198,26 @@ def _cheek_and_nose_morphs(mb: MorphBuilder, sets: dict, mirror: np.ndarray, eye
                                                            2.0, pinned=np.concatenate([sets["lip_upper"], eye_rings])),
                       mirror))
     return out
+
+
+def all_morphs(skin_morphs: dict[str, np.ndarray], V: int, mouth: Mouth, teeth: Teeth, head: Head
+                ) -> tuple[list[str], np.ndarray]:
+    """(morph names, position deltas (M, V, 3)) over all vertices from the skin's
+    ``skin_morphs`` (name -> (n_skin, 3))."""
+    # Morphs over all vertices: eyes still; mouth interior follows its contour vertex,
+    # less so deeper in.
+    morph_names = list(skin_morphs)
+    attenuation = (1.0 - 0.5 * mouth.depth)[:, None]
+    mp = np.zeros((len(morph_names), V, 3))
+    for i, name in enumerate(morph_names):
+        d = skin_morphs[name]
+        inner = d[mouth.src] * attenuation
+        inner[mouth.source < 0] = d[mouth.last_ring].mean(0) * attenuation[-1]
+        mp[i, :len(d)] = d
+        mp[i, mouth.start:mouth.end] = inner
+    jaw_follow = jaw_morphs(teeth.verts, (teeth.part > 0).astype(np.float64))
+    for name, d in jaw_follow.items():
+        if name in morph_names:
+            mp[morph_names.index(name), teeth.start:teeth.end] = d
+    mp[:, head.start:head.end] = mp[:, head.src] * head.follow[None]
+    return morph_names, mp

@@ -2,7 +2,7 @@
 interior, the teeth and the tongue, the head shell (scalp, back of the head and neck) and
 the ears, and the head shell's hair and jaw-shadow coverage for its texture.
 
-Each part is built in its own local vertex numbering; :mod:`capture2face.rig.avatar`
+Each part is built in its own local vertex numbering; :mod:`capture2face.rig.avatar.layout`
 places the parts after the skin's vertices.
 """
 
