@@ -12,10 +12,10 @@ from conftest import shared_clip
 
 from capture2face.retarget.animation import Animation
 from capture2face.retarget.arkit import arkit_curves, calibrate_scores
+from capture2face.topology import BLENDSHAPE_NAMES, IOD_PAIR, N_LANDMARKS
 from capture2face.tracking import TrackOptions
 from capture2face.tracking.filtering import one_euro
 from capture2face.tracking.head_pose import canonical_mesh
-from capture2face.tracking.landmarker import BLENDSHAPE_NAMES
 from capture2face.tracking.track import Track
 
 NAMES = list(BLENDSHAPE_NAMES)
@@ -35,8 +35,8 @@ def synthetic_track() -> tuple[Track, dict[str, np.ndarray]]:
     filters them), with MediaPipe-like scores: resting
     above 0 at the neutral and compressed (a full pose scores 0.6-0.8)."""
     verts = canonical_mesh().vertices.astype(np.float64)
-    base = np.concatenate([verts, verts[:478 - len(verts)]])
-    iod = np.linalg.norm(base[33] - base[263])
+    base = np.concatenate([verts, verts[:N_LANDMARKS - len(verts)]])
+    iod = np.linalg.norm(base[IOD_PAIR[0]] - base[IOD_PAIR[1]])
     k = np.arange(F)
     jaw, blink, brow = _ramp(k, 30, 15), _ramp(k, 80, 4, 3), _ramp(k, 50, 10)
     lm = np.repeat(base[None], F, 0)

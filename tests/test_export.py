@@ -16,21 +16,10 @@ from capture2face.gltf import export_glb, import_glb
 from capture2face.gltf.animation_export import head_rotations, read_animation_keyframe_count, read_glb_animation
 from capture2face.retarget.animation import Animation
 from capture2face.rig.face_rig import REGION_NAMES, ZONE_NAMES
+from capture2face.topology import BLENDSHAPE_NAMES
 
 # Copied character for character from issue 6.
 ISSUE_HEADER = "Timecode,BlendShapeCount,EyeBlinkLeft,EyeLookDownLeft,EyeLookInLeft,EyeLookOutLeft,EyeLookUpLeft,EyeSquintLeft,EyeWideLeft,EyeBlinkRight,EyeLookDownRight,EyeLookInRight,EyeLookOutRight,EyeLookUpRight,EyeSquintRight,EyeWideRight,JawForward,JawRight,JawLeft,JawOpen,MouthClose,MouthFunnel,MouthPucker,MouthRight,MouthLeft,MouthSmileLeft,MouthSmileRight,MouthFrownLeft,MouthFrownRight,MouthDimpleLeft,MouthDimpleRight,MouthStretchLeft,MouthStretchRight,MouthRollLower,MouthRollUpper,MouthShrugLower,MouthShrugUpper,MouthPressLeft,MouthPressRight,MouthLowerDownLeft,MouthLowerDownRight,MouthUpperUpLeft,MouthUpperUpRight,BrowDownLeft,BrowDownRight,BrowInnerUp,BrowOuterUpLeft,BrowOuterUpRight,CheekPuff,CheekSquintLeft,CheekSquintRight,NoseSneerLeft,NoseSneerRight,TongueOut,HeadYaw,HeadPitch,HeadRoll,LeftEyeYaw,LeftEyePitch,LeftEyeRoll,RightEyeYaw,RightEyePitch,RightEyeRoll"
-
-MEDIAPIPE_NAMES = [
-    "_neutral", "browDownLeft", "browDownRight", "browInnerUp", "browOuterUpLeft", "browOuterUpRight",
-    "cheekPuff", "cheekSquintLeft", "cheekSquintRight", "eyeBlinkLeft", "eyeBlinkRight", "eyeLookDownLeft",
-    "eyeLookDownRight", "eyeLookInLeft", "eyeLookInRight", "eyeLookOutLeft", "eyeLookOutRight", "eyeLookUpLeft",
-    "eyeLookUpRight", "eyeSquintLeft", "eyeSquintRight", "eyeWideLeft", "eyeWideRight", "jawForward", "jawLeft",
-    "jawOpen", "jawRight", "mouthClose", "mouthDimpleLeft", "mouthDimpleRight", "mouthFrownLeft",
-    "mouthFrownRight", "mouthFunnel", "mouthLeft", "mouthLowerDownLeft", "mouthLowerDownRight", "mouthPressLeft",
-    "mouthPressRight", "mouthPucker", "mouthRight", "mouthRollLower", "mouthRollUpper", "mouthShrugLower",
-    "mouthShrugUpper", "mouthSmileLeft", "mouthSmileRight", "mouthStretchLeft", "mouthStretchRight",
-    "mouthUpperUpLeft", "mouthUpperUpRight", "noseSneerLeft", "noseSneerRight",
-]
 
 
 def rot_y(a):
@@ -72,10 +61,10 @@ def make_animation(rig, frames=45, fps=30.0, seed=1, t0=0.0) -> Animation:
         influences=np.zeros((frames, P, B), np.float32), rest_influence=np.ones((frames, B), np.float32),
         region_names=list(REGION_NAMES), region_influence=np.zeros((frames, R, P), np.float32),
         zone_names=list(ZONE_NAMES), zone_weights=np.zeros((frames, 8), np.float32),
-        mediapipe_blendshapes=rng.uniform(0, 1, (frames, len(MEDIAPIPE_NAMES))).astype(np.float32),
-        mediapipe_blendshape_names=list(MEDIAPIPE_NAMES), presence=np.ones(frames, bool),
-        character=rig.name, arkit_names=list(MEDIAPIPE_NAMES),
-        arkit_weights=rng.uniform(0, 1, (frames, len(MEDIAPIPE_NAMES))).astype(np.float32),
+        mediapipe_blendshapes=rng.uniform(0, 1, (frames, len(BLENDSHAPE_NAMES))).astype(np.float32),
+        mediapipe_blendshape_names=list(BLENDSHAPE_NAMES), presence=np.ones(frames, bool),
+        character=rig.name, arkit_names=list(BLENDSHAPE_NAMES),
+        arkit_weights=rng.uniform(0, 1, (frames, len(BLENDSHAPE_NAMES))).astype(np.float32),
     )
 
 
@@ -181,10 +170,10 @@ def test_livelink_csv_header_rows_and_values(avatar, performance, tmp_path):
     cols = ISSUE_HEADER.split(",")
     values = np.array([[float(v) for v in r[2:]] for r in rows])
     col = {n: i - 2 for i, n in enumerate(cols)}
-    mp = {n: i for i, n in enumerate(MEDIAPIPE_NAMES)}
+    mp = {n: i for i, n in enumerate(BLENDSHAPE_NAMES)}
     # By name, every blendshape column is the animation's ARKit curve, never the
     # character's own morph weight of that name (which shares its motion with the bones).
-    assert "jawOpen" in avatar.morph_names and "tongueOut" not in MEDIAPIPE_NAMES
+    assert "jawOpen" in avatar.morph_names and "tongueOut" not in BLENDSHAPE_NAMES
     np.testing.assert_allclose(values[:, col["JawOpen"]], performance.arkit_weights[:, mp["jawOpen"]], atol=1e-6)
     assert np.abs(values[:, col["JawOpen"]] - performance.blend_weights[:, avatar.morph_index("jawOpen")]).max() > 0.1
     for c in cols[2:53]:
@@ -203,7 +192,7 @@ def test_livelink_csv_header_rows_and_values(avatar, performance, tmp_path):
 
 
 def test_livelink_takes_scores_from_a_track_like_source(avatar, performance, tmp_path):
-    names = [n.upper() for n in MEDIAPIPE_NAMES]  # matching is case-insensitive
+    names = [n.upper() for n in BLENDSHAPE_NAMES]  # matching is case-insensitive
     scores = np.full((performance.n_frames, len(names)), 0.25, np.float32)
     path = tmp_path / "ll.csv"
     cols = ISSUE_HEADER.split(",")

@@ -21,7 +21,7 @@ from capture2face.rig import influences as inf
 from capture2face.rig.avatar import default_avatar
 from capture2face.rig.deform import deform
 from capture2face.synth.trajectories import random_performance
-from capture2face.tracking.landmarker import BLENDSHAPE_NAMES
+from capture2face.topology import BLENDSHAPE_NAMES
 from capture2face.tracking.track import Track
 
 # The defaults carry strong morph priors and half-trust the tracker's depth motion, tuned
