@@ -14,6 +14,7 @@ import numpy as np
 from capture2face.maths.rotations import rotation_ypr  # noqa: F401  (re-exported: its old home)
 from capture2face.rig.arkit_names import is_automatic
 from capture2face.rig.face_rig import FaceRig
+from capture2face.topology import N_MESH
 
 # Fraction of the frame height the face's skin fills in ``framing_pose``.
 FRAMING_FILL = 0.6
@@ -76,7 +77,7 @@ def rotation_matrix(yaw: float, pitch: float, roll: float) -> np.ndarray:
 
 
 # The face mesh's landmarks (the irises' ten follow).
-N_FACE_LANDMARKS = 468
+N_FACE_LANDMARKS = N_MESH
 # A vertex that some morph moves further than this (cm) belongs to the face.
 _FACE_MORPH_CM = 0.02
 

@@ -38,17 +38,18 @@ from capture2face.errors import CaptureError
 from capture2face.maths.stats import pearson
 from capture2face.rig.arkit_names import GAZE_SCORES, arkit_morphs, arkit_weights
 from capture2face.rig.face_rig import landmark_points, landmark_support
+from capture2face.topology import BROW_HEIGHT_PAIRS, IOD_PAIR, LIDS_LEFT, LIDS_RIGHT, LIP_GAP, MOUTH_CORNERS
 from capture2face.tracking.head_pose import head_landmarks
-from capture2face.tracking.rest import IOD_PAIR, actor_rest
+from capture2face.tracking.rest import actor_rest
 
 # name -> (landmark a, landmark b): the measure is |p_a - p_b|.
 MEASURES: dict[str, tuple[int, int]] = {
-    "mouth_open": (13, 14),
-    "mouth_width": (61, 291),
-    "brow_right": (105, 33),
-    "brow_left": (334, 263),
-    "eye_right": (159, 145),
-    "eye_left": (386, 374),
+    "mouth_open": LIP_GAP,
+    "mouth_width": MOUTH_CORNERS,
+    "brow_right": BROW_HEIGHT_PAIRS[0],
+    "brow_left": BROW_HEIGHT_PAIRS[1],
+    "eye_right": LIDS_RIGHT,
+    "eye_left": LIDS_LEFT,
 }
 EYE_MEASURES = ("eye_right", "eye_left")
 BROW_COLUMNS = [list(MEASURES).index("brow_right"), list(MEASURES).index("brow_left")]  # the brows' mean

@@ -15,10 +15,10 @@ import pytest
 from capture2face.retarget.animation import Animation
 from capture2face.rig.deform import deform
 from capture2face.rig.face_rig import REGION_NAMES, ZONE_NAMES
+from capture2face.topology import BLENDSHAPE_NAMES, IOD_PAIR, N_LANDMARKS
 from capture2face.tracking import TrackOptions
 from capture2face.tracking.filtering import one_euro
 from capture2face.tracking.head_pose import canonical_mesh
-from capture2face.tracking.landmarker import BLENDSHAPE_NAMES
 from capture2face.tracking.track import Track
 
 REPO = Path(__file__).resolve().parents[1]
@@ -102,8 +102,8 @@ def synthetic_track() -> tuple[Track, dict[str, np.ndarray]]:
     filters them), with MediaPipe-like scores: resting
     above 0 at the neutral and compressed (a full pose scores 0.6-0.8)."""
     verts = canonical_mesh().vertices.astype(np.float64)
-    base = np.concatenate([verts, verts[:478 - len(verts)]])
-    iod = np.linalg.norm(base[33] - base[263])
+    base = np.concatenate([verts, verts[:N_LANDMARKS - len(verts)]])
+    iod = np.linalg.norm(base[IOD_PAIR[0]] - base[IOD_PAIR[1]])
     k = np.arange(FRAMES)
     jaw, blink, brow = ramp(k, 30, 15), ramp(k, 80, 4, 3), ramp(k, 50, 10)
     lm = np.repeat(base[None], FRAMES, 0)
@@ -118,8 +118,8 @@ def synthetic_track() -> tuple[Track, dict[str, np.ndarray]]:
     scores[:, NAMES.index("browInnerUp")] = 0.05 + 0.3 * brow
     scores[:, NAMES.index("mouthSmileLeft")] = 0.3 + 0.7 * jaw  # a score with no geometry check
     track = Track(
-        times=k / FPS, landmarks_px=np.zeros((FRAMES, 478, 2), np.float32),
-        landmarks_depth=np.zeros((FRAMES, 478), np.float32),
+        times=k / FPS, landmarks_px=np.zeros((FRAMES, N_LANDMARKS, 2), np.float32),
+        landmarks_depth=np.zeros((FRAMES, N_LANDMARKS), np.float32),
         landmarks_head=lm.astype(np.float32), presence=np.ones(FRAMES, bool), interpolated=np.zeros(FRAMES, bool),
         held=np.zeros(FRAMES, bool), blendshapes=scores.astype(np.float32), blendshape_names=NAMES,
         head_pose=np.tile(np.eye(4, dtype=np.float32), (FRAMES, 1, 1)), neutral_frame=NEUTRAL, width=64, height=64,
@@ -155,19 +155,6 @@ def perfect_track(rig, perf, scale=1.0, angle_deg=0.0, shift=(0.0, 0.0, 0.0), no
 
 
 # ---- a hand-made Animation (export tests) ----------------------------------------------
-MEDIAPIPE_NAMES = [
-    "_neutral", "browDownLeft", "browDownRight", "browInnerUp", "browOuterUpLeft", "browOuterUpRight",
-    "cheekPuff", "cheekSquintLeft", "cheekSquintRight", "eyeBlinkLeft", "eyeBlinkRight", "eyeLookDownLeft",
-    "eyeLookDownRight", "eyeLookInLeft", "eyeLookInRight", "eyeLookOutLeft", "eyeLookOutRight", "eyeLookUpLeft",
-    "eyeLookUpRight", "eyeSquintLeft", "eyeSquintRight", "eyeWideLeft", "eyeWideRight", "jawForward", "jawLeft",
-    "jawOpen", "jawRight", "mouthClose", "mouthDimpleLeft", "mouthDimpleRight", "mouthFrownLeft",
-    "mouthFrownRight", "mouthFunnel", "mouthLeft", "mouthLowerDownLeft", "mouthLowerDownRight", "mouthPressLeft",
-    "mouthPressRight", "mouthPucker", "mouthRight", "mouthRollLower", "mouthRollUpper", "mouthShrugLower",
-    "mouthShrugUpper", "mouthSmileLeft", "mouthSmileRight", "mouthStretchLeft", "mouthStretchRight",
-    "mouthUpperUpLeft", "mouthUpperUpRight", "noseSneerLeft", "noseSneerRight",
-]
-
-
 def rot_y(a):
     c, s = np.cos(a), np.sin(a)
     return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
@@ -207,10 +194,10 @@ def make_animation(rig, frames=45, fps=30.0, seed=1, t0=0.0) -> Animation:
         influences=np.zeros((frames, P, B), np.float32), rest_influence=np.ones((frames, B), np.float32),
         region_names=list(REGION_NAMES), region_influence=np.zeros((frames, R, P), np.float32),
         zone_names=list(ZONE_NAMES), zone_weights=np.zeros((frames, 8), np.float32),
-        mediapipe_blendshapes=rng.uniform(0, 1, (frames, len(MEDIAPIPE_NAMES))).astype(np.float32),
-        mediapipe_blendshape_names=list(MEDIAPIPE_NAMES), presence=np.ones(frames, bool),
-        character=rig.name, arkit_names=list(MEDIAPIPE_NAMES),
-        arkit_weights=rng.uniform(0, 1, (frames, len(MEDIAPIPE_NAMES))).astype(np.float32),
+        mediapipe_blendshapes=rng.uniform(0, 1, (frames, len(BLENDSHAPE_NAMES))).astype(np.float32),
+        mediapipe_blendshape_names=list(BLENDSHAPE_NAMES), presence=np.ones(frames, bool),
+        character=rig.name, arkit_names=list(BLENDSHAPE_NAMES),
+        arkit_weights=rng.uniform(0, 1, (frames, len(BLENDSHAPE_NAMES))).astype(np.float32),
     )
 
 

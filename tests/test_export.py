@@ -13,7 +13,8 @@ from capture2face.errors import CaptureError
 from capture2face.export.livelink import HEADER, head_angles, timecodes, write_livelink_csv
 from capture2face.gltf import export_glb, import_glb
 from capture2face.gltf.animation_export import head_rotations, read_animation_keyframe_count, read_glb_animation
-from tests.helpers import MEDIAPIPE_NAMES, make_animation, problems, rot_x, rot_y, rot_z, validate
+from capture2face.topology import BLENDSHAPE_NAMES
+from tests.helpers import make_animation, problems, rot_x, rot_y, rot_z, validate
 
 # Copied character for character from issue 6.
 ISSUE_HEADER = "Timecode,BlendShapeCount,EyeBlinkLeft,EyeLookDownLeft,EyeLookInLeft,EyeLookOutLeft,EyeLookUpLeft,EyeSquintLeft,EyeWideLeft,EyeBlinkRight,EyeLookDownRight,EyeLookInRight,EyeLookOutRight,EyeLookUpRight,EyeSquintRight,EyeWideRight,JawForward,JawRight,JawLeft,JawOpen,MouthClose,MouthFunnel,MouthPucker,MouthRight,MouthLeft,MouthSmileLeft,MouthSmileRight,MouthFrownLeft,MouthFrownRight,MouthDimpleLeft,MouthDimpleRight,MouthStretchLeft,MouthStretchRight,MouthRollLower,MouthRollUpper,MouthShrugLower,MouthShrugUpper,MouthPressLeft,MouthPressRight,MouthLowerDownLeft,MouthLowerDownRight,MouthUpperUpLeft,MouthUpperUpRight,BrowDownLeft,BrowDownRight,BrowInnerUp,BrowOuterUpLeft,BrowOuterUpRight,CheekPuff,CheekSquintLeft,CheekSquintRight,NoseSneerLeft,NoseSneerRight,TongueOut,HeadYaw,HeadPitch,HeadRoll,LeftEyeYaw,LeftEyePitch,LeftEyeRoll,RightEyeYaw,RightEyePitch,RightEyeRoll"
@@ -114,10 +115,10 @@ def test_livelink_csv_header_rows_and_values(avatar, performance, tmp_path):
     cols = ISSUE_HEADER.split(",")
     values = np.array([[float(v) for v in r[2:]] for r in rows])
     col = {n: i - 2 for i, n in enumerate(cols)}
-    mp = {n: i for i, n in enumerate(MEDIAPIPE_NAMES)}
+    mp = {n: i for i, n in enumerate(BLENDSHAPE_NAMES)}
     # By name, every blendshape column is the animation's ARKit curve, never the
     # character's own morph weight of that name (which shares its motion with the bones).
-    assert "jawOpen" in avatar.morph_names and "tongueOut" not in MEDIAPIPE_NAMES
+    assert "jawOpen" in avatar.morph_names and "tongueOut" not in BLENDSHAPE_NAMES
     np.testing.assert_allclose(values[:, col["JawOpen"]], performance.arkit_weights[:, mp["jawOpen"]], atol=1e-6)
     assert np.abs(values[:, col["JawOpen"]] - performance.blend_weights[:, avatar.morph_index("jawOpen")]).max() > 0.1
     for c in cols[2:53]:
@@ -136,7 +137,7 @@ def test_livelink_csv_header_rows_and_values(avatar, performance, tmp_path):
 
 
 def test_livelink_takes_scores_from_a_track_like_source(avatar, performance, tmp_path):
-    names = [n.upper() for n in MEDIAPIPE_NAMES]  # matching is case-insensitive
+    names = [n.upper() for n in BLENDSHAPE_NAMES]  # matching is case-insensitive
     scores = np.full((performance.n_frames, len(names)), 0.25, np.float32)
     path = tmp_path / "ll.csv"
     cols = ISSUE_HEADER.split(",")

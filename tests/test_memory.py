@@ -15,10 +15,11 @@ from capture2face.io.video_input import VideoInfo
 from capture2face.retarget import RetargetOptions, retarget
 from capture2face.retarget.windows import SpilledMedian, frame_windows
 from capture2face.synth.trajectories import random_performance
+from capture2face.topology import BLENDSHAPE_NAMES, N_LANDMARKS
 from capture2face.tracking import Track, TrackOptions, build_track
 from capture2face.tracking.filtering import CausalOneEuro, OneEuro, one_euro
 from capture2face.tracking.head_pose import canonical_mesh
-from capture2face.tracking.landmarker import BLENDSHAPE_NAMES, N_LANDMARKS, FaceObservation
+from capture2face.tracking.landmarker import FaceObservation
 from tests.helpers import perfect_track
 
 

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from capture2face.rig.canonical import load_canonical_mesh
+from capture2face.topology import BLENDSHAPE_NAMES, IOD_PAIR
 from capture2face.tracking.rest import (
     FACE,
     REGIONS,
@@ -17,7 +18,6 @@ from capture2face.tracking.rest import (
     rest_geometry,
     rest_warnings,
 )
-from capture2face.tracking.tracker import BLENDSHAPE_NAMES
 
 F = 100
 NAMES = list(BLENDSHAPE_NAMES)
@@ -78,7 +78,7 @@ def test_regions_cover_the_face_and_the_eyes_stay_near_the_lids():
 def test_geometry_is_in_interocular_distances():
     face = _face()
     g = rest_geometry(face[None] * 3.0)[0]  # scale-free
-    iod = np.linalg.norm(face[33] - face[263])
+    iod = np.linalg.norm(face[IOD_PAIR[0]] - face[IOD_PAIR[1]])
     assert g[0] == pytest.approx(np.linalg.norm(face[13] - face[14]) / iod, rel=1e-5)
 
 

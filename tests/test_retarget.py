@@ -19,7 +19,7 @@ from capture2face.retarget.rbf import fit_feature_map
 from capture2face.retarget.solve import LinearRigModel, LinearSolver
 from capture2face.rig import influences as inf
 from capture2face.synth.trajectories import random_performance
-from capture2face.tracking.landmarker import BLENDSHAPE_NAMES
+from capture2face.topology import BLENDSHAPE_NAMES
 from tests.helpers import perfect_track
 
 # The defaults carry strong morph priors and half-trust the tracker's depth motion, tuned

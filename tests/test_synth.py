@@ -17,6 +17,7 @@ from capture2face.synth.trajectories import (
     random_performance,
 )
 from capture2face.synth.truth import SyntheticTruth, compute_truth, truth_path
+from capture2face.topology import IOD_PAIR
 
 
 def _moving(rig, p):
@@ -214,7 +215,7 @@ def test_mediapipe_tracks_the_synthetic_clip(synthetic_clip):
     assert tracked.mean() >= 0.95, tracked.mean()
     # And it finds the face where the truth says it is (normalised by the inter-ocular
     # distance): a wrong projection or a face the tracker misreads shows up here.
-    iod = np.linalg.norm(t.landmarks_px[:, 33] - t.landmarks_px[:, 263], axis=1)
+    iod = np.linalg.norm(t.landmarks_px[:, IOD_PAIR[0]] - t.landmarks_px[:, IOD_PAIR[1]], axis=1)
     err = np.linalg.norm(found[:, :468] - t.landmarks_px[:, :468], axis=2).mean(1) / iod
     assert np.nanmedian(err[tracked]) < 0.05, np.nanmedian(err[tracked])
 

@@ -27,6 +27,7 @@ from capture2face.rig.face_rig import landmark_points
 from capture2face.synth import SyntheticTruth, SynthOptions, actor_rig, synthesize
 from capture2face.synth.actor import random_arkit_performance
 from capture2face.synth.trajectories import KEY_NEUTRAL
+from capture2face.topology import IOD_PAIR
 from capture2face.tracking import TrackOptions, track_clip
 from tests.helpers import shared_character
 
@@ -109,7 +110,7 @@ def test_truth_is_what_is_rendered(case, ict_a):
             points = landmark_points(ict_a, drawn)
             assert np.abs(points - truth.landmarks_head[f]).max() < 2e-3  # cm
     err = np.linalg.norm(track.landmarks_px[:, :468] - truth.landmarks_px[:, :468], axis=2).mean(1)
-    iod = np.linalg.norm(truth.landmarks_px[:, 263] - truth.landmarks_px[:, 33], axis=1)
+    iod = np.linalg.norm(truth.landmarks_px[:, IOD_PAIR[1]] - truth.landmarks_px[:, IOD_PAIR[0]], axis=1)
     assert np.mean(err / iod) < 0.06
 
 

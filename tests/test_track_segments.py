@@ -11,11 +11,12 @@ import numpy as np
 import pytest
 
 from capture2face.io.video_input import frame_times, iter_frames, iter_segment, open_video
+from capture2face.topology import IOD_PAIR
 from capture2face.tracking import TrackOptions, segments, track_clip
 from capture2face.tracking.tracker import Tracker
 from tests.helpers import truncated_copy
 
-EYES = (33, 263)
+EYES = IOD_PAIR
 
 
 def _parallel(clip, options, n_workers, **kwargs):

@@ -14,6 +14,7 @@ from scipy.spatial.transform import Rotation
 from capture2face.errors import CaptureError
 from capture2face.eval.filter_tuning import jitter_lag
 from capture2face.io.video_input import iter_frames, open_video
+from capture2face.topology import BLENDSHAPE_NAMES, IOD_PAIR
 from capture2face.tracking import Track, Tracker, TrackOptions, track_clip
 from capture2face.tracking.filtering import OneEuro, filter_pose, one_euro
 from capture2face.tracking.gaps import fill_gaps, gap_runs
@@ -24,11 +25,11 @@ from capture2face.tracking.head_pose import (
     project_camera_points,
     to_head,
 )
-from capture2face.tracking.landmarker import BLENDSHAPE_NAMES, FaceLandmarker, LandmarkerOptions
+from capture2face.tracking.landmarker import FaceLandmarker, LandmarkerOptions
 from capture2face.tracking.neutral import expression_energy, pick_neutral
 
 CLIPS = Path(__file__).parents[2] / "shared" / "clips"
-EYES = (33, 263)  # outer eye corners: the inter-ocular distance (IOD) used throughout
+EYES = IOD_PAIR  # outer eye corners: the inter-ocular distance (IOD) used throughout
 
 needs_clips = pytest.mark.skipif(not (CLIPS / "d0.mp4").exists(), reason="../shared/clips absent")
 

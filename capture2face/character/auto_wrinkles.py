@@ -48,6 +48,7 @@ from capture2face.rig.avatar import default_avatar
 from capture2face.rig.face_rig import FaceRig, landmark_points, landmark_support
 from capture2face.rig.feature_points import AUTO_PREFIX
 from capture2face.rig.maps import decode_normals, encode_normals
+from capture2face.topology import IOD_PAIR, N_MESH
 
 log = logging.getLogger("capture2face")
 
@@ -108,14 +109,14 @@ def automatic_wrinkles(rig: FaceRig) -> FaceRig:
 
     # The avatar fitted onto the character's landmarks lends masks, regions and zones.
     canon = avatar.vertices[avatar.landmark_vertices.clip(0)].astype(np.float64)
-    both = np.flatnonzero((avatar.landmark_vertices >= 0) & (lmv >= 0))[:468]
-    both = both[both < 468]
+    both = np.flatnonzero((avatar.landmark_vertices >= 0) & (lmv >= 0))[:N_MESH]
+    both = both[both < N_MESH]
     s, rot, t = similarity(canon[both], points[both])
     fitted = avatar.vertices.astype(np.float64) @ (s * rot).T + t  # (Va, 3) on the character
     askin = np.flatnonzero(avatar.material == 0)
     dist, nearest = cKDTree(fitted[askin]).query(rig.vertices.astype(np.float64), k=1)
     nearest = askin[nearest]
-    iod = float(np.linalg.norm(points[33] - points[263]))
+    iod = float(np.linalg.norm(points[IOD_PAIR[0]] - points[IOD_PAIR[1]]))
     face = (rig.material == 0) & (dist < _FACE_REACH_IOD * iod)
     to_rig = np.zeros(avatar.n_bones, np.int64)  # avatar bone -> rig bone (head -> 0)
     to_rig[face_bones] = B0 + np.arange(len(face_bones))

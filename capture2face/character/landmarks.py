@@ -39,19 +39,30 @@ from capture2face.rig.arkit_names import arkit_morphs
 from capture2face.rig.deform import deform
 from capture2face.rig.face_rig import FaceRig
 from capture2face.runtime.log import log
+from capture2face.topology import (
+    IOD_PAIR,
+    LID_LOWER_LEFT,
+    LID_LOWER_RIGHT,
+    LID_UPPER_LEFT,
+    LID_UPPER_RIGHT,
+    LIP_INNER_CORNERS,
+    LIP_INNER_LOWER,
+    LIP_INNER_UPPER,
+    N_MESH,
+)
 from capture2face.tracking.landmarker import FaceLandmarker, LandmarkerOptions
 
 # The front view's size in pixels.
 RENDER_SIZE = 512
 # MediaPipe's inner lip contour, upper (13 in the middle) and lower (14); the corners
 # (78, 308) belong to both.
-INNER_LIP_UPPER = (191, 80, 81, 82, 13, 312, 311, 310, 415)
-INNER_LIP_LOWER = (95, 88, 178, 87, 14, 317, 402, 318, 324)
-INNER_LIPS = (78, 308) + INNER_LIP_UPPER + INNER_LIP_LOWER
+INNER_LIP_UPPER = LIP_INNER_UPPER
+INNER_LIP_LOWER = LIP_INNER_LOWER
+INNER_LIPS = LIP_INNER_CORNERS + INNER_LIP_UPPER + INNER_LIP_LOWER
 # MediaPipe's eyelid contours (corners excluded), upper then lower: the subject's right
 # eye, then the left.
-EYELIDS_RIGHT = (246, 161, 160, 159, 158, 157, 173, 7, 163, 144, 145, 153, 154, 155)
-EYELIDS_LEFT = (466, 388, 387, 386, 385, 384, 398, 249, 390, 373, 374, 380, 381, 382)
+EYELIDS_RIGHT = LID_UPPER_RIGHT + LID_LOWER_RIGHT
+EYELIDS_LEFT = LID_UPPER_LEFT + LID_LOWER_LEFT
 # Landmarks cast in views of their own, opened by the character's morphs (ARKit names):
 # (morphs, {measure: its landmarks}, weights tried in turn, always, what they open). Always:
 # the first weight's view is cast whatever the rest view gave; the next weights (or all, if
@@ -209,11 +220,11 @@ def _cast_view(rig: FaceRig, view: _View, fov_y_degrees: float) -> SurfaceLandma
     eyes = clean & (mat[tris] == EYE_CODE).all(1)
     faces = np.full((L, 3), -1, np.int32)
     bary = np.zeros((L, 3), np.float32)
-    rows_face, rows_iris = np.arange(min(L, 468)), np.arange(468, L)
+    rows_face, rows_iris = np.arange(min(L, N_MESH)), np.arange(N_MESH, L)
     hits = _candidates(px, depth, tris[skin], view.landmarks_px[rows_face])
     expect, tol = _expected_depth(rig, view, hits, rows_face, fov_y_degrees)
     for rows, h in ((rows_face, hits), (rows_iris, _candidates(px, depth, tris[eyes], view.landmarks_px[rows_iris]))):
-        pick = _choose(h, len(rows), expect[rows] if len(rows) and rows[0] < 468 else None, tol)
+        pick = _choose(h, len(rows), expect[rows] if len(rows) and rows[0] < N_MESH else None, tol)
         # None at the tracker's depth (a landmark on the silhouette): the nearest facing skin.
         pick = np.where(pick >= 0, pick, _choose(h, len(rows), None, tol))
         ok = pick >= 0
@@ -306,7 +317,7 @@ def _expected_depth(rig: FaceRig, view: _View, hits: _Hits, rows: np.ndarray,
         fit = np.polyfit(src[lms], front[lms], 1)
         resid = np.abs(np.polyval(fit, src[ok]) - front[ok])
         lms = np.flatnonzero(ok)[resid <= max(2.5 * np.median(resid), 1e-6)]
-    iod_px = float(np.linalg.norm(view.landmarks_px[33] - view.landmarks_px[263]))
+    iod_px = float(np.linalg.norm(view.landmarks_px[IOD_PAIR[0]] - view.landmarks_px[IOD_PAIR[1]]))
     cm_per_px = 2.0 * np.tan(np.radians(fov_y_degrees) / 2.0) * float(np.median(front[ok])) / RENDER_SIZE
     return np.polyval(fit, view.depth_px), DEPTH_TOL_IOD * iod_px * cm_per_px
 

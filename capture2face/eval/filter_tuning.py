@@ -30,11 +30,12 @@ import numpy as np
 
 from capture2face.io.video_input import iter_frames, open_video
 from capture2face.synth import SyntheticTruth, SynthOptions, synthesize, truth_path
+from capture2face.topology import IOD_PAIR
 from capture2face.tracking import TrackOptions, build_track
 from capture2face.tracking.head_pose import canonical_mesh
 from capture2face.tracking.landmarker import FaceLandmarker
 
-EYE_CORNERS = (33, 263)
+EYE_CORNERS = IOD_PAIR
 
 
 def iod(points: np.ndarray) -> float:

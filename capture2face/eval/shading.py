@@ -29,6 +29,7 @@ from capture2face.maths.rotations import rotation_part
 from capture2face.maths.stats import pearson
 from capture2face.measures import MEASURES, source_measures
 from capture2face.pipeline import RunOptions, track_stage
+from capture2face.topology import IOD_PAIR
 from capture2face.tracking.track import Track
 
 # Disc centres (MediaPipe landmarks) and their radius in inter-ocular distances.
@@ -51,7 +52,7 @@ def patch_brightness(video: str | os.PathLike, track: Track) -> np.ndarray:
         if not track.presence[f]:
             continue
         px = np.asarray(track.landmarks_px[f], np.float64)
-        radius = PATCH_RADIUS_IOD * np.linalg.norm(px[33] - px[263])
+        radius = PATCH_RADIUS_IOD * np.linalg.norm(px[IOD_PAIR[0]] - px[IOD_PAIR[1]])
         for k, lm in enumerate(names):
             out[f, k] = _disc_mean(rgb, px[lm], radius)
     return out

@@ -77,7 +77,7 @@ from capture2face.measures import MEASURES, character_measures, compare, source_
 from capture2face.retarget import RetargetOptions, retarget, shared_blendshapes
 from capture2face.retarget.arkit import arkit_curves
 from capture2face.retarget.gaze import eye_radius_iod
-from capture2face.rig.arkit_names import ARKIT_NAMES, arkit_morphs
+from capture2face.rig.arkit_names import arkit_morphs
 from capture2face.rig.avatar import default_avatar
 from capture2face.rig.face_rig import gaze_directions
 from capture2face.rig.influences import (
@@ -86,6 +86,7 @@ from capture2face.rig.influences import (
     vertex_influences,
 )
 from capture2face.synth import SynthOptions, synthesize
+from capture2face.topology import ARKIT_NAMES, IOD_PAIR, N_MESH
 from capture2face.tracking import TrackOptions, track_clip
 from capture2face.tracking.rest import GEOMETRY, actor_rest, rest_geometry, with_frame_rest
 
@@ -268,9 +269,9 @@ def score(track, animation, truth, source, target) -> dict:
 
 def landmark_figures(track, truth, use: np.ndarray) -> dict:
     """The tracker: landmark pixels against the projected truth, per frame / inter-ocular px."""
-    lm_true = truth.landmarks_px[use, :468].astype(np.float64)
-    lm_pred = track.landmarks_px[use, :468].astype(np.float64)
-    iod_px = np.linalg.norm(lm_true[:, 263] - lm_true[:, 33], axis=1)
+    lm_true = truth.landmarks_px[use, :N_MESH].astype(np.float64)
+    lm_pred = track.landmarks_px[use, :N_MESH].astype(np.float64)
+    iod_px = np.linalg.norm(lm_true[:, IOD_PAIR[1]] - lm_true[:, IOD_PAIR[0]], axis=1)
     lm_err = np.nanmean(np.linalg.norm(lm_pred - lm_true, axis=2), axis=1) / iod_px
     return {"landmark_nme_iod": float(np.mean(lm_err))}
 

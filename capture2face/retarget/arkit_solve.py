@@ -36,6 +36,19 @@ from capture2face.maths.rotations import similarity
 from capture2face.retarget.solve import LinearRigModel
 from capture2face.rig.arkit_names import arkit_morphs
 from capture2face.rig.feature_points import landmark_basis
+from capture2face.topology import (
+    BROW_HEIGHT_PAIRS,
+    BROWS,
+    EYE_LEFT,
+    EYE_RIGHT,
+    LIDS_LEFT,
+    LIDS_RIGHT,
+    LIP_GAP,
+    LIPS_INNER,
+    LIPS_OUTER,
+    MOUTH_CORNERS,
+    NOSE_WINGS,
+)
 
 #: ARKit morphs driven by their curves alone: the tracker's landmarks do not show them
 #: (a puffed cheek, a rolled lip, the tongue) or show them as something else (the eyes'
@@ -50,14 +63,7 @@ CURVE_ONLY = frozenset({
 #: MediaPipe's contours of the features (lips, eyes, brows, the nose's wings): the points an
 #: expression moves (the rest, the cheeks, forehead and silhouette, carry the tracker's
 #: noise as much).
-FEATURE_CONTOURS = np.array([
-    61, 146, 91, 181, 84, 17, 314, 405, 321, 375, 291, 185, 40, 39, 37, 0, 267, 269, 270, 409,  # outer lips
-    78, 95, 88, 178, 87, 14, 317, 402, 318, 324, 308, 191, 80, 81, 82, 13, 312, 311, 310, 415,  # inner lips
-    263, 249, 390, 373, 374, 380, 381, 382, 362, 466, 388, 387, 386, 385, 384, 398,  # left eye
-    33, 7, 163, 144, 145, 153, 154, 155, 133, 246, 161, 160, 159, 158, 157, 173,  # right eye
-    276, 283, 282, 295, 285, 300, 293, 334, 296, 336, 46, 53, 52, 65, 55, 70, 63, 105, 66, 107,  # brows
-    48, 64, 98, 102, 240, 278, 294, 327, 331, 460,  # the nose's wings (a sneer)
-])
+FEATURE_CONTOURS = np.array([*LIPS_OUTER, *LIPS_INNER, *EYE_LEFT, *EYE_RIGHT, *BROWS, *NOSE_WINGS])
 #: The eyes' contours (both lids): their motion is the network's (:class:`SteadiedMap`).
 EYE_CONTOURS = FEATURE_CONTOURS[40:72]
 #: Landmark pairs whose relative motion is an expression: the lids apart (three columns per
@@ -65,9 +71,9 @@ EYE_CONTOURS = FEATURE_CONTOURS[40:72]
 #: outer) against its eye's corners. Fitted as extra points (the pair's difference), so a
 #: global morph basis does not trade them for the many points around them.
 EXPRESSION_PAIRS = np.array([
-    (159, 145), (158, 153), (160, 144), (386, 374), (385, 380), (387, 373),
-    (13, 14), (82, 87), (312, 317), (61, 291),
-    (105, 33), (107, 133), (70, 33), (334, 263), (336, 362), (300, 263),
+    LIDS_RIGHT, (158, 153), (160, 144), LIDS_LEFT, (385, 380), (387, 373),
+    LIP_GAP, (82, 87), (312, 317), MOUTH_CORNERS,
+    BROW_HEIGHT_PAIRS[0], (107, 133), (70, 33), BROW_HEIGHT_PAIRS[1], (336, 362), (300, 263),
 ])
 
 

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from capture2face import topology
 from capture2face.errors import CaptureError
 from capture2face.retarget import gaze
 from capture2face.retarget.animation import Animation
@@ -127,14 +128,13 @@ def _mediapipe_weights(track, rig) -> np.ndarray:
 
 # MediaPipe's FACE_OVAL: the silhouette, which a mask-like character (or hair, or a beard)
 # leaves the tracker guessing at.
-FACE_OVAL = np.array([10, 21, 54, 58, 67, 93, 103, 109, 127, 132, 136, 148, 149, 150, 152, 162, 172, 176,
-                      234, 251, 284, 288, 297, 323, 332, 338, 356, 361, 365, 377, 378, 379, 389, 397, 400, 454])
+FACE_OVAL = np.array(topology.FACE_OVAL)
 
 
 # The outer eye corners (right, left): the reference the brows' height is seen against.
-EYE_CORNERS = np.array([33, 263])
+EYE_CORNERS = np.array(topology.EYE_OUTER_CORNERS)
 # The mouth corners (right, left): where the mouth's width is seen.
-MOUTH_CORNERS = np.array([61, 291])
+MOUTH_CORNERS = np.array(topology.MOUTH_CORNERS)
 
 RELIABILITY_ADMM_ITERATIONS = 20
 
@@ -398,7 +398,7 @@ def _solve_arkit_weights(track, rest: ActorRest, rig, landmarks: np.ndarray, pri
 def _gaze(track, rest: ActorRest, options: RetargetOptions) -> np.ndarray | None:
     """(F, 2, 2) eye yaw and pitch (degrees) from the tracked irises; None for a track
     without iris landmarks."""
-    if track.landmarks_head.shape[1] < 478:
+    if track.landmarks_head.shape[1] < topology.N_LANDMARKS:
         return None
     return gaze.eye_rotation(track.landmarks_head, rest.landmarks, options.eye_radius_iod)
 

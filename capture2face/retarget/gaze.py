@@ -29,12 +29,20 @@ import numpy as np
 
 from capture2face.io.framestore import take_points
 from capture2face.rig.face_rig import landmark_points
-from capture2face.tracking.rest import IOD_PAIR  # the outer eye corners: the face's size
+from capture2face.topology import (
+    EYE_CORNERS_LEFT,
+    EYE_CORNERS_RIGHT,
+    IOD_PAIR,  # the outer eye corners: the face's size
+    IRIS_LEFT,
+    IRIS_RIGHT,
+    LIDS_LEFT,
+    LIDS_RIGHT,
+)
 
 # Right eye (the subject's right, -x) first, as everywhere: (iris landmarks, corners, lids).
 EYES = (
-    (np.arange(468, 473), (33, 133), (159, 145)),
-    (np.arange(473, 478), (263, 362), (386, 374)),
+    (np.array(IRIS_RIGHT), EYE_CORNERS_RIGHT, LIDS_RIGHT),
+    (np.array(IRIS_LEFT), EYE_CORNERS_LEFT, LIDS_LEFT),
 )
 # Distance from the eye's centre of rotation to the tracked iris centre, in inter-ocular
 # distances (outer corners): a human eye of radius 12 mm whose iris plane lies ~11 mm in

@@ -19,20 +19,8 @@ import numpy as np
 
 from capture2face.errors import CaptureError
 from capture2face.rig.feature_points import AUTO_PREFIX, feature_correspondence
+from capture2face.topology import ARKIT_NAMES  # Apple's 52 (re-exported: rig.arkit_names.ARKIT_NAMES)
 
-#: Apple's 52 ARKit blendshapes (MediaPipe has the same names, less ``tongueOut``).
-ARKIT_NAMES = [
-    "browDownLeft", "browDownRight", "browInnerUp", "browOuterUpLeft", "browOuterUpRight",
-    "cheekPuff", "cheekSquintLeft", "cheekSquintRight", "eyeBlinkLeft", "eyeBlinkRight",
-    "eyeLookDownLeft", "eyeLookDownRight", "eyeLookInLeft", "eyeLookInRight", "eyeLookOutLeft",
-    "eyeLookOutRight", "eyeLookUpLeft", "eyeLookUpRight", "eyeSquintLeft", "eyeSquintRight",
-    "eyeWideLeft", "eyeWideRight", "jawForward", "jawLeft", "jawOpen", "jawRight", "mouthClose",
-    "mouthDimpleLeft", "mouthDimpleRight", "mouthFrownLeft", "mouthFrownRight", "mouthFunnel",
-    "mouthLeft", "mouthLowerDownLeft", "mouthLowerDownRight", "mouthPressLeft", "mouthPressRight",
-    "mouthPucker", "mouthRight", "mouthRollLower", "mouthRollUpper", "mouthShrugLower",
-    "mouthShrugUpper", "mouthSmileLeft", "mouthSmileRight", "mouthStretchLeft", "mouthStretchRight",
-    "mouthUpperUpLeft", "mouthUpperUpRight", "noseSneerLeft", "noseSneerRight", "tongueOut",
-]
 _BY_KEY = {n.lower(): n for n in ARKIT_NAMES}
 #: (eye, angle) -> the eyeLook scores (plus, minus) whose difference follows that gaze
 #: angle; eye 0 right, 1 left; angle 0 yaw (> 0 towards +x, the subject's left), 1 pitch

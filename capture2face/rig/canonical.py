@@ -22,6 +22,7 @@ import numpy as np
 
 from capture2face.errors import CaptureError
 from capture2face.models.face_model import find_face_model
+from capture2face.topology import N_MESH
 
 MEMBER = "geometry_pipeline_metadata_landmarks.binarypb"
 
@@ -136,6 +137,6 @@ def load_canonical_mesh(model_path: str | os.PathLike | None = None) -> Canonica
     except (zipfile.BadZipFile, KeyError, OSError) as exc:
         raise CaptureError(f"{path}: not a face_landmarker.task with a canonical mesh ({exc.__class__.__name__})") from None
     mesh = parse_geometry_metadata(data)
-    if mesh.vertices.shape[0] != 468 or mesh.triangles.size == 0:
+    if mesh.vertices.shape[0] != N_MESH or mesh.triangles.size == 0:
         raise CaptureError(f"{path}: unexpected canonical mesh ({mesh.vertices.shape[0]} vertices)")
     return mesh

@@ -23,6 +23,7 @@ import numpy as np
 
 from capture2face.io.npz import load_dataclass, save_dataclass
 from capture2face.maths.rotations import rotation_ypr
+from capture2face.topology import IOD_PAIR
 
 FORMAT = "capture2face.FaceRig/1"
 
@@ -208,7 +209,7 @@ class FaceRig:
 
     def interocular(self) -> float:
         """Distance between the outer eye corners (landmarks 33 and 263) at rest, cm."""
-        a, b = landmark_points(self, self.vertices, [33, 263])
+        a, b = landmark_points(self, self.vertices, list(IOD_PAIR))
         return float(np.linalg.norm(a - b))
 
     def replace(self, **changes) -> "FaceRig":

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from capture2face.rig.face_rig import REGION_NAMES, ZONE_NAMES
+from capture2face.topology import BROW_LEFT, BROW_RIGHT, EYE_OUTER_CORNERS, MOUTH_CORNERS
 
 
 @dataclass(frozen=True)
@@ -39,10 +40,10 @@ class FeatureLayout:
 def feature_layout(landmark_uvs: np.ndarray) -> FeatureLayout:
     """Build the layout from (>= 468, 2) landmark UVs of the canonical mesh."""
     uv = np.asarray(landmark_uvs, np.float64)
-    top, brow_l, brow_r = uv[10], uv[334], uv[105]
-    brow_inner_l, brow_inner_r, nose_root = uv[336], uv[107], uv[168]
-    corner_l, corner_r = uv[263], uv[33]
-    wing_l, wing_r, mouth_l, mouth_r = uv[278], uv[48], uv[291], uv[61]
+    top, brow_l, brow_r = uv[10], uv[BROW_LEFT[1]], uv[BROW_RIGHT[1]]
+    brow_inner_l, brow_inner_r, nose_root = uv[BROW_LEFT[0]], uv[BROW_RIGHT[0]], uv[168]
+    corner_l, corner_r = uv[EYE_OUTER_CORNERS[1]], uv[EYE_OUTER_CORNERS[0]]
+    wing_l, wing_r, mouth_l, mouth_r = uv[278], uv[48], uv[MOUTH_CORNERS[1]], uv[MOUTH_CORNERS[0]]
     lip_low, chin_low = uv[17], uv[152]
     brow_v = 0.5 * (brow_l[1] + brow_r[1])
     forehead = ((0.5, 0.5 * (top[1] + brow_v) + 0.01), (0.92 * (brow_l[0] - brow_r[0]) / 2 + 0.06, 0.5 * (brow_v - top[1]) - 0.005))

@@ -29,7 +29,7 @@ from scipy.interpolate import interp1d
 from scipy.ndimage import uniform_filter1d
 
 from capture2face.errors import CaptureError
-from capture2face.rig.arkit_names import ARKIT_NAMES, GAZE_SCORES, arkit_morphs
+from capture2face.rig.arkit_names import GAZE_SCORES, arkit_morphs
 from capture2face.rig.face_rig import FaceRig, landmark_points
 from capture2face.rig.features import smoothstep
 from capture2face.synth.trajectories import (
@@ -50,6 +50,7 @@ from capture2face.synth.trajectories import (
     random_lights,
     settle_head,
 )
+from capture2face.topology import ARKIT_NAMES, IRIS_CENTRES, N_LANDMARKS
 
 EYE_LOOK_FULL_DEG = 30.0  # an eyeLook weight of 1 turns the eye this far
 EYE_MATERIAL = 1  # FaceRig.material of eyeballs
@@ -89,9 +90,9 @@ def with_turning_eyes(rig: FaceRig) -> FaceRig:
     about the centre of the sphere fitted to it. The rig itself where it has turning eyes
     already, or no eyeballs with iris landmarks on them."""
     eye = np.asarray(rig.material) == EYE_MATERIAL
-    if rig.has_eyes or not eye.any() or len(rig.landmark_vertices) < 478:
+    if rig.has_eyes or not eye.any() or len(rig.landmark_vertices) < N_LANDMARKS:
         return rig
-    iris = landmark_points(rig, rig.vertices, [468, 473]).astype(np.float64)  # right, left
+    iris = landmark_points(rig, rig.vertices, list(IRIS_CENTRES)).astype(np.float64)  # right, left
     if abs(iris[0, 0] - iris[1, 0]) < 1e-6:
         return rig
     mid = 0.5 * (iris[0, 0] + iris[1, 0])

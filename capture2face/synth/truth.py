@@ -14,13 +14,14 @@ from capture2face.rig.deform import deform
 from capture2face.rig.face_rig import FaceRig, landmark_points
 from capture2face.rig.feature_points import feature_positions
 from capture2face.rig.influences import region_influence, rig_influences, zone_weights
+from capture2face.topology import N_MESH
 
 FORMAT = "capture2face.SyntheticTruth/1"
 
 # A frame counts as showing the face when at least this fraction of the canonical
 # landmarks project inside the image (and in front of the camera).
 VISIBLE_FRACTION = 0.5
-N_CANONICAL = 468
+N_CANONICAL = N_MESH
 
 
 @dataclass

@@ -25,10 +25,10 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from capture2face.rig.canonical import CanonicalMesh, load_canonical_mesh
+from capture2face.topology import N_MESH
 
 FOV_Y_DEGREES = 63.0  # MediaPipe's default environment (face_geometry_from_landmarks_graph.cc)
 NEAR_CM = 1.0
-N_MESH = 468
 
 _mesh_cache: dict[str, CanonicalMesh] = {}
 

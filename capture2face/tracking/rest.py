@@ -35,6 +35,19 @@ import numpy as np
 from capture2face.io.framestore import take_points
 from capture2face.maths.rotations import similarity
 from capture2face.rig.canonical import load_canonical_mesh
+from capture2face.topology import (
+    BROW_HEIGHT_PAIRS,
+    BROWS,
+    CHIN,
+    EYE_LEFT,
+    EYE_RIGHT,
+    IOD_PAIR,  # the outer eye corners: the face's size (re-exported: tracking.rest.IOD_PAIR)
+    LIDS_LEFT,
+    LIDS_RIGHT,
+    LIP_GAP,
+    LIPS_INNER,
+    LIPS_OUTER,
+)
 from capture2face.tracking.neutral import CLOSED_GAP, STEADY_SPEED, head_speed
 
 REGIONS = ("brows", "eyes", "mouth")
@@ -42,12 +55,9 @@ FACE = "face"  # the whole face's rest frames (ActorRest.face)
 # Each region's own features on the canonical face (:func:`landmark_regions`). Brows: both
 # brows' contours; eyes: the lids' contours; mouth: the lips and the chin.
 _FEATURES = {
-    "brows": (46, 52, 53, 55, 63, 65, 66, 70, 105, 107, 276, 282, 283, 285, 293, 295, 296, 300, 334, 336),
-    "eyes": (7, 33, 133, 144, 145, 153, 154, 155, 157, 158, 159, 160, 161, 163, 173, 246,
-             249, 263, 362, 373, 374, 380, 381, 382, 384, 385, 386, 387, 388, 390, 398, 466),
-    "mouth": (0, 13, 14, 17, 37, 39, 40, 61, 78, 80, 81, 82, 84, 87, 88, 91, 95, 146, 178, 181, 185, 191,
-              267, 269, 270, 291, 308, 310, 311, 312, 314, 317, 318, 321, 324, 375, 402, 405, 409, 415,
-              152, 148, 176, 377, 400),
+    "brows": tuple(sorted(BROWS)),
+    "eyes": tuple(sorted(EYE_RIGHT + EYE_LEFT)),
+    "mouth": tuple(sorted(LIPS_OUTER + LIPS_INNER)) + CHIN,
 }
 # The eyes' region reaches this far (cm, canonical face) from the lids: the cheeks below
 # move with the mouth (a grimace lifts them 5 mm), not with the lids.
@@ -58,9 +68,8 @@ _SCORE_PREFIXES = {"brows": ("brow",), "eyes": ("eye",), "mouth": ("mouth", "jaw
 # Geometry (:func:`rest_geometry`'s columns, inter-ocular distances): lip gap, brow height
 # above the outer eye corners (mean of both), the lids' openings (right, left).
 GEOMETRY = ("lip_gap", "brow_height", "lid_right", "lid_left")
-GEOMETRY_PAIRS = {"lip_gap": ((13, 14),), "brow_height": ((105, 33), (334, 263)),
-                  "lid_right": ((159, 145),), "lid_left": ((386, 374),)}
-IOD_PAIR = (33, 263)  # the outer eye corners: the face's size
+GEOMETRY_PAIRS = {"lip_gap": (LIP_GAP,), "brow_height": BROW_HEIGHT_PAIRS,
+                  "lid_right": (LIDS_RIGHT,), "lid_left": (LIDS_LEFT,)}
 BROW_SCALE = 0.03  # brows this far (IOD) from their rest height cost as much
 LID_SCALE = 0.25  # a lid this fraction of its rest opening away from it costs as much
 # How much of the whole face's cost a region's rest frames weigh (1: the face's frames).

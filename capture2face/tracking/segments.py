@@ -58,8 +58,8 @@ from capture2face.io.video_input import (
     iter_segment,
     prefetch,
 )
+from capture2face.topology import N_LANDMARKS
 from capture2face.tracking.landmarker import (
-    N_LANDMARKS,
     FaceLandmarker,
     LandmarkerOptions,
     defer_pyplot,

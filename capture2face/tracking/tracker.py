@@ -15,6 +15,7 @@ from tqdm import tqdm
 from capture2face.errors import CaptureError, raise_if_interrupted
 from capture2face.io.framestore import FrameArray
 from capture2face.io.video_input import VideoInfo, iter_frames, open_video, prefetch
+from capture2face.topology import BLENDSHAPE_NAMES, N_LANDMARKS
 from capture2face.tracking.calibration import calibrated, neutral_take, take_rest
 from capture2face.tracking.filtering import CausalOneEuro, filter_pose
 from capture2face.tracking.gaps import fill_pose, plan_gaps
@@ -24,8 +25,6 @@ from capture2face.tracking.head_pose import (
     head_landmarks,
 )
 from capture2face.tracking.landmarker import (
-    BLENDSHAPE_NAMES,
-    N_LANDMARKS,
     FaceLandmarker,
     FaceObservation,
     stack_observations,
