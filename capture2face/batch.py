@@ -159,11 +159,12 @@ def _sidecar(clip: Path) -> Path | None:
 def clip_options(clip: BatchClip, options: Any) -> Any:
     """``options`` for one clip: with its rest take (``neutral_image`` or ``neutral_clip``
     by its extension), unless the batch's options give a rest of their own."""
-    given = any(getattr(options, k, None) is not None for k in ("neutral_frame", "neutral_image", "neutral_clip"))
+    track = options.track
+    given = any(getattr(track, k) is not None for k in ("neutral_frame", "neutral_image", "neutral_clip"))
     if clip.neutral is None or given:
         return options
     kind = "neutral_image" if Path(clip.neutral).suffix.lower() in IMAGE_EXTENSIONS else "neutral_clip"
-    return dataclasses.replace(options, **{kind: clip.neutral})
+    return dataclasses.replace(options, track=dataclasses.replace(track, **{kind: clip.neutral}))
 
 
 def _worker_init() -> None:
