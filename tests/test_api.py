@@ -71,8 +71,8 @@ def test_old_run_keywords_warn_and_give_the_same_options():
                      render=RenderOptions(size=256, wrinkles="zones"),
                      track=TrackOptions(landmarker=LandmarkerOptions(face_model="m.task", faces="center", face=1),
                                         neutral_frame=3, workers=2))
-    old_keywords = dict(size=256, wrinkles="zones", face_model="m.task", faces="center", face=1,
-                        neutral_frame=3, track_workers=2)
+    old_keywords = {"size": 256, "wrinkles": "zones", "face_model": "m.task", "faces": "center", "face": 1,
+                        "neutral_frame": 3, "track_workers": 2}
     places = {"size": "render=RenderOptions(size=", "face": "track=TrackOptions(landmarker=LandmarkerOptions(face=",
               "track_workers": "track=TrackOptions(workers=", "neutral_frame": "track=TrackOptions(neutral_frame="}
     for name, place in places.items():

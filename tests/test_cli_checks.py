@@ -37,10 +37,9 @@ SAMPLE = Path(__file__).resolve().parents[1] / "sample_videos" / "sample.mp4"  #
 @pytest.fixture
 def no_tracking(monkeypatch):
     """Any call into the tracker (or past it) fails the test: the checks must come first."""
-    import capture2face.batch as batch
     import capture2face.eval.fidelity as eval_fidelity
-    import capture2face.pipeline.runner as runner
-    import capture2face.pipeline.stages as stages
+    from capture2face import batch
+    from capture2face.pipeline import runner, stages
 
     def tracked(*args, **kwargs):
         raise AssertionError("the clip was tracked before the failing check")
@@ -72,7 +71,7 @@ def no_egl(monkeypatch):
     """The process as it is on a machine without Mesa's EGL: no libEGL.so.1, no context yet."""
     import ctypes.util
 
-    import capture2face.render.context as context
+    from capture2face.render import context
 
     real = ctypes.util.find_library
     monkeypatch.setattr(ctypes.util, "find_library", lambda name: None if name == "EGL" else real(name))
@@ -181,7 +180,7 @@ def test_missing_egl_fails_before_tracking_naming_the_package(tmp_path, no_track
 def test_egl_failure_is_one_line(monkeypatch):
     import moderngl
 
-    import capture2face.render.context as context
+    from capture2face.render import context
 
     def fail(**kwargs):
         raise Exception("eglInitialize failed\n(0x3001)")
@@ -206,7 +205,7 @@ def test_batch_checks_once_before_any_clip(undrivable_character, tmp_path, no_tr
 
     import ctypes.util
 
-    import capture2face.render.context as context
+    from capture2face.render import context
 
     real = ctypes.util.find_library
     monkeypatch.setattr(ctypes.util, "find_library", lambda name: None if name == "EGL" else real(name))
@@ -300,8 +299,7 @@ def test_every_option_has_a_help_text():
 
 @pytest.mark.parametrize("command", ["run", "batch"])
 def test_allow_truncated_reaches_the_options(command, tmp_path, monkeypatch, capsys):
-    import capture2face.batch as batch
-    import capture2face.pipeline as pipeline
+    from capture2face import batch, pipeline
 
     seen = []
 
@@ -405,13 +403,13 @@ def test_a_failed_rename_names_the_target_not_the_temporary_file(tmp_path):
     (["run", "c.mp4", "-o", "o"], {}, {}),
     (["run", "c.mp4", "-o", "o", "--size", "256", "--wrinkles", "off", "--neutral-frame", "4", "--faces", "center",
       "--face-model", "m.task", "--track-workers", "2", "--no-audio", "--allow-truncated", "--character", "wide"],
-     dict(size=256, wrinkles="off", neutral_frame=4, faces="center", face_model="m.task", track_workers=2),
-     dict(character="wide", audio=False, allow_truncated=True)),
+     {"size": 256, "wrinkles": "off", "neutral_frame": 4, "faces": "center", "face_model": "m.task", "track_workers": 2},
+     {"character": "wide", "audio": False, "allow_truncated": True}),
     (["run", "c.mp4", "-o", "o", "--neutral-image", "rest.jpg", "--face", "1"],
-     dict(neutral_image="rest.jpg", face=1), {}),
-    (["batch", "a", "b", "-o", "o", "--size", "128", "--face", "0", "--jobs", "2"], dict(size=128, face=0), {}),
+     {"neutral_image": "rest.jpg", "face": 1}, {}),
+    (["batch", "a", "b", "-o", "o", "--size", "128", "--face", "0", "--jobs", "2"], {"size": 128, "face": 0}, {}),
     (["track", "c.mp4", "-o", "t.npz", "--neutral-clip", "rest.mp4", "--track-workers", "1"],
-     dict(neutral_clip="rest.mp4", track_workers=1), {}),
+     {"neutral_clip": "rest.mp4", "track_workers": 1}, {}),
 ])
 def test_flags_map_onto_the_same_options_as_before(argv, old_keywords, extra):
     """The RunOptions each command built from its flags before (the flat keywords), now

@@ -12,7 +12,6 @@ from capture2face.runtime.moved_options import keeps_moved_names
 from capture2face.tracking.filtering import OneEuro
 from capture2face.tracking.landmarker import LandmarkerOptions
 
-
 #: TrackOptions' keywords of before it composed LandmarkerOptions, and where they went.
 MOVED_TO_LANDMARKER = {name: ("landmarker", name) for name in (
     "face_model", "num_faces", "faces", "face", "min_detection_confidence", "min_presence_confidence",
