@@ -159,11 +159,12 @@ def _sidecar(clip: Path) -> Path | None:
 def clip_options(clip: BatchClip, options: Any) -> Any:
     """``options`` for one clip: with its rest take (``neutral_image`` or ``neutral_clip``
     by its extension), unless the batch's options give a rest of their own."""
-    given = any(getattr(options, k, None) is not None for k in ("neutral_frame", "neutral_image", "neutral_clip"))
+    track = options.track
+    given = any(getattr(track, k) is not None for k in ("neutral_frame", "neutral_image", "neutral_clip"))
     if clip.neutral is None or given:
         return options
     kind = "neutral_image" if Path(clip.neutral).suffix.lower() in IMAGE_EXTENSIONS else "neutral_clip"
-    return dataclasses.replace(options, **{kind: clip.neutral})
+    return dataclasses.replace(options, track=dataclasses.replace(track, **{kind: clip.neutral}))
 
 
 def _worker_init() -> None:
@@ -286,8 +287,11 @@ def _changed_options(stored: dict, options: Any) -> list[str]:
     """``"name old -> new"`` for each option (but :data:`_RESUME_IGNORED`) that differs."""
     wanted = options_json(options)
     defaults = options_json(RunOptions())
+    # A stage's settings off their defaults are stored only when there are some.
+    names = list(wanted) + [n for n in ("track", "render", "retarget") if n in stored and n not in wanted]
     changed = []
-    for name, new in wanted.items():
+    for name in names:
+        new = wanted.get(name)
         if name in _RESUME_IGNORED:
             continue
         old = stored.get(name, defaults.get(name))
@@ -305,14 +309,11 @@ def _failure_line(path: str, error: str | None) -> str:
 
 
 def _options_dict(options: Any) -> dict:
-    if dataclasses.is_dataclass(options):
-        return {k: (os.fspath(v) if isinstance(v, os.PathLike) else v)
-                for k, v in dataclasses.asdict(options).items() if _jsonable(v)}
-    return {}
-
-
-def _jsonable(v: Any) -> bool:
-    return v is None or isinstance(v, (str, int, float, bool, os.PathLike))
+    """batch_report.json's options: report.json's, but a FaceRig character left out."""
+    if not isinstance(options, RunOptions):
+        return {}
+    jsonable = options.character is None or isinstance(options.character, (str, os.PathLike))
+    return {k: v for k, v in options_json(options).items() if k != "character" or jsonable}
 
 
 def run_batch(inputs: Iterable[str | os.PathLike], out: str | os.PathLike, options: Any = None,
@@ -423,11 +424,11 @@ def _run_clips(clips: list[BatchClip], todo: list[int], out: Path, options: Any,
     """Run the clips ``todo``: as Ray tasks, one after another in this process (one job),
     or in a process pool."""
     n_jobs = max(1, min(jobs or free_cores(), len(todo)))
-    if (ray_address or n_jobs > 1) and options.track_workers is None:
+    if (ray_address or n_jobs > 1) and options.track.workers is None:
         # Clips in parallel already fill the cores (and a Ray task has one CPU):
         # each tracks with one landmarker (segment workers on top would
         # oversubscribe them).
-        options = dataclasses.replace(options, track_workers=1)
+        options = dataclasses.replace(options, track=dataclasses.replace(options.track, workers=1))
     if ray_address:
         _run_ray(clips, todo, out, options, ray_address, done)
     elif n_jobs == 1:

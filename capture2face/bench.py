@@ -62,7 +62,7 @@ from capture2face.pipeline import (
     run_render_options,
     track_stage,
 )
-from capture2face.render import FrameState, Renderer
+from capture2face.render import FrameState, Renderer, RenderOptions
 from capture2face.retarget import RetargetOptions, retarget
 from capture2face.rig import influences as inf
 from capture2face.rig.avatar import default_avatar
@@ -161,13 +161,13 @@ def run_bench(size: int = 512, frames: int = 300, progress: bool = True, seed: i
         cpu_ms["decode"] = 1000.0 * clock.cpu / n
 
         result["mediapipe_fps"] = mediapipe_alone(clip)
-        options = RunOptions(size=size)
+        options = RunOptions(render=RenderOptions(size=size))
         with _Clock() as clock:
-            track = track_stage(clip, replace(options, track_workers=1), progress=progress)
+            track = track_stage(clip, replace(options, track=replace(options.track, workers=1)), progress=progress)
         result["track_fps"] = track.n_frames / clock.wall
         cpu_ms["track"] = 1000.0 * clock.cpu / track.n_frames
         result["track_overhead_ms_per_frame"] = 1000.0 / result["track_fps"] - 1000.0 / result["mediapipe_fps"]
-        workers = options.track_options().n_workers()
+        workers = options.track.n_workers()
         with _Clock() as clock:
             parallel = track_stage(clip, options, progress=progress)
         result["track_fps_parallel"] = parallel.n_frames / clock.wall

@@ -32,6 +32,7 @@ from capture2face.pipeline.preflight import check_neutral_frame
 from capture2face.render.renderer import WRINKLE_DRIVERS
 from capture2face.rig.avatar import default_avatar
 from capture2face.rig.maps import write_maps
+from capture2face.runtime.moved_options import set_path
 from capture2face.synth import SynthOptions, synthesize
 from capture2face.synth.trajectories import STARTS
 from capture2face.tracking import TrackOptions, track_clip
@@ -94,11 +95,37 @@ def _cmd_synth(args: argparse.Namespace) -> int:
     return 0
 
 
-def _track_options(args: argparse.Namespace):
+#: Each option flag's place in RunOptions (``--no-audio`` apart: ``audio`` is its negation).
+FLAG_OPTIONS = {
+    "character": ("character",),
+    "wrinkles": ("render", "wrinkles"),
+    "size": ("render", "size"),
+    "neutral_frame": ("track", "neutral_frame"),
+    "neutral_image": ("track", "neutral_image"),
+    "neutral_clip": ("track", "neutral_clip"),
+    "face_model": ("track", "landmarker", "face_model"),
+    "faces": ("track", "landmarker", "faces"),
+    "face": ("track", "landmarker", "face"),
+    "track_workers": ("track", "workers"),
+    "allow_truncated": ("allow_truncated",),
+}
+
+
+def options_from_args(args: argparse.Namespace) -> RunOptions:
+    """The RunOptions a command's flags ask for: the one place flags become options (``run``,
+    ``batch``, and ``track`` through its ``track``); a flag the command lacks keeps the default."""
+    options = RunOptions()
+    for flag, path in FLAG_OPTIONS.items():
+        if hasattr(args, flag):
+            set_path(options, path, getattr(args, flag))
+    if hasattr(args, "no_audio"):
+        options.audio = not args.no_audio
+    return options
+
+
+def _track_options(args: argparse.Namespace) -> TrackOptions:
     """The ``track`` command's TrackOptions, checked (TrackOptions.validate's bounds)."""
-    options = TrackOptions(face_model=args.face_model, neutral_frame=args.neutral_frame,
-                           neutral_image=args.neutral_image, neutral_clip=args.neutral_clip,
-                           faces=args.faces, face=args.face, workers=args.track_workers)
+    options = options_from_args(args).track
     options.validate()
     return options
 
@@ -124,13 +151,7 @@ def _cmd_track(args: argparse.Namespace) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    opts = RunOptions(
-        character=args.character, wrinkles=args.wrinkles, size=args.size,
-        neutral_frame=args.neutral_frame, neutral_image=args.neutral_image, neutral_clip=args.neutral_clip,
-        face_model=args.face_model, audio=not args.no_audio,
-        faces=args.faces, face=args.face, track_workers=args.track_workers,
-    )
-    opts.allow_truncated = args.allow_truncated
+    opts = options_from_args(args)
     if args.name is not None and (not args.name.strip() or Path(args.name).name != args.name
                                   or args.name in (".", "..") or args.name.startswith(".tmp-")):
         raise CaptureError(f"--name {args.name!r}: must be a plain folder name (no '/', not '.' or '..')")
@@ -200,10 +221,7 @@ def _cmd_eval_shading(args: argparse.Namespace) -> int:
 
 
 def _cmd_batch(args: argparse.Namespace) -> int:
-    opts = RunOptions(character=args.character, wrinkles=args.wrinkles, size=args.size,
-                      face_model=args.face_model, audio=not args.no_audio, faces=args.faces, face=args.face,
-                      track_workers=args.track_workers)
-    opts.allow_truncated = args.allow_truncated
+    opts = options_from_args(args)
     report = batch.run_batch(args.inputs, args.output, opts, jobs=args.jobs, resume=args.resume,
                        ray_address=args.ray, progress=not args.quiet)
     failed = report["summary"]["failed"]  # this batch's (the report also keeps earlier entries)

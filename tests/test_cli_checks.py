@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import importlib.metadata
 import os
@@ -26,6 +27,9 @@ import pytest
 from capture2face import cli
 from capture2face.errors import CaptureError
 from capture2face.pipeline import RunOptions, run
+from capture2face.render import RenderOptions
+from capture2face.tracking import TrackOptions
+from capture2face.tracking.landmarker import LandmarkerOptions
 
 SAMPLE = Path(__file__).resolve().parents[1] / "sample_videos" / "sample.mp4"  # 120 frames
 
@@ -33,10 +37,9 @@ SAMPLE = Path(__file__).resolve().parents[1] / "sample_videos" / "sample.mp4"  #
 @pytest.fixture
 def no_tracking(monkeypatch):
     """Any call into the tracker (or past it) fails the test: the checks must come first."""
-    import capture2face.batch as batch
     import capture2face.eval.fidelity as eval_fidelity
-    import capture2face.pipeline.runner as runner
-    import capture2face.pipeline.stages as stages
+    from capture2face import batch
+    from capture2face.pipeline import runner, stages
 
     def tracked(*args, **kwargs):
         raise AssertionError("the clip was tracked before the failing check")
@@ -68,7 +71,7 @@ def no_egl(monkeypatch):
     """The process as it is on a machine without Mesa's EGL: no libEGL.so.1, no context yet."""
     import ctypes.util
 
-    import capture2face.render.context as context
+    from capture2face.render import context
 
     real = ctypes.util.find_library
     monkeypatch.setattr(ctypes.util, "find_library", lambda name: None if name == "EGL" else real(name))
@@ -84,7 +87,7 @@ def _main(capsys, *argv: str) -> tuple[int, str]:
 @pytest.mark.parametrize("size", [5000, 4098, 62, 513, 0])
 def test_size_limits(size, tmp_path, no_tracking, capsys):
     with pytest.raises(CaptureError, match="--size must be an even number of pixels from 64 to 4096"):
-        RunOptions(size=size).validate()
+        RunOptions(render=RenderOptions(size=size)).validate()
     code, err = _main(capsys, "run", str(SAMPLE), "-o", str(tmp_path), "--size", str(size))
     assert code == 2 and err.count("\n") == 1 and "--size" in err
     assert not any(tmp_path.iterdir())
@@ -92,12 +95,12 @@ def test_size_limits(size, tmp_path, no_tracking, capsys):
 
 def test_size_limits_accept_the_range():
     for size in (64, 512, 4096):
-        RunOptions(size=size).validate()
+        RunOptions(render=RenderOptions(size=size)).validate()
 
 
 def test_neutral_frame_outside_the_clip_fails_before_tracking(tmp_path, no_tracking, capsys):
     with pytest.raises(CaptureError, match=r"--neutral-frame 9999 is outside the clip .*120 frames"):
-        run(SAMPLE, tmp_path, RunOptions(neutral_frame=9999), progress=False)
+        run(SAMPLE, tmp_path, RunOptions(track=TrackOptions(neutral_frame=9999)), progress=False)
     code, err = _main(capsys, "run", str(SAMPLE), "-o", str(tmp_path), "--neutral-frame", "120")
     assert code == 2 and "outside the clip" in err and err.count("\n") == 1
     assert not any(tmp_path.iterdir())
@@ -113,15 +116,15 @@ def test_track_option_bounds_are_one_set_for_run_track_and_the_landmarker(flag, 
                                                                             no_tracking, capsys):
     """TrackOptions.validate owns them: run (RunOptions), track (the CLI) and
     FaceLandmarker.create_from_options give the same one line, before any tracking."""
-    from capture2face.tracking import TrackOptions
-    from capture2face.tracking.landmarker import FaceLandmarker, LandmarkerOptions
+    from capture2face.tracking.landmarker import FaceLandmarker
 
     field = {"--face": "face", "--track-workers": "workers", "--neutral-frame": "neutral_frame"}[flag]
+    track = (TrackOptions(landmarker=LandmarkerOptions(face=int(value))) if field == "face"
+             else TrackOptions(**{field: int(value)}))
     with pytest.raises(CaptureError, match=re.escape(message)):
-        TrackOptions(**{field: int(value)}).validate()
-    run_field = "track_workers" if field == "workers" else field
+        track.validate()
     with pytest.raises(CaptureError, match=re.escape(message)):
-        RunOptions(**{run_field: int(value)}).validate()
+        RunOptions(track=track).validate()
     if field == "face":
         with pytest.raises(CaptureError, match=re.escape(message)):
             FaceLandmarker.create_from_options(LandmarkerOptions(face=int(value)))
@@ -129,7 +132,7 @@ def test_track_option_bounds_are_one_set_for_run_track_and_the_landmarker(flag, 
         code, err = _main(capsys, *cmd, flag, value)
         assert code == 2 and err.strip().endswith(message) and err.count("\n") == 1
     assert not any(tmp_path.iterdir())
-    TrackOptions(face=15, workers=1, neutral_frame=0).validate()  # the bounds themselves pass
+    TrackOptions(landmarker=LandmarkerOptions(face=15), workers=1, neutral_frame=0).validate()  # the bounds pass
 
 
 def test_neutral_frame_check_allows_for_estimated_frame_counts():
@@ -177,7 +180,7 @@ def test_missing_egl_fails_before_tracking_naming_the_package(tmp_path, no_track
 def test_egl_failure_is_one_line(monkeypatch):
     import moderngl
 
-    import capture2face.render.context as context
+    from capture2face.render import context
 
     def fail(**kwargs):
         raise Exception("eglInitialize failed\n(0x3001)")
@@ -196,13 +199,13 @@ def test_batch_checks_once_before_any_clip(undrivable_character, tmp_path, no_tr
     with pytest.raises(CaptureError, match="cannot be driven: its 27 morph targets .* have no ARKit names and no face bones"):
         run_batch([SAMPLE, SAMPLE], tmp_path / "a", RunOptions(character=undrivable_character), progress=False)
     with pytest.raises(CaptureError, match="--size"):
-        run_batch([SAMPLE], tmp_path / "b", RunOptions(size=5000), progress=False)
+        run_batch([SAMPLE], tmp_path / "b", RunOptions(render=RenderOptions(size=5000)), progress=False)
     code, err = _main(capsys, "batch", str(SAMPLE), "-o", str(tmp_path / "c"), "--size", "5001")
     assert code == 2 and "--size" in err and err.count("\n") == 1
 
     import ctypes.util
 
-    import capture2face.render.context as context
+    from capture2face.render import context
 
     real = ctypes.util.find_library
     monkeypatch.setattr(ctypes.util, "find_library", lambda name: None if name == "EGL" else real(name))
@@ -296,8 +299,7 @@ def test_every_option_has_a_help_text():
 
 @pytest.mark.parametrize("command", ["run", "batch"])
 def test_allow_truncated_reaches_the_options(command, tmp_path, monkeypatch, capsys):
-    import capture2face.batch as batch
-    import capture2face.pipeline as pipeline
+    from capture2face import batch, pipeline
 
     seen = []
 
@@ -394,3 +396,25 @@ def test_a_failed_rename_names_the_target_not_the_temporary_file(tmp_path):
     assert err.value.filename == str(tmp_path / "out") and err.value.filename2 is None
     assert cli.os_error_line(err.value) == f"{tmp_path / 'out'}: Is a directory"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+# ---- the flags become RunOptions in one place (cli.options_from_args) -----------------
+@pytest.mark.parametrize("argv, old_keywords, extra", [
+    (["run", "c.mp4", "-o", "o"], {}, {}),
+    (["run", "c.mp4", "-o", "o", "--size", "256", "--wrinkles", "off", "--neutral-frame", "4", "--faces", "center",
+      "--face-model", "m.task", "--track-workers", "2", "--no-audio", "--allow-truncated", "--character", "wide"],
+     {"size": 256, "wrinkles": "off", "neutral_frame": 4, "faces": "center", "face_model": "m.task", "track_workers": 2},
+     {"character": "wide", "audio": False, "allow_truncated": True}),
+    (["run", "c.mp4", "-o", "o", "--neutral-image", "rest.jpg", "--face", "1"],
+     {"neutral_image": "rest.jpg", "face": 1}, {}),
+    (["batch", "a", "b", "-o", "o", "--size", "128", "--face", "0", "--jobs", "2"], {"size": 128, "face": 0}, {}),
+    (["track", "c.mp4", "-o", "t.npz", "--neutral-clip", "rest.mp4", "--track-workers", "1"],
+     {"neutral_clip": "rest.mp4", "track_workers": 1}, {}),
+])
+def test_flags_map_onto_the_same_options_as_before(argv, old_keywords, extra):
+    """The RunOptions each command built from its flags before (the flat keywords), now
+    from one mapping; ``track`` uses its TrackOptions."""
+    args = cli.build_parser().parse_args(argv)
+    with pytest.warns(DeprecationWarning) if old_keywords else contextlib.nullcontext():
+        before = RunOptions(**old_keywords, **extra)
+    assert cli.options_from_args(args) == before

@@ -14,6 +14,8 @@ import pytest
 
 from tests.helpers import shared_clip
 
+from capture2face.render import RenderOptions
+
 LIVELINK_HEADER = (
     "Timecode,BlendShapeCount,EyeBlinkLeft,EyeLookDownLeft,EyeLookInLeft,EyeLookOutLeft,EyeLookUpLeft,"
     "EyeSquintLeft,EyeWideLeft,EyeBlinkRight,EyeLookDownRight,EyeLookInRight,EyeLookOutRight,EyeLookUpRight,"
@@ -109,7 +111,7 @@ def sample_run(sample_clip, tmp_path_factory):
     from capture2face.pipeline import RunOptions, run
 
     out = tmp_path_factory.mktemp("run")
-    report = run(sample_clip, out, RunOptions(size=SIZE), progress=False)
+    report = run(sample_clip, out, RunOptions(render=RenderOptions(size=SIZE)), progress=False)
     return out / sample_clip.stem, report
 
 
@@ -173,7 +175,8 @@ def test_same_input_gives_the_same_animation(sample_run, sample_clip):
 
     folder, _ = sample_run
     saved = np.load(folder / "animation.npz")
-    again = retarget_stage(track_stage(sample_clip, RunOptions(size=SIZE), progress=False), load_character(None))
+    again = retarget_stage(track_stage(sample_clip, RunOptions(render=RenderOptions(size=SIZE)), progress=False),
+                           load_character(None))
     again_path = folder.parent / "again.animation.npz"
     again.save(again_path)
     fresh = np.load(again_path)
@@ -273,7 +276,8 @@ def test_run_with_a_glb_character(sample_clip, tmp_path):
 
     wide = default_avatar(variant="wide")
     export_glb(wide, tmp_path / "hero.glb")
-    report = run(sample_clip, tmp_path / "out", RunOptions(size=128, character=tmp_path / "hero.glb", compare=False),
+    report = run(sample_clip, tmp_path / "out",
+                 RunOptions(character=tmp_path / "hero.glb", render=RenderOptions(size=128), compare=False),
                  progress=False, name="hero_take")
     folder = tmp_path / "out" / "hero_take"
     assert report["character"] == wide.name and report["output_dir"] == str(folder)
@@ -295,7 +299,7 @@ def test_a_face_that_leaves_the_frame_keeps_every_frame(tmp_path):
 
     clip = tmp_path / "exit.mp4"
     synthesize(clip, SynthOptions(frames=75, size=256, seed=4, face_exit=True), progress=False)
-    report = run(clip, tmp_path / "out", RunOptions(size=128, compare=False), progress=False)
+    report = run(clip, tmp_path / "out", RunOptions(render=RenderOptions(size=128), compare=False), progress=False)
     folder = tmp_path / "out" / "exit"
     assert report["frames"] == 75 and report["tracked_frames"] < 75
     assert any("no face in" in w for w in report["warnings"])
@@ -334,8 +338,40 @@ def test_exports_written_beside_the_render_where_cores_are_free(sample_run, samp
     from capture2face.pipeline import RunOptions, run, runner
 
     monkeypatch.setattr(runner, "free_cores", lambda: 8)  # the exports go in a thread beside the render
-    report = run(sample_clip, tmp_path, RunOptions(size=SIZE), progress=False)
+    report = run(sample_clip, tmp_path, RunOptions(render=RenderOptions(size=SIZE)), progress=False)
     folder, _ = sample_run
     for name in ("animation.npz", "livelink.csv"):  # the same files as written after the render
         assert (tmp_path / sample_clip.stem / name).read_bytes() == (folder / name).read_bytes(), name
     assert report["seconds"]["export"] > 0 and report["seconds"]["checks"] > 0
+
+
+def test_retarget_options_reach_the_retarget_stage(sample_clip, tmp_path, monkeypatch):
+    """``run`` and ``batch`` hand RunOptions.retarget to the retarget stage (no tracking here:
+    the track is a stand-in, and the stage stops the run once it has seen its options)."""
+    from capture2face import batch
+    from capture2face.pipeline import RunOptions, run, runner
+    from capture2face.retarget import RetargetOptions
+    from capture2face.tracking import TrackOptions
+
+    class Seen(Exception):
+        pass
+
+    class StandIn:
+        def save(self, path):
+            pass
+
+    seen = []
+
+    def fake_retarget_stage(track, rig, options=None):
+        seen.append(options)
+        raise Seen
+
+    monkeypatch.setattr(runner, "_track", lambda *args: StandIn())
+    monkeypatch.setattr(runner, "retarget_stage", fake_retarget_stage)
+    options = RunOptions(retarget=RetargetOptions(depth_motion=1.0, n_centers=32), track=TrackOptions(workers=1),
+                         render=RenderOptions(size=64), compare=False)
+    with pytest.raises(Seen):
+        run(sample_clip, tmp_path / "run", options, progress=False)
+    report = batch.run_batch([sample_clip], tmp_path / "batch", options, jobs=1, progress=False)
+    assert "Seen" in report["clips"][0]["error"]
+    assert seen == [options.retarget, options.retarget]

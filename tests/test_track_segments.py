@@ -3,7 +3,6 @@ processes of their own, stitched into the Track a single landmarker makes."""
 
 from __future__ import annotations
 
-import dataclasses
 from fractions import Fraction
 
 import av
@@ -161,10 +160,11 @@ def test_batch_tracks_each_clip_with_one_landmarker(monkeypatch, tmp_path, sampl
     copy = tmp_path / "b.mp4"
     copy.write_bytes(sample_clip.read_bytes())
     batch.run_batch([sample_clip, copy], tmp_path / "out", RunOptions(), jobs=2, progress=False)
-    assert seen["options"].track_workers == 1
-    batch.run_batch([sample_clip, copy], tmp_path / "out", RunOptions(track_workers=2), jobs=2, progress=False)
-    assert seen["options"].track_workers == 2  # an explicit choice is kept
-    assert dataclasses.asdict(RunOptions())["track_workers"] is None
+    assert seen["options"].track.workers == 1
+    batch.run_batch([sample_clip, copy], tmp_path / "out", RunOptions(track=TrackOptions(workers=2)), jobs=2,
+                    progress=False)
+    assert seen["options"].track.workers == 2  # an explicit choice is kept
+    assert RunOptions().track.workers is None
 
 
 def test_a_failed_stitch_check_falls_back_to_one_landmarker(exit_clip, monkeypatch):

@@ -78,7 +78,7 @@ def observe(clip: str | Path, options: TrackOptions | None = None):
     info = open_video(clip)
     times, obs, size = [], [], (info.width, info.height)
     # Detection only: build_track does the head coordinates, gaps and filtering later.
-    with FaceLandmarker.create_from_options((options or TrackOptions()).landmarker_options()) as landmarker:
+    with FaceLandmarker.create_from_options((options or TrackOptions()).landmarker) as landmarker:
         for t, rgb in iter_frames(clip):
             times.append(t)
             obs.append(landmarker.detect(rgb, t))

@@ -3,15 +3,17 @@
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, fields
+import warnings
+from dataclasses import KW_ONLY, dataclass, field, fields, is_dataclass, replace
 from pathlib import Path
 from typing import Any
 
 from capture2face.errors import CaptureError
 from capture2face.render import RenderOptions
 from capture2face.render.context import software_gl
-from capture2face.render.renderer import WRINKLE_DRIVERS
+from capture2face.retarget import RetargetOptions
 from capture2face.rig.face_rig import FaceRig
+from capture2face.runtime.moved_options import get_path, keeps_moved_names
 from capture2face.tracking import TrackOptions
 
 MIN_SIZE = 64
@@ -29,20 +31,44 @@ def check_size(size: Any) -> None:
         raise CaptureError(f"--size must be an even number of pixels from {MIN_SIZE} to {MAX_SIZE} (got {size})")
 
 
+#: RunOptions' keywords of before it composed its stages' options, and where they went.
+MOVED_TO_STAGES = {
+    "wrinkles": ("render", "wrinkles"),
+    "size": ("render", "size"),
+    "neutral_frame": ("track", "neutral_frame"),
+    "neutral_image": ("track", "neutral_image"),
+    "neutral_clip": ("track", "neutral_clip"),
+    "face_model": ("track", "landmarker", "face_model"),
+    "faces": ("track", "landmarker", "faces"),
+    "face": ("track", "landmarker", "face"),
+    "track_workers": ("track", "workers"),
+}
+
+
+@keeps_moved_names(MOVED_TO_STAGES)
 @dataclass
 class RunOptions:
-    """What ``run`` makes of a clip.
+    """What ``run`` makes of a clip: its stages' options, and run's own.
+
+    The flat keywords of before (``RunOptions(size=512, wrinkles="auto")``) still work, with a
+    ``DeprecationWarning`` naming their place (``RunOptions(render=RenderOptions(size=512))``).
 
     Attributes:
         character: None (the default avatar), a built-in name ("default", "wide"), a
             FaceRig .npz (``FaceRig.save``), a .glb / .gltf (ARKit-named morphs are driven
             with no mapping; a mapping JSON beside it, ``<name>.json``, for face bones or
             other morph names), or a :class:`FaceRig`.
-        wrinkles: wrinkle driver: auto (Dutreve bone masks), zones, dynamic, off.
-        size: rendered frame size in pixels (square, even).
-        neutral_frame: index of the neutral frame (None: each region's rest found in the clip).
-        neutral_image, neutral_clip: instead, a photo or a short take of the actor at rest.
-        face_model: MediaPipe ``face_landmarker.task`` (None: the default lookup).
+        track: how the clip is tracked (:class:`~capture2face.tracking.TrackOptions`): the
+            rest (``neutral_frame``, ``neutral_image``, ``neutral_clip``), which face
+            (``landmarker.faces``, ``landmarker.face``), the face model
+            (``landmarker.face_model``), the segment workers (``workers``: None, one per
+            free core; ``batch`` runs each clip with one when it runs clips in parallel).
+        render: how the character is drawn (:class:`~capture2face.render.RenderOptions`):
+            ``size`` (square, even, 64..4096), ``wrinkles`` (auto, zones, dynamic, off).
+            Its ``samples``, ``fxaa`` and ``influence_output`` are run's to set, from
+            ``samples`` and ``compare`` below.
+        retarget: how the track drives the character
+            (:class:`~capture2face.retarget.RetargetOptions`).
         compare: also write compare.mp4.
         samples: MSAA samples of the renders; None: 4 on a GPU, and on a software GL
             (llvmpipe) 1 sample + an FXAA pass, whose edges look alike at ~55% of the cost.
@@ -53,22 +79,13 @@ class RunOptions:
         allow_truncated: process the frames before the damage of a truncated or
             corrupt clip (with a warning) instead of failing.
         audio: copy the clip's audio (if any) into avatar.mp4 and compare.mp4.
-        faces: with several faces in view, the one that starts the track: "largest" or
-            "center" (nearest the image centre); the one continuing it is followed.
-        face: instead, the face with this index (0-based, left to right) in the first
-            frame where more than ``face`` faces are seen, then followed.
-        track_workers: MediaPipe landmarkers tracking segments of the clip at once, each
-            in its own process (:mod:`capture2face.tracking.segments`); None: one per free
-            core; 1: one. ``batch`` runs each clip with one when it runs clips in parallel.
     """
 
     character: Any = None
-    wrinkles: str = "auto"
-    size: int = 512
-    neutral_frame: int | None = None
-    neutral_image: str | os.PathLike | None = None
-    neutral_clip: str | os.PathLike | None = None
-    face_model: str | os.PathLike | None = None
+    _: KW_ONLY
+    track: TrackOptions = field(default_factory=TrackOptions)
+    render: RenderOptions = field(default_factory=RenderOptions)
+    retarget: RetargetOptions = field(default_factory=RetargetOptions)
     compare: bool = True
     samples: int | None = None
     crf: int = 20
@@ -76,46 +93,78 @@ class RunOptions:
     queue_frames: int = 8
     allow_truncated: bool = False
     audio: bool = True
-    faces: str = "largest"
-    face: int | None = None
-    track_workers: int | None = None
 
     def validate(self) -> None:
-        if self.wrinkles not in WRINKLE_DRIVERS:
-            raise CaptureError(f"unknown wrinkle driver '{self.wrinkles}'; choose one of {', '.join(WRINKLE_DRIVERS)}")
+        """Each stage's options (one line ``CaptureError`` each, named after the flags)
+        and run's bound on the render size."""
+        self.render.validate()  # wrinkles
+        check_size(self.render.size)  # even, 64..4096
+        self.track.validate()  # faces, face, workers, neutral_frame
 
-        check_size(self.size)  # even, 64..4096
-        self.track_options().validate()  # faces, face, track_workers, neutral_frame
-
-    def track_options(self):
-        """The :class:`~capture2face.tracking.TrackOptions` of ``run``'s tracking."""
-        return TrackOptions(face_model=self.face_model, neutral_frame=self.neutral_frame,
-                            neutral_image=self.neutral_image, neutral_clip=self.neutral_clip, faces=self.faces,
-                            face=self.face, workers=self.track_workers)
+    def track_options(self) -> TrackOptions:
+        """Deprecated: :attr:`track`."""
+        warnings.warn("RunOptions.track_options() is deprecated; use RunOptions.track", DeprecationWarning,
+                      stacklevel=2)
+        return self.track
 
 
-def run_render_options(options: RunOptions):
-    """The :class:`~capture2face.render.RenderOptions` of ``run``'s character view (with
-    ``compare``, its influence view comes out of the same draw)."""
+def run_render_options(options: RunOptions) -> RenderOptions:
+    """The :class:`~capture2face.render.RenderOptions` of ``run``'s character view: its
+    ``render`` with the samples resolved (and FXAA on a software GL) and, with ``compare``,
+    its influence view out of the same draw."""
     samples, fxaa = options.samples, False
     if samples is None:
         fxaa = software_gl()
         samples = 1 if fxaa else 4
-    return RenderOptions(size=int(options.size), wrinkles=options.wrinkles, samples=int(samples), fxaa=fxaa,
-                         influence_output=bool(options.compare))
+    return replace(options.render, size=int(options.render.size), samples=int(samples), fxaa=fxaa,
+                   influence_output=bool(options.compare))
+
+
+#: report.json's "options" (and batch fingerprints): run's flat options of before, in this
+#: order, each read from its place now; resumed batches compare them.
+_JSON_FIELDS = ("character", "wrinkles", "size", "neutral_frame", "neutral_image", "neutral_clip", "face_model",
+                "compare", "samples", "crf", "preset", "queue_frames", "allow_truncated", "audio", "faces", "face",
+                "track_workers")
+#: What run sets in its RenderOptions itself (not the user's to change).
+_RUN_SETS = {"render": {"samples", "fxaa", "influence_output"}}
 
 
 def options_json(options: RunOptions) -> dict:
+    """``options`` as report.json stores them: the flat names of :data:`_JSON_FIELDS`, then
+    ``track``, ``render`` and ``retarget`` each with the settings that differ from their
+    defaults (only those not already among the flat names; none by default)."""
     out = {}
-    for f in fields(options):
-        v = getattr(options, f.name)
+    for name in _JSON_FIELDS:
+        v = get_path(options, MOVED_TO_STAGES.get(name, (name,)))
         if isinstance(v, FaceRig):
             v = v.name
         elif isinstance(v, os.PathLike):
             v = os.fspath(v)
-        out[f.name] = v
+        out[name] = v
+    for part in ("track", "render", "retarget"):
+        skip = {path[1:] for path in MOVED_TO_STAGES.values() if path[0] == part}
+        skip |= {(name,) for name in _RUN_SETS.get(part, ())}
+        changed = _changed_settings(getattr(options, part), skip)
+        if changed:
+            out[part] = changed
     return out
 
+
+def _changed_settings(options: Any, skip: set[tuple[str, ...]], prefix: tuple[str, ...] = ()) -> dict:
+    """The fields of a (nested) options dataclass that differ from its defaults, but ``skip``."""
+    default = type(options)()
+    out = {}
+    for f in fields(options):
+        value, path = getattr(options, f.name), prefix + (f.name,)
+        if path in skip:
+            continue
+        if is_dataclass(value):
+            value = _changed_settings(value, skip, path)
+            if value:
+                out[f.name] = value
+        elif value != getattr(default, f.name):
+            out[f.name] = os.fspath(value) if isinstance(value, os.PathLike) else value
+    return out
 
 
 def input_files(clip: str | os.PathLike, options: RunOptions) -> dict[str, str | None]:
@@ -124,8 +173,8 @@ def input_files(clip: str | os.PathLike, options: RunOptions) -> dict[str, str |
     A built-in avatar or a FaceRig object has none."""
     files: dict[str, str | None] = {"clip": os.fspath(clip)}
     for role in ("neutral_image", "neutral_clip"):
-        if getattr(options, role) is not None:
-            files[role] = os.fspath(getattr(options, role))
+        if getattr(options.track, role) is not None:
+            files[role] = os.fspath(getattr(options.track, role))
     character = options.character
     if isinstance(character, (str, os.PathLike)) and Path(character).is_file():
         files["character"] = os.fspath(character)

@@ -67,7 +67,7 @@ def check_shared(options, progress: bool = False) -> Any:
         The character's FaceRig.
     """
     options.validate()
-    find_face_model(options.face_model)
+    find_face_model(options.track.landmarker.face_model)
     return check_character(options.character, progress)
 
 
@@ -82,7 +82,7 @@ def preflight(clip: str | os.PathLike, options, progress: bool = False) -> tuple
     """
     options.validate()
     info = open_video(clip)
-    check_neutral_frame(options.neutral_frame, info)
+    check_neutral_frame(options.track.neutral_frame, info)
     rig = check_shared(options, progress)
     check_gl()
     return info, rig

@@ -46,7 +46,7 @@ class RenderPass:
         self.folder = Path(folder)
         self.options = options
         self.n = animation.n_frames
-        self.size = int(options.size)
+        self.size = int(options.render.size)
         self.fps = float(track.fps)
         self.render_options = run_render_options(options)
         self.poses = avatar_head_poses(rig, animation.head_pose, self.render_options.fov_y_degrees).astype(np.float32)

@@ -151,7 +151,7 @@ def _run(clip, out_dir, options: RunOptions, progress: bool, name: str | None, w
         raise_if_interrupted()
 
         t = time.perf_counter()
-        animation = retarget_stage(track, rig)
+        animation = retarget_stage(track, rig, options.retarget)
         release_free_memory()
         seconds["retarget"] = time.perf_counter() - t
         raise_if_interrupted()
@@ -236,8 +236,8 @@ def _report(clip, final: Path, rig: FaceRig, track, info, options: RunOptions, o
         "clip": os.fspath(clip),
         "output_dir": os.fspath(final),
         "character": rig.name,
-        "wrinkles": options.wrinkles,
-        "size": int(options.size),
+        "wrinkles": options.render.wrinkles,
+        "size": int(options.render.size),
         "frames": n,
         "tracked_frames": track.tracked_frames,
         "fps": float(track.fps),

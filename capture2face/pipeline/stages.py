@@ -30,7 +30,7 @@ def track_stage(clip: str | os.PathLike, options: RunOptions, progress: bool = T
     its landmarks stay in files there: memory does not grow with the clip's length;
     ``workers``: :func:`start_track_workers`' processes; ``info``: the clip's
     :func:`~capture2face.io.video_input.open_video` probe, if already made)."""
-    return track_clip(clip, options.track_options(), progress=progress, workdir=workdir, workers=workers,
+    return track_clip(clip, options.track, progress=progress, workdir=workdir, workers=workers,
                       info=info)
 
 
@@ -39,21 +39,22 @@ def start_track_workers(clip: str | os.PathLike, options: RunOptions):
     their start-up (Python, MediaPipe, the model) overlaps the checks before tracking;
     None when the clip will be tracked by one landmarker (too short, ``--face``, one
     core, or a clip that does not open: the checks report that)."""
-    track = options.track_options()
+    track = options.track
     n = track.n_workers()
-    if n < 2 or track.face is not None:
+    if n < 2 or track.landmarker.face is not None:
         return None
     try:
         frames = open_video(clip).n_frames
     except CaptureError:
         return None
     k = min(n, frames // MIN_SEGMENT_FRAMES)
-    return SegmentWorkers(k - 1, track.landmarker_options()) if k >= 2 else None
+    return SegmentWorkers(k - 1, track.landmarker) if k >= 2 else None
 
 
-def retarget_stage(track, rig: FaceRig):
-    """Pass 2: the :class:`~capture2face.retarget.animation.Animation` of ``rig``."""
-    return retarget(track, rig, RetargetOptions())
+def retarget_stage(track, rig: FaceRig, options: RetargetOptions | None = None):
+    """Pass 2: the :class:`~capture2face.retarget.animation.Animation` of ``rig``
+    (``options``: :attr:`RunOptions.retarget`; None: the defaults)."""
+    return retarget(track, rig, options or RetargetOptions())
 
 
 def export_stage(rig: FaceRig, animation, folder: str | os.PathLike, track=None, character: Any = None) -> None:

@@ -95,6 +95,12 @@ class RenderOptions:
     def width_height(self) -> tuple[int, int]:
         return camera._size(self.size)
 
+    def validate(self) -> None:
+        """The wrinkle driver, normal blend and view are known ones (one line ``CaptureError``)."""
+        _check(self.wrinkles, WRINKLE_DRIVERS, "wrinkle driver")
+        _check(self.normal_blend, NORMAL_BLENDS, "normal blend")
+        _check(self.view, VIEWS, "view")
+
 
 @dataclass
 class FrameState:
@@ -166,9 +172,7 @@ class Renderer:
 
     def __init__(self, rig: FaceRig, options: RenderOptions | None = None):
         options = options or RenderOptions()
-        _check(options.wrinkles, WRINKLE_DRIVERS, "wrinkle driver")
-        _check(options.normal_blend, NORMAL_BLENDS, "normal blend")
-        _check(options.view, VIEWS, "view")
+        options.validate()
         self.rig = rig
         self.options = options
         self.ctx = gl_context()

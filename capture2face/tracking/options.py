@@ -3,33 +3,37 @@
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+import warnings
+from dataclasses import dataclass, field
 
 from capture2face.errors import CaptureError
 from capture2face.runtime.cores import free_cores
+from capture2face.runtime.moved_options import keeps_moved_names
 from capture2face.tracking.filtering import OneEuro
 from capture2face.tracking.landmarker import LandmarkerOptions
 
+#: TrackOptions' keywords of before it composed LandmarkerOptions, and where they went.
+MOVED_TO_LANDMARKER = {name: ("landmarker", name) for name in (
+    "face_model", "num_faces", "faces", "face", "min_detection_confidence", "min_presence_confidence",
+    "min_tracking_confidence")}
 
-@dataclass
+
+@keeps_moved_names(MOVED_TO_LANDMARKER)
+@dataclass(kw_only=True)
 class TrackOptions:
     """How a clip is tracked (how each default was chosen, with its figures: docs/tuning.md).
 
+    The old keywords of the landmarker's settings (``TrackOptions(face=1)``) still work, with
+    a ``DeprecationWarning``: they now live in ``landmarker``.
+
     Attributes:
-        face_model: ``face_landmarker.task`` path (None: $CAPTURE2FACE_FACE_MODEL, else the
-            copy bundled in capture2face/models).
+        landmarker: MediaPipe's :class:`~capture2face.tracking.landmarker.LandmarkerOptions`:
+            the face model, which face is tracked (``faces``, ``face``; ``num_faces``: the
+            most it looks for at once, several cost little) and its thresholds.
         neutral_frame: index of the neutral frame (None: each region's rest found in the
             clip, :mod:`.rest`).
         neutral_image: instead, a photo or still of the same actor at rest.
         neutral_clip: instead, a short take of the same actor at rest.
-        num_faces: the most faces MediaPipe looks for (and counts) at once; 1: one face,
-            no choice, no count. Several cost little: see :mod:`.landmarker`.
-        faces: which face starts the track when several are in view: "largest" or
-            "center" (nearest the image centre); the one continuing it is followed.
-        face: instead, the face with this index (0-based, left to right) in the first
-            frame with more than ``face`` faces (earlier frames count as faceless).
-        min_detection_confidence, min_presence_confidence, min_tracking_confidence:
-            MediaPipe's thresholds.
         max_gap_seconds: gaps up to this long are interpolated; longer ones hold.
         min_cutoff, beta, d_cutoff: One Euro filter of the head-coordinate landmarks
             (Hz, 1/cm, Hz); see :mod:`.filtering`.
@@ -42,16 +46,10 @@ class TrackOptions:
             tracked by one. The Track is the same within MediaPipe's noise.
     """
 
-    face_model: str | os.PathLike | None = None
+    landmarker: LandmarkerOptions = field(default_factory=LandmarkerOptions)
     neutral_frame: int | None = None
     neutral_image: str | os.PathLike | None = None
     neutral_clip: str | os.PathLike | None = None
-    num_faces: int = 4
-    faces: str = "largest"
-    face: int | None = None
-    min_detection_confidence: float = 0.5
-    min_presence_confidence: float = 0.5
-    min_tracking_confidence: float = 0.5
     max_gap_seconds: float = 0.25
     min_cutoff: float = 1.5
     beta: float = 1.0
@@ -76,17 +74,15 @@ class TrackOptions:
         for flag, path in (("--neutral-image", self.neutral_image), ("--neutral-clip", self.neutral_clip)):
             if path is not None and not os.path.isfile(path):
                 raise CaptureError(f"{flag} {os.fspath(path)}: no such file")
-        self.landmarker_options().validate()
+        self.landmarker.validate()
         if self.workers is not None and int(self.workers) < 1:
             raise CaptureError(f"--track-workers must be >= 1 (got {self.workers})")
 
     def landmarker_options(self) -> LandmarkerOptions:
-        return LandmarkerOptions(
-            face_model=self.face_model, num_faces=self.num_faces, faces=self.faces, face=self.face,
-            min_detection_confidence=self.min_detection_confidence,
-            min_presence_confidence=self.min_presence_confidence,
-            min_tracking_confidence=self.min_tracking_confidence,
-        )
+        """Deprecated: :attr:`landmarker`."""
+        warnings.warn("TrackOptions.landmarker_options() is deprecated; use TrackOptions.landmarker",
+                      DeprecationWarning, stacklevel=2)
+        return self.landmarker
 
     def landmark_filter(self) -> OneEuro:
         return OneEuro(self.min_cutoff, self.beta, self.d_cutoff, self.zero_phase)

@@ -387,7 +387,7 @@ def track_parallel(clip: str | os.PathLike, info: VideoInfo, options, n_workers:
             1`` of them are used, and all are closed once the clip is split); None: they
             are started here.
     """
-    if options.face is not None or n_workers < 2:
+    if options.landmarker.face is not None or n_workers < 2:
         return None
     ready = workers is not None and len(workers) >= 1 and workers.ready()
     plan = plan_segments(clip, min(n_workers, 1 + len(workers)) if workers is not None else n_workers,
@@ -396,14 +396,14 @@ def track_parallel(clip: str | os.PathLike, info: VideoInfo, options, n_workers:
         return None
     k = plan.n_segments
     if workers is None:
-        workers = SegmentWorkers(k - 1, options.landmarker_options())
+        workers = SegmentWorkers(k - 1, options.landmarker)
     scratch = Path(tempfile.mkdtemp(prefix="segments-", dir=os.fspath(workdir) if workdir is not None else None))
     size = (info.width, info.height)
     n = int(plan.starts[-1])
     try:
         for i in range(1, k):
             workers.submit(i - 1, plan.job(i, os.fspath(clip), info.rotation, size, os.fspath(scratch),
-                                           options.face_model))
+                                           options.landmarker.face_model))
         with tqdm(total=n, disable=not progress, unit="frame", desc="tracking", leave=False) as bar:
             tracker = new_tracker()
             try:

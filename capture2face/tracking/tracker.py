@@ -112,7 +112,7 @@ class TrackBuilder:
             self._append(block["norm"], block["presence"], block["scores"], block["n_faces_max"])
 
     def _append(self, norm: np.ndarray, presence: np.ndarray, scores: np.ndarray, n_faces_max: int) -> None:
-        head, pose = head_block(norm, presence, self.size, self.options.face_model)
+        head, pose = head_block(norm, presence, self.size, self.options.landmarker.face_model)
         self._norm.append(norm)
         self._head.append(head)
         self._presence.append(np.asarray(presence, bool))
@@ -271,7 +271,7 @@ class Tracker:
                  workdir: str | os.PathLike | None = None):
         self.info = info
         self.options = options or TrackOptions()
-        self._landmarker = FaceLandmarker.create_from_options(self.options.landmarker_options())
+        self._landmarker = FaceLandmarker.create_from_options(self.options.landmarker)
         self._builder = TrackBuilder(info, self.options, workdir)
 
     def __enter__(self) -> "Tracker":
@@ -314,9 +314,9 @@ class Tracker:
         lm = self._landmarker
         lm.close()
         self._builder._n_faces_max = max(self._builder._n_faces_max, lm.n_faces_max)
-        if self.options.face is not None and not lm.chosen and self.n_frames:
+        if self.options.landmarker.face is not None and not lm.chosen and self.n_frames:
             self._builder.close()
-            raise CaptureError(f"{self.info.path}: --face {self.options.face}: never more than "
+            raise CaptureError(f"{self.info.path}: --face {self.options.landmarker.face}: never more than "
                                f"{lm.n_faces_max} face(s) in view at once (faces are numbered from 0, "
                                "left to right)")
         return self._builder.finish(progress)

@@ -57,7 +57,8 @@ def track_warnings(track, options: RunOptions | None = None) -> list[str]:
     if track.n_long_gaps:
         out.append(f"{track.n_long_gaps} gaps longer than the interpolation limit hold the last pose")
     if track.n_faces_max > 1:
-        face, faces = (options.face, options.faces) if options is not None else (None, "largest")
+        chosen = options.track.landmarker if options is not None else None
+        face, faces = (chosen.face, chosen.faces) if chosen is not None else (None, "largest")
         start = (f"face {face} from the left" if face is not None
                  else "the face nearest the centre" if faces == "center" else "the largest face")
         out.append(f"{track.n_faces_max} faces in view (the most seen at once); tracked: {start} at the start, "
