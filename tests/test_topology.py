@@ -2,11 +2,11 @@
 
 import numpy as np
 import pytest
-from conftest import shared_clip
 
 from capture2face import topology as T
 from capture2face.io.video_input import iter_frames
 from capture2face.models.face_model import find_face_model
+from tests.helpers import shared_clip
 
 connections = pytest.importorskip("mediapipe.tasks.python.vision").FaceLandmarksConnections
 
