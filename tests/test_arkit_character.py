@@ -15,8 +15,8 @@ import pytest
 from conftest import shared_character
 from test_arkit import NAMES, synthetic_track
 
+from capture2face.character.load import import_glb
 from capture2face.errors import CaptureError
-from capture2face.gltf import import_glb
 from capture2face.gltf.arkit_export import export_arkit_character, part_order
 from capture2face.gltf.container import ARRAY_BUFFER, GlbBuilder, GlbReader
 from capture2face.rig.arkit_names import arkit_morphs, canonical_arkit, drive_mode

@@ -8,7 +8,7 @@ import numpy as np
 
 from capture2face.errors import CaptureError
 from capture2face.gltf.mapping import N_LANDMARKS, Mapping
-from capture2face.rig.face_rig import ZONE_NAMES, FaceRig
+from capture2face.rig.face_rig import FaceRig
 
 
 def _bone_index(rig: FaceRig, mapping: Mapping):

@@ -33,8 +33,8 @@ def _eyes(rig: FaceRig, ours: dict, surface: Surface) -> dict:
     side = np.where(heavy >= rig.n_bones, heavy - rig.n_bones, -1).astype(np.int8)
     joints, weights = rig.skin_joints.copy(), rig.skin_weights.copy()
     joints[side >= 0], weights[side >= 0] = 0, [1.0, 0.0, 0.0, 0.0]
-    return dict(eye_centres=np.asarray(ours["eye_centres_cm"], np.float32).reshape(2, 3),
-                eye_vertex_side=side, skin_joints=joints, skin_weights=weights)
+    return {"eye_centres": np.asarray(ours["eye_centres_cm"], np.float32).reshape(2, 3),
+            "eye_vertex_side": side, "skin_joints": joints, "skin_weights": weights}
 
 
 def apply_own_extras(rig: FaceRig, ours: dict, surface: Surface) -> FaceRig:
