@@ -21,7 +21,7 @@ _API = {
     "default_avatar": "capture2face.rig.avatar",
     "deform": "capture2face.rig.deform",
     "export_glb": "capture2face.gltf",
-    "import_glb": "capture2face.gltf",
+    "import_glb": "capture2face.character.load",
     "Track": "capture2face.tracking.track",
     "TrackOptions": "capture2face.tracking",
     "track_clip": "capture2face.tracking",

@@ -13,8 +13,8 @@ import time
 import numpy as np
 import pytest
 
+from capture2face.character.load import import_glb
 from capture2face.errors import CaptureError
-from capture2face.gltf import import_glb
 from capture2face.gltf.arkit_export import export_arkit_character, part_order
 from capture2face.gltf.container import ARRAY_BUFFER, GlbBuilder, GlbReader
 from capture2face.rig.arkit_names import arkit_morphs, canonical_arkit, drive_mode

@@ -18,7 +18,7 @@ import pytest
 from capture2face import default_avatar
 from capture2face.camera import framing_pose
 from capture2face.gltf import export_glb, import_glb
-from capture2face.gltf.rig_import import _weld
+from capture2face.gltf.welding import weld_ids as _weld
 from capture2face.render import FrameState, Renderer, RenderOptions
 from capture2face.render.skinning import Deformer
 from capture2face.rig.deform import deform

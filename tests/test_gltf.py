@@ -7,8 +7,9 @@ import json
 import numpy as np
 import pytest
 
+from capture2face.character.load import import_glb
 from capture2face.errors import CaptureError
-from capture2face.gltf import export_glb, import_glb
+from capture2face.gltf import export_glb
 from capture2face.gltf.container import ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER, GlbBuilder, GlbReader, encode_png
 from tests.helpers import problems, validate
 
@@ -190,12 +191,11 @@ def _foreign_glb(tmp_path):
                       sparse_idx=sparse_idx, sparse_val=sparse_val)
 
 
-def test_import_foreign_character_with_mapping(tmp_path, monkeypatch):
-    import capture2face.gltf.rig_import as gi
+def test_import_foreign_character_with_mapping(tmp_path):
+    from capture2face.gltf.rig_import import import_glb as import_raw  # the avatar's loans: tested below
 
-    monkeypatch.setattr(gi, "_lend_from_avatar", lambda rig, posed, tabled: rig)  # tested below
     path, src = _foreign_glb(tmp_path)
-    rig = import_glb(path)  # mapping found beside the .glb
+    rig = import_raw(path)  # mapping found beside the .glb
     V = len(src["skin"]) + len(src["eye"])
     assert rig.name == "user_char" and rig.n_vertices == V and len(rig.triangles) == 2 * 64 + 2
     np.testing.assert_allclose(rig.vertices[: len(src["skin"])], src["skin"] * 100, atol=1e-5)

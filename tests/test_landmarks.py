@@ -15,7 +15,7 @@ from capture2face.character.landmarks import INNER_LIP_LOWER, INNER_LIP_UPPER, I
 from capture2face.character.load import load_character, warn_landmark_faults
 from capture2face.eval.fidelity import summary_line, table
 from capture2face.gltf import export_glb, import_glb
-from capture2face.gltf.rig_import import _overlays
+from capture2face.gltf.materials import overlay_vertices
 from capture2face.measures import MEASURES, ClipFidelity, clip_fidelity, landmark_faults, rig_landmark_points
 from capture2face.pipeline.report_html import _fidelity_tables
 from capture2face.rig.arkit_names import arkit_morphs
@@ -214,7 +214,8 @@ def test_overlays_are_alpha_cards_and_named_meshes_never_the_skin():
     parts = [{"offset": 0, "pos": np.zeros((5, 3)), "tri_count": 100},
              {"offset": 5, "pos": np.zeros((2, 3)), "tri_count": 4},
              {"offset": 7, "pos": np.zeros((3, 3)), "tri_count": 10}]
-    got = _overlays(g, [0, 1, 2], {"gltf_material": mats, "largest_material": 0, "parts": parts})
+    spans = [(ni, slice(p["offset"], p["offset"] + len(p["pos"])), p["tri_count"]) for ni, p in enumerate(parts)]
+    got = overlay_vertices(g, mats, 0, spans)
     assert got.tolist() == [False, False, False, True, True, True, True, False, True, False]
 
 

@@ -24,8 +24,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from capture2face.character.load import import_glb
 from capture2face.errors import CaptureError
-from capture2face.gltf import import_glb
 from capture2face.gltf.container import GlbReader, read_gltf_document, write_glb
 from tests.helpers import synthetic_track, validate
 

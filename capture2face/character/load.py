@@ -12,9 +12,10 @@ from typing import Any
 from tqdm import tqdm
 
 from capture2face.character.auto_wrinkles import automatic_wrinkles
+from capture2face.character.lending import lend_from_avatar
 from capture2face.character.prepared import load_prepared, preparation_key, prepared_dir, store_prepared
 from capture2face.errors import CaptureError
-from capture2face.gltf import import_glb
+from capture2face.gltf.rig_import import read_glb
 from capture2face.measures import landmark_faults
 from capture2face.rig import avatar
 from capture2face.rig.arkit_names import drive_mode, is_automatic
@@ -103,6 +104,16 @@ def _imported_character(path: Path) -> FaceRig:
     _IMPORTED.clear()  # one character kept: a body .glb may be hundreds of MB
     _IMPORTED[key] = rig, said
     return rig
+
+
+def import_glb(path: str | os.PathLike, mapping_json: str | os.PathLike | None = None) -> FaceRig:
+    """A user's character .glb / .gltf (and its mapping JSON: ``mapping_json``, else the
+    file's path with ``.json`` where it exists) as a FaceRig: what the files give
+    (:func:`capture2face.gltf.rig_import.import_glb`) plus what the default avatar lends a
+    character with bones tied to landmarks (:mod:`.lending`). Our own exports come back
+    as they were written."""
+    imported = read_glb(path, mapping_json)
+    return imported.rig if imported.own_export else lend_from_avatar(imported.rig, imported.mapping)
 
 
 def with_automatic_wrinkles(rig: FaceRig) -> FaceRig:

@@ -1,11 +1,15 @@
-"""glTF 2.0, in one place: the container (:mod:`.container`, read and written with
-pygltflib, accessors decoded in NumPy), a FaceRig's own .glb (:mod:`.rig_export`), a
-user's character read into a FaceRig (:mod:`.rig_import`), an animation of our rig
-(:mod:`.animation`), the user's own file with the performance (:mod:`.character`), and
-the ARKit-character export the tests drive (:mod:`.arkit_export`).
+"""glTF 2.0, in one place: the container (:mod:`.container`: accessors and buffers, read
+and written with pygltflib, decoded in NumPy), a FaceRig's own .glb (:mod:`.rig_export`),
+a user's character read into a FaceRig (:mod:`.rig_import`, whose passes are one module
+per glTF concept: :mod:`.mapping`, :mod:`.scene`, :mod:`.skins`, :mod:`.meshes`,
+:mod:`.surface`, :mod:`.welding`, :mod:`.morphs`, :mod:`.materials`, :mod:`.textures`,
+:mod:`.own_extras`, :mod:`.mapped_rig`), an animation of our rig (:mod:`.animation_export`),
+the user's own file with the performance (:mod:`.character`), and the ARKit-character
+export the tests drive (:mod:`.arkit_export`).
 
-Dependencies run one way: container <- animation <- rig_export, container <- rig_import,
-animation <- character.
+``import_glb`` here is the raw importer (what the files say);
+:func:`capture2face.character.load.import_glb` (``capture2face.import_glb``) adds what
+the default avatar lends a character with face bones.
 """
 
 from capture2face.gltf.container import (

@@ -33,7 +33,7 @@ from capture2face.maths.rotations import head_rotations, rotation_part  # noqa: 
 from capture2face.rig.face_rig import eye_rotation_matrices
 
 
-def _frame_times(animation, fps: float | None) -> np.ndarray:
+def frame_times(animation, fps: float | None) -> np.ndarray:
     """(F,) float32 seconds from the first frame, strictly increasing as glTF requires.
 
     With ``fps`` (or when the clip's timestamps do not increase strictly once rounded to
@@ -61,7 +61,7 @@ def add_animation(builder: GlbBuilder, rig, animation, nodes: dict, fps: float |
     F = animation.n_frames
     if F == 0:
         raise CaptureError("the animation has no frames; nothing to export")
-    times = _frame_times(animation, fps)
+    times = frame_times(animation, fps)
     samplers: list[dict] = []
     channels: list[dict] = []
     t_acc = builder.accessor(times, minmax=True)

@@ -9,7 +9,7 @@ One animation, sampled once per frame (LINEAR), all samplers sharing one time ac
   animation's weight of the rig morph of its name (the import's matching: ARKit names in
   any spelling, the mapping JSON's ``morphs``), other targets 0;
 * the head rotation: a ``rotation`` channel on the head joint (the import's choice,
-  :func:`capture2face.gltf.rig_import._find_head`), its rest rotation turned by the
+  :func:`capture2face.gltf.skins.find_head`), its rest rotation turned by the
   tracked rotation in scene axes; without a head joint, ``rotation`` and
   ``translation`` channels on a new root node over the scene that turn the whole
   character about its face centre.
@@ -26,18 +26,14 @@ import numpy as np
 
 from capture2face.camera import face_centre_and_height
 from capture2face.errors import CaptureError
-from capture2face.gltf.animation_export import _frame_times
+from capture2face.gltf.animation_export import frame_times
 from capture2face.gltf.container import ROOT_NODE_NAME, embed_resources, read_gltf_document, write_glb
-from capture2face.gltf.rig_import import (
-    _find_head,
-    _load_mapping,
-    _morph_key,
-    _quat_matrix,
-    _world_matrices,
-)
+from capture2face.gltf.mapping import load_mapping
+from capture2face.gltf.morphs import morph_key
+from capture2face.gltf.scene import parents, world_matrices
+from capture2face.gltf.skins import find_head
 from capture2face.io.atomic import write_bytes_atomic
-from capture2face.maths.rotations import head_rotations, nearest_rotation, rotation_part
-from capture2face.rig.arkit_names import canonical_arkit
+from capture2face.maths.rotations import head_rotations, nearest_rotation, quaternion_matrix, rotation_part
 from capture2face.rig.face_rig import FaceRig
 
 
@@ -75,12 +71,6 @@ def _load(path: Path) -> tuple[dict, bytearray]:
     return gltf, binary
 
 
-def _world(gltf: dict) -> tuple[list[np.ndarray], dict[int, int]]:
-    nodes = gltf.get("nodes", [])
-    parent = {c: p for p, n in enumerate(nodes) for c in (n.get("children") or [])}
-    return _world_matrices(nodes), parent
-
-
 def export_character_animation(source: str | os.PathLike, rig: FaceRig, animation, path: str | os.PathLike,
                                mapping_json: str | os.PathLike | None = None, fps: float | None = None) -> None:
     """Write ``source`` (the user's .glb/.gltf that ``rig`` was imported from) with the
@@ -90,10 +80,10 @@ def export_character_animation(source: str | os.PathLike, rig: FaceRig, animatio
     if F == 0:
         raise CaptureError("the animation has no frames; nothing to export")
     gltf, binary = _load(source)
-    mapping, _ = _load_mapping(source, mapping_json)
-    renames = {str(k): canonical_arkit(str(v)) for k, v in mapping.get("morphs", {}).items()}
+    mapping = load_mapping(source, mapping_json)
+    renames = mapping.arkit_renames()
     blob = _Blob(gltf, binary)
-    times = _frame_times(animation, fps)
+    times = frame_times(animation, fps)
     samplers, channels = [], []
     t_acc = blob.accessor(times, "SCALAR", minmax=True)
 
@@ -102,7 +92,7 @@ def export_character_animation(source: str | os.PathLike, rig: FaceRig, animatio
         channels.append({"sampler": len(samplers) - 1, "target": {"node": node, "path": target}})
 
     # Morph weights: per mesh node, its targets in its own order, by the import's key.
-    rig_keys = {_morph_key(n, renames)[0]: m for m, n in enumerate(rig.morph_names)}
+    rig_keys = {morph_key(n, renames)[0]: m for m, n in enumerate(rig.morph_names)}
     src = {n: i for i, n in enumerate(animation.blend_names)}
     weights = np.clip(np.nan_to_num(np.asarray(animation.blend_weights, np.float32)), 0.0, 1.0)
     for ni, node in enumerate(gltf.get("nodes", [])):
@@ -115,7 +105,7 @@ def export_character_animation(source: str | os.PathLike, rig: FaceRig, animatio
         names = (mesh.get("extras") or {}).get("targetNames") or []
         w = np.zeros((F, n_targets), np.float32)
         for t, name in enumerate(names[:n_targets]):
-            m = rig_keys.get(_morph_key(str(name), renames)[0])
+            m = rig_keys.get(morph_key(str(name), renames)[0])
             if m is not None and rig.morph_names[m] in src:
                 w[:, t] = weights[:, src[rig.morph_names[m]]]
         channel(blob.accessor(w.reshape(-1), "SCALAR"), ni, "weights")
@@ -123,15 +113,15 @@ def export_character_animation(source: str | os.PathLike, rig: FaceRig, animatio
     # Head rotation: on the head joint (scene-axis rotation R: local' = P^-1 R P local),
     # else on a root over the scene, about the face centre.
     rot = _rotations(animation.head_pose, F)
-    world, parent = _world(gltf)
     nodes = gltf.get("nodes", [])
+    world, parent = world_matrices(nodes), parents(nodes)
     joints = sorted({j for s in gltf.get("skins", []) for j in s.get("joints", [])})
-    head_k = _find_head([nodes[j].get("name") or "" for j in joints], mapping) if joints else None
+    head_k = find_head([nodes[j].get("name") or "" for j in joints], mapping.head_bone) if joints else None
     if head_k is not None:
         head = joints[head_k]
         node = nodes[head]
         p = nearest_rotation(world[parent[head]][:3, :3]) if head in parent else np.eye(3)
-        local = _quat_matrix(node["rotation"]) if node.get("rotation") else np.eye(3)
+        local = quaternion_matrix(node["rotation"]) if node.get("rotation") else np.eye(3)
         if node.get("matrix"):
             raise CaptureError(f"{source}: the head joint '{node.get('name')}' has a matrix transform; "
                                "animated nodes need translation/rotation/scale")
@@ -142,7 +132,8 @@ def export_character_animation(source: str | os.PathLike, rig: FaceRig, animatio
         nodes.append({"name": ROOT_NODE_NAME, "children": list(scene.get("nodes", []))})
         root = len(nodes) - 1
         scene["nodes"] = [root]
-        centre = face_centre_and_height(rig)[0] / float(mapping.get("scale", 100.0))  # rig cm -> file units
+        scale = float(mapping.scale if mapping.scale is not None else 100.0)
+        centre = face_centre_and_height(rig)[0] / scale  # rig cm -> file units
         shift = centre - np.einsum("fij,j->fi", rot, centre)
         channel(blob.accessor(_quats(rot), "VEC4"), root, "rotation")
         channel(blob.accessor(shift.astype(np.float32), "VEC3"), root, "translation")

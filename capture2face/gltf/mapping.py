@@ -1,34 +1,21 @@
-"""The mapping JSON beside a character (``hero.json`` next to ``hero.glb``): its schema,
-checked before anything is imported.
+"""The mapping JSON beside a character (``hero.json`` next to ``hero.glb``): read and
+checked against its schema once, before anything is imported, into a :class:`Mapping`.
 
-The schema is the one :mod:`capture2face.gltf.rig_import` and docs/characters.md document
-(every key optional)::
-
-    name               string
-    scale              number > 0 (glTF units -> cm)
-    head_bone          string (a joint name)
-    bones              {joint name: landmark index 0..477}
-    bone_groups        [[joint name, ...], ...]
-    landmark_vertices  {"landmark index 0..477": vertex index >= 0}
-    materials          {material name: "skin" | "eye" | "mouth" | "teeth" | "hair"}
-    wrinkle_maps       {map name: image path}
-    poses              {pose name: {"offsets": {joint: [x, y, z]}, "positions": {joint: [x, y, z]},
-                                    "wrinkle_map": map name, "morphs": {morph name: number}}}
-    zone_masks         [image path, image path]
-    zone_table         {morph name: [8 numbers]}
-    morphs             {morph name: ARKit blendshape name}
-
-A file that breaks it is refused in one line that names the file and every wrong field
-(a metadata file that happens to share the character's name then says so, rather than
-failing half-way through the import); keys the schema does not know are ignored with a
-warning.
+The schema and what each key means: docs/characters.md, "The mapping JSON" (every key
+optional). A file that breaks it is refused in one line that names the file and every
+wrong field (a metadata file that happens to share the character's name then says so,
+rather than failing half-way through the import); keys the schema does not know are
+ignored with a warning.
 """
 
 from __future__ import annotations
 
+import json
 import math
 import os
 from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from capture2face.errors import CaptureError
@@ -37,7 +24,7 @@ from capture2face.rig.face_rig import ZONE_NAMES
 from capture2face.runtime.log import log
 
 N_LANDMARKS = 478
-MATERIALS = ("skin", "eye", "mouth", "teeth", "hair")  # rig_import.MATERIAL_CODES
+MATERIALS = ("skin", "eye", "mouth", "teeth", "hair")  # materials.MATERIAL_CODES
 POSE_KEYS = ("offsets", "positions", "wrinkle_map", "morphs")
 
 # A check returns None when the value is fine, else what it should be ("a number > 0").
@@ -213,3 +200,54 @@ def check_mapping(data: Any, path: str | os.PathLike) -> None:
     if unknown:
         log.warning("%s: ignored keys that a character mapping does not have: %s", os.fspath(path),
                     ", ".join(map(repr, unknown)))
+
+
+@dataclass(frozen=True)
+class Mapping:
+    """A checked mapping JSON (docs/characters.md, "The mapping JSON"); every field as the
+    file gives it (absent: None or empty). ``directory``: what its relative paths are
+    relative to."""
+
+    directory: Path
+    name: str | None = None
+    scale: float | None = None
+    head_bone: str | None = None
+    bones: dict[str, int] = field(default_factory=dict)
+    bone_groups: list[list[str]] = field(default_factory=list)
+    landmark_vertices: dict[str, int] = field(default_factory=dict)
+    materials: dict[str, str] = field(default_factory=dict)
+    wrinkle_maps: dict[str, str] = field(default_factory=dict)
+    poses: dict[str, dict] = field(default_factory=dict)
+    zone_masks: list[str] | None = None
+    zone_table: dict[str, list] = field(default_factory=dict)
+    morphs: dict[str, str] = field(default_factory=dict)
+
+    @classmethod
+    def from_json(cls, data: dict, directory: Path) -> Mapping:
+        """A Mapping of ``data`` (a parsed mapping JSON that passed :func:`check_mapping`)."""
+        return cls(directory=directory, **{k: data[k] for k in KEYS if k in data})
+
+    def arkit_renames(self) -> dict[str, str]:
+        """Morph name -> the canonical ARKit name the mapping gives it."""
+        return {str(k): canonical_arkit(str(v)) for k, v in self.morphs.items()}
+
+
+def load_mapping(glb: str | os.PathLike, mapping_json: str | os.PathLike | None = None) -> Mapping:
+    """The mapping of character ``glb``: ``mapping_json``, else the .glb's path with
+    ``.json`` where that file exists, else an empty mapping; checked (:func:`check_mapping`).
+
+    Raises:
+        CaptureError: ``mapping_json`` is missing, unreadable or breaks the schema.
+    """
+    glb = Path(glb)
+    path = Path(mapping_json) if mapping_json else glb.with_suffix(".json")
+    if not path.is_file():
+        if mapping_json:
+            raise CaptureError(f"{path}: mapping file not found")
+        return Mapping(directory=glb.parent)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise CaptureError(f"{path}: not a readable mapping JSON ({exc})") from None
+    check_mapping(data, path)
+    return Mapping.from_json(data, path.parent)

@@ -334,5 +334,7 @@ def export_glb(rig: FaceRig, path: str | os.PathLike, animation=None, fps: float
 
 def import_glb(path: str | os.PathLike, mapping_json: str | os.PathLike | None = None) -> FaceRig:
     """Read a character .glb (skin and/or morph targets) plus its mapping JSON into a
-    FaceRig; see :mod:`capture2face.gltf.rig_import` for the JSON schema."""
+    FaceRig as the files give it (:mod:`capture2face.gltf.rig_import`; the JSON's schema:
+    docs/characters.md). :func:`capture2face.character.load.import_glb` (also
+    ``capture2face.import_glb``) adds what the default avatar lends a character."""
     return _import(path, mapping_json)

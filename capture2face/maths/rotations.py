@@ -55,6 +55,16 @@ def rotation_part(head_pose: np.ndarray) -> np.ndarray:
     return nearest_rotation(m)
 
 
+def quaternion_matrix(q) -> np.ndarray:
+    """(3, 3) rotation matrix of a unit quaternion ``q`` (x, y, z, w, glTF's order)."""
+    x, y, z, w = q
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
 def quaternions(r: np.ndarray) -> np.ndarray:
     """(F, 3, 3) rotations -> (F, 4) unit quaternions (x, y, z, w, glTF's order),
     sign-continuous so LINEAR (slerp) playback takes the short way."""

@@ -39,6 +39,13 @@ def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     return out
 
 
+def welded_normals(positions: np.ndarray, triangles: np.ndarray, position_ids: np.ndarray) -> np.ndarray:
+    """(..., V, 3) vertex normals computed over positions, not vertices: copies of one
+    position (a UV seam) share one normal, so no shading seam shows. ``position_ids`` (V,):
+    the vertex index that stands for each vertex's position."""
+    return vertex_normals(positions, position_ids[triangles])[..., position_ids, :]
+
+
 def _incidence(triangles: np.ndarray, n_vertices: int) -> sp.csr_matrix:
     rows = triangles.ravel()
     cols = np.repeat(np.arange(len(triangles)), 3)
