@@ -7,8 +7,9 @@ from __future__ import annotations
 import numpy as np
 
 from capture2face.errors import CaptureError
-from capture2face.gltf.mapping import N_LANDMARKS, Mapping
+from capture2face.gltf.mapping import Mapping
 from capture2face.rig.face_rig import FaceRig
+from capture2face.topology import N_LANDMARKS
 
 
 def _bone_index(rig: FaceRig, mapping: Mapping):

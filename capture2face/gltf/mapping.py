@@ -22,8 +22,8 @@ from capture2face.errors import CaptureError
 from capture2face.rig.arkit_names import canonical_arkit
 from capture2face.rig.face_rig import ZONE_NAMES
 from capture2face.runtime.log import log
+from capture2face.topology import N_LANDMARKS
 
-N_LANDMARKS = 478
 MATERIALS = ("skin", "eye", "mouth", "teeth", "hair")  # materials.MATERIAL_CODES
 POSE_KEYS = ("offsets", "positions", "wrinkle_map", "morphs")
 

@@ -43,7 +43,7 @@ import numpy as np
 from capture2face.errors import CaptureError
 from capture2face.gltf.container import GlbReader
 from capture2face.gltf.mapped_rig import apply_mapping
-from capture2face.gltf.mapping import N_LANDMARKS, Mapping, load_mapping
+from capture2face.gltf.mapping import Mapping, load_mapping
 from capture2face.gltf.materials import ALPHA_MODES, MATERIAL_CODES, double_sided, overlay_vertices
 from capture2face.gltf.morphs import merge_morphs
 from capture2face.gltf.own_extras import apply_own_extras, own_extras
@@ -53,6 +53,7 @@ from capture2face.gltf.surface import scene_surface
 from capture2face.gltf.textures import ATLAS_MAX, DEFAULT_TEXTURE_SIZE, read_textures
 from capture2face.gltf.welding import weld_ids
 from capture2face.rig.face_rig import REGION_NAMES, ZONE_NAMES, FaceRig
+from capture2face.topology import N_LANDMARKS
 
 # The constants that lived here before the split, where they are now.
 __all__ = ["ALPHA_MODES", "ATLAS_MAX", "DEFAULT_TEXTURE_SIZE", "MATERIAL_CODES", "N_LANDMARKS", "ImportedGlb",
