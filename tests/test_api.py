@@ -13,7 +13,7 @@ API = {
     "default_avatar": "capture2face.rig.avatar",
     "deform": "capture2face.rig.deform",
     "export_glb": "capture2face.gltf",
-    "import_glb": "capture2face.gltf",
+    "import_glb": "capture2face.character.load",
     "Track": "capture2face.tracking",
     "TrackOptions": "capture2face.tracking",
     "track_clip": "capture2face.tracking",
