@@ -97,10 +97,11 @@ def face_clip(tmp_path_factory):
 def vfr_run(face_clip, tmp_path_factory):
     """A VFR clip with an AAC tone, run with compare.mp4."""
     from capture2face.pipeline import RunOptions, run
+    from capture2face.render import RenderOptions
 
     folder = tmp_path_factory.mktemp("vfr")
     clip = remux(face_clip, folder / "vfr.mp4", pts_ms=VFR_MS)
-    report = run(clip, folder / "out", RunOptions(size=64, compare=True), progress=False)
+    report = run(clip, folder / "out", RunOptions(render=RenderOptions(size=64), compare=True), progress=False)
     return clip, folder / "out" / "vfr", report
 
 
@@ -123,17 +124,19 @@ def test_variable_rate_clip_keeps_its_frame_times_and_audio(vfr_run):
 
 def test_no_audio_option_leaves_the_audio_out(vfr_run, tmp_path):
     from capture2face.pipeline import RunOptions, run
+    from capture2face.render import RenderOptions
 
     clip, _, _ = vfr_run
-    run(clip, tmp_path / "out", RunOptions(size=64, compare=False, audio=False), progress=False)
+    run(clip, tmp_path / "out", RunOptions(render=RenderOptions(size=64), compare=False, audio=False), progress=False)
     out = probe(tmp_path / "out" / "vfr" / "avatar.mp4")
     assert out["audio"] is None and out["n"] == len(VFR_MS)
 
 
 def test_constant_rate_clip_without_audio_is_written_as_before(face_clip, tmp_path, caplog):
     from capture2face.pipeline import RunOptions, run
+    from capture2face.render import RenderOptions
 
-    report = run(face_clip, tmp_path / "out", RunOptions(size=64, compare=False), progress=False)
+    report = run(face_clip, tmp_path / "out", RunOptions(render=RenderOptions(size=64), compare=False), progress=False)
     src, out = probe(face_clip), probe(tmp_path / "out" / "face" / "avatar.mp4")
     assert out["audio"] is None
     assert (out["n"], out["rate"]) == (src["n"], src["rate"]) == (24, 30)

@@ -212,9 +212,10 @@ def test_truncated_clip_can_be_salvaged_on_request(sample_clip, tmp_path):
     import av
 
     from capture2face.pipeline import RunOptions, run
+    from capture2face.render import RenderOptions
 
     cut = truncated_copy(sample_clip, tmp_path)
-    report = run(cut, tmp_path / "out", RunOptions(size=128, compare=False, allow_truncated=True), progress=False)
+    report = run(cut, tmp_path / "out", RunOptions(render=RenderOptions(size=128), compare=False, allow_truncated=True), progress=False)
     assert 10 < report["frames"] < 90
     assert any("truncated" in w for w in report["warnings"])
     with av.open(str(tmp_path / "out" / "cut" / "avatar.mp4")) as c:

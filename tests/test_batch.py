@@ -102,9 +102,10 @@ def test_batch_on_a_local_ray_instance(clip_folder, tmp_path):
     pytest.importorskip("ray")
     from capture2face.batch import run_batch
     from capture2face.pipeline import RunOptions
+    from capture2face.render import RenderOptions
 
     out = tmp_path / "out"
-    report = run_batch([clip_folder], out, RunOptions(size=128, compare=False), ray_address="local", progress=False)
+    report = run_batch([clip_folder], out, RunOptions(render=RenderOptions(size=128), compare=False), ray_address="local", progress=False)
     status = {Path(c["path"]).name: c["status"] for c in report["clips"]}
     assert status == {"good.mp4": "ok", "bad.mp4": "failed"}
     assert {p.name for p in (out / "good").iterdir()} == OUTPUTS - {"compare.mp4"}
@@ -119,6 +120,7 @@ def test_batch_imports_a_glb_character_once(tmp_path, monkeypatch):
     from capture2face.character import load
     from capture2face.gltf.arkit_export import export_arkit_character
     from capture2face.pipeline import RunOptions, load_character
+    from capture2face.render import RenderOptions
     from capture2face.rig.arkit_names import is_automatic
     from capture2face.rig.avatar import default_avatar
     from capture2face.synth import SynthOptions, synthesize
@@ -134,7 +136,7 @@ def test_batch_imports_a_glb_character_once(tmp_path, monkeypatch):
     monkeypatch.setattr(load, "_IMPORTED", {})
     monkeypatch.setenv("CAPTURE2FACE_CACHE", str(tmp_path / "cache"))  # no prepared copy from another run
 
-    report = run_batch([clip, tmp_path / "b.mp4"], tmp_path / "out", RunOptions(character=char, size=64, compare=False),
+    report = run_batch([clip, tmp_path / "b.mp4"], tmp_path / "out", RunOptions(character=char, render=RenderOptions(size=64), compare=False),
                        jobs=1, progress=False)
     assert [c["status"] for c in report["clips"]] == ["ok", "ok"]
     assert len(built) == 1

@@ -98,10 +98,10 @@ def test_batch_finds_each_clips_rest_take(tmp_path):
     assert listed["a"].neutral == str(tmp_path / "b.neutral.mp4")  # the list wins over the sidecar
     assert listed["b"].neutral == str(tmp_path / "b.neutral.mp4")  # no column: the sidecar
     options = RunOptions()
-    assert clip_options(clips["a"], options).neutral_image == str(tmp_path / "a.neutral.jpg")
-    assert clip_options(clips["b"], options).neutral_clip == str(tmp_path / "b.neutral.mp4")
+    assert clip_options(clips["a"], options).track.neutral_image == str(tmp_path / "a.neutral.jpg")
+    assert clip_options(clips["b"], options).track.neutral_clip == str(tmp_path / "b.neutral.mp4")
     assert clip_options(clips["c"], options) is options
-    forced = RunOptions(neutral_frame=4)  # the batch's own rest wins
+    forced = RunOptions(track=TrackOptions(neutral_frame=4))  # the batch's own rest wins
     assert clip_options(BatchClip("x.mp4", "x", "x.neutral.jpg"), forced) is forced
     # The take is one of the run's inputs: --resume reruns a clip whose take changed.
     assert input_files(clips["a"].path, clip_options(clips["a"], options))["neutral_image"] == clips["a"].neutral

@@ -13,10 +13,15 @@ import pytest
 from capture2face.batch import _failure_line, resume_check, run_batch
 from capture2face.errors import CaptureError
 from capture2face.pipeline import OUTPUT_FILES, RunOptions, options_json
+from capture2face.render import RenderOptions
 from capture2face.tracking import TrackOptions, track_clip
+from capture2face.tracking.landmarker import LandmarkerOptions
 from tests.helpers import shared_clip
 
-CHEAP = dict(size=64, compare=False)
+
+def _cheap(**more) -> RunOptions:
+    """A run at 64 px without compare.mp4."""
+    return RunOptions(render=RenderOptions(size=64), compare=False, **more)
 
 
 # ------------------------------------------------------------------ several faces
@@ -46,27 +51,27 @@ def _mean_x(track) -> np.ndarray:
 
 
 def test_largest_and_face_index_pick_different_faces(two_faces):
-    largest = track_clip(two_faces, TrackOptions(faces="largest"), progress=False)
-    second = track_clip(two_faces, TrackOptions(face=1), progress=False)
-    first = track_clip(two_faces, TrackOptions(face=0), progress=False)
+    largest = track_clip(two_faces, TrackOptions(landmarker=LandmarkerOptions(faces="largest")), progress=False)
+    second = track_clip(two_faces, TrackOptions(landmarker=LandmarkerOptions(face=1)), progress=False)
+    first = track_clip(two_faces, TrackOptions(landmarker=LandmarkerOptions(face=0)), progress=False)
     for track in (largest, second, first):
         assert track.n_faces_max == 2 and track.presence.all()
     assert (_mean_x(largest) < 384).all()  # the big face, on the left
     assert (_mean_x(second) > 448).all()  # face 1 from the left: the small one
     np.testing.assert_allclose(_mean_x(first), _mean_x(largest), atol=1.0)
     # One face looked for: no choice, no count (today's single-face tracking).
-    assert track_clip(two_faces, TrackOptions(num_faces=1), progress=False).n_faces_max == 1
+    assert track_clip(two_faces, TrackOptions(landmarker=LandmarkerOptions(num_faces=1)), progress=False).n_faces_max == 1
 
 
 def test_a_face_index_never_in_view_fails_in_one_line(two_faces):
     with pytest.raises(CaptureError, match=r"--face 2: never more than 2 face"):
-        track_clip(two_faces, TrackOptions(face=2), progress=False)
+        track_clip(two_faces, TrackOptions(landmarker=LandmarkerOptions(face=2)), progress=False)
 
 
 def test_run_warns_how_many_faces_were_seen(two_faces, tmp_path):
     from capture2face.pipeline import run
 
-    report = run(two_faces, tmp_path, RunOptions(face=1, **CHEAP), progress=False)
+    report = run(two_faces, tmp_path, _cheap(track=TrackOptions(landmarker=LandmarkerOptions(face=1))), progress=False)
     warned = [w for w in report["warnings"] if "faces in view" in w]
     assert len(warned) == 1 and warned[0].startswith("2 faces in view") and "face 1 from the left" in warned[0]
     stored = json.loads((tmp_path / "two" / "report.json").read_text())
@@ -77,9 +82,9 @@ def test_run_warns_how_many_faces_were_seen(two_faces, tmp_path):
 
 def test_face_options_are_checked_and_on_the_command_line():
     with pytest.raises(CaptureError, match="--faces"):
-        RunOptions(faces="leftmost").validate()
+        RunOptions(track=TrackOptions(landmarker=LandmarkerOptions(faces="leftmost"))).validate()
     with pytest.raises(CaptureError, match="--face"):
-        RunOptions(face=-1).validate()
+        RunOptions(track=TrackOptions(landmarker=LandmarkerOptions(face=-1))).validate()
     from capture2face.cli import build_parser
 
     for cmd in (["run", "x.mp4", "-o", "o"], ["batch", "x.mp4", "-o", "o"], ["track", "x.mp4", "-o", "t.npz"]):
@@ -105,15 +110,15 @@ def _entries(out: Path) -> dict:
 
 def test_resume_skips_same_options_and_reruns_changed_ones(short_clip, tmp_path):
     out = tmp_path / "out"
-    first = run_batch([short_clip], out, RunOptions(**CHEAP), jobs=1, progress=False)
+    first = run_batch([short_clip], out, _cheap(), jobs=1, progress=False)
     assert first["clips"][0]["status"] == "ok" and "rerun" not in first["clips"][0]
     stamp = (out / "short" / "avatar.mp4").stat().st_mtime_ns
 
-    same = run_batch([short_clip], out, RunOptions(**CHEAP), jobs=1, resume=True, progress=False)
+    same = run_batch([short_clip], out, _cheap(), jobs=1, resume=True, progress=False)
     assert same["clips"][0]["status"] == "skipped" and "rerun" not in same["clips"][0]
     assert (out / "short" / "avatar.mp4").stat().st_mtime_ns == stamp
 
-    bigger = run_batch([short_clip], out, RunOptions(size=128, compare=False), jobs=1, resume=True,
+    bigger = run_batch([short_clip], out, RunOptions(render=RenderOptions(size=128), compare=False), jobs=1, resume=True,
                        progress=False)
     entry = bigger["clips"][0]
     assert entry["status"] == "ok" and entry["rerun"] == "options changed: size 64 -> 128"
@@ -123,14 +128,14 @@ def test_resume_skips_same_options_and_reruns_changed_ones(short_clip, tmp_path)
     # The batch report keeps the entries of earlier batches for other clips ...
     bad = tmp_path / "bad.mp4"
     bad.write_text("not a video\n")
-    other = run_batch([bad], out, RunOptions(**CHEAP), jobs=1, progress=False)
+    other = run_batch([bad], out, _cheap(), jobs=1, progress=False)
     entries = _entries(out)
     assert set(entries) == {"short", "bad"}
     assert entries["short"]["status"] == "ok" and entries["short"]["earlier"] is True
     assert entries["bad"]["status"] == "failed" and "earlier" not in entries["bad"]
     assert other["summary"] == {"ok": 0, "failed": 1, "skipped": 0, "pending": 0} and other["earlier"] == 1
     # ... and this batch's entries replace theirs (one entry a clip).
-    again = run_batch([short_clip], out, RunOptions(size=128, compare=False), jobs=1, resume=True,
+    again = run_batch([short_clip], out, RunOptions(render=RenderOptions(size=128), compare=False), jobs=1, resume=True,
                       progress=False)
     names = [c["name"] for c in again["clips"]]
     assert sorted(names) == ["bad", "short"]
@@ -149,11 +154,12 @@ def _fake_run(folder: Path, options: RunOptions, drop: tuple[str, ...] = ()) -> 
 
 
 def test_resume_check_normalises_the_stored_options(tmp_path):
-    _fake_run(tmp_path / "a", RunOptions(character="default", size=512, queue_frames=2), drop=("faces", "face"))
+    _fake_run(tmp_path / "a", RunOptions(character="default", render=RenderOptions(size=512), queue_frames=2), drop=("faces", "face"))
     # An older report without the face options: they count as their defaults; the default
     # avatar by name or as None is the same character; queue_frames changes no output.
     assert resume_check(tmp_path / "a", RunOptions()) == (True, None)
-    skip, why = resume_check(tmp_path / "a", RunOptions(size=256, faces="center"))
+    skip, why = resume_check(tmp_path / "a", RunOptions(render=RenderOptions(size=256),
+                                                       track=TrackOptions(landmarker=LandmarkerOptions(faces="center"))))
     assert not skip and why == "options changed: size 512 -> 256, faces largest -> center"
     assert resume_check(tmp_path / "a", RunOptions(character="wide"))[1] == "options changed: character default -> wide"
 

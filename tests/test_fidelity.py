@@ -22,7 +22,8 @@ from capture2face.measures import (
     measures_from_points,
     rest_frames,
 )
-from capture2face.pipeline.report_html import _fidelity_tables, _wrinkle_plots
+from capture2face.pipeline.report.figures import wrinkle_plots
+from capture2face.pipeline.report.tables import fidelity_tables
 from capture2face.rig.avatar import default_avatar
 from tests.helpers import shared_clip
 
@@ -199,9 +200,9 @@ def test_wrinkles_follow_the_brows_from_their_rest():
     line = summary_line([_brow_clip(0.03, 0.6).figures(), flat])
     assert "levels: 2/4 brow and mouth rests" in line and "wrinkles: 4/4 checks met" in line
     assert "judged measures faithful" in line  # the old clauses stay
-    page = _fidelity_tables(flat)
+    page = fidelity_tables(flat)
     assert "glabella compress p99" in page and "forehead stretch r with brow raise" in page
-    plots = _wrinkle_plots(_brow_clip(0.03, 0.6), _brow_clip(0.03, 0.6).figures())
+    plots = wrinkle_plots(_brow_clip(0.03, 0.6), _brow_clip(0.03, 0.6).figures())
     assert len(plots) == 2 and "forehead stretch  r 1.00" in plots[0]
 
 

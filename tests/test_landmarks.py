@@ -17,7 +17,7 @@ from capture2face.eval.fidelity import summary_line, table
 from capture2face.gltf import export_glb, import_glb
 from capture2face.gltf.materials import overlay_vertices
 from capture2face.measures import MEASURES, ClipFidelity, clip_fidelity, landmark_faults, rig_landmark_points
-from capture2face.pipeline.report_html import _fidelity_tables
+from capture2face.pipeline.report.tables import fidelity_tables
 from capture2face.rig.arkit_names import arkit_morphs
 from capture2face.rig.avatar import default_avatar
 from capture2face.rig.face_rig import FaceRig, landmark_points
@@ -135,7 +135,7 @@ def test_a_character_whose_jaw_does_not_open_its_lips_warns_and_leaves_the_measu
     assert "mouth_open" not in fig["measures"] and "13-14" in fig["left_out"]["mouth_open"]
     assert fig["summary"]["judged"] == len(MEASURES) - 1
     assert "left out" in table([fig]) and f"/{len(MEASURES) - 1} judged" in summary_line([fig])
-    assert "Left out: mouth_open" in _fidelity_tables(fig)
+    assert "Left out: mouth_open" in fidelity_tables(fig)
 
 
 def test_default_avatar_keeps_its_hand_set_landmarks():

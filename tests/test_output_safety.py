@@ -20,6 +20,7 @@ import pytest
 from capture2face.errors import CaptureError
 from capture2face.io import staging
 from capture2face.io.staging import JOURNAL, OWNER_FILE, check_output_folder, clean_stale_staging, staged_folder
+from capture2face.render import RenderOptions
 from tests.helpers import truncated_copy
 
 KNOWN = ("avatar.mp4", "compare.mp4", "track.npz", "report.json")
@@ -187,7 +188,7 @@ def test_damage_decision_does_not_read_warning_text(sample_clip, tmp_path, monke
 
     monkeypatch.setattr(runner, "track_stage", damaged_track)
     with pytest.raises(CaptureError, match="^frames lost after frame 3$"):
-        pipeline.run(sample_clip, tmp_path / "out", pipeline.RunOptions(compare=False, size=64), progress=False)
+        pipeline.run(sample_clip, tmp_path / "out", pipeline.RunOptions(compare=False, render=RenderOptions(size=64)), progress=False)
     assert not (tmp_path / "out").exists() or list((tmp_path / "out").iterdir()) == []
 
 
@@ -212,7 +213,7 @@ def test_run_keeps_user_files_and_replaces_only_its_own(sample_clip, tmp_path, m
         return real_track(*args, **kwargs)
 
     monkeypatch.setattr(runner, "track_stage", track_with_a_truncated_word)
-    report = pipeline.run(clip, proj, pipeline.RunOptions(size=64), progress=False)
+    report = pipeline.run(clip, proj, pipeline.RunOptions(render=RenderOptions(size=64)), progress=False)
     monkeypatch.setattr(runner, "track_stage", real_track)
     assert any("truncated" in w for w in report["warnings"])
     assert "compare.mp4" in report["outputs"]
@@ -227,7 +228,7 @@ def test_run_keeps_user_files_and_replaces_only_its_own(sample_clip, tmp_path, m
     (stale / "track.npz").write_bytes(b"\0" * 4096)
     (stale / OWNER_FILE).write_text(json.dumps({"pid": _dead_pid(), "host": socket.gethostname(),
                                                 "started": time.time() - 5}))
-    report2 = pipeline.run(clip, proj, pipeline.RunOptions(size=64, compare=False), progress=False)
+    report2 = pipeline.run(clip, proj, pipeline.RunOptions(render=RenderOptions(size=64), compare=False), progress=False)
     assert not stale.exists()
     assert any("staging folder" in w and stale.name in w for w in report2["warnings"])
     assert "compare.mp4" not in report2["outputs"]

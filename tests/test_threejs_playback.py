@@ -54,9 +54,11 @@ def run_out(tmp_path_factory) -> Path:
     """The bundled sample clip (120 frames, 30 fps) through ``run`` at 128 px."""
     from capture2face import run
     from capture2face.pipeline import RunOptions
+    from capture2face.render import RenderOptions
+    from capture2face.tracking import TrackOptions
 
     out = tmp_path_factory.mktemp("threejs")
-    run(SAMPLE, out, RunOptions(size=128, compare=False, track_workers=1), progress=False)
+    run(SAMPLE, out, RunOptions(render=RenderOptions(size=128), track=TrackOptions(workers=1), compare=False), progress=False)
     return out / "sample"
 
 
@@ -161,11 +163,14 @@ def test_arkit_character_animation_glb_plays_in_threejs(tmp_path_factory):
     from capture2face.gltf.arkit_export import export_arkit_character
     from capture2face.gltf.container import GlbReader
     from capture2face.pipeline import RunOptions, load_character
+    from capture2face.render import RenderOptions
+    from capture2face.tracking import TrackOptions
 
     folder = tmp_path_factory.mktemp("threejs_arkit")
     character = folder / "head.glb"
     export_arkit_character(load_character(None), character, skeleton=True, body=True)
-    run(SAMPLE, folder, RunOptions(character=character, size=128, compare=False, track_workers=1), progress=False)
+    run(SAMPLE, folder, RunOptions(character=character, render=RenderOptions(size=128), track=TrackOptions(workers=1),
+                   compare=False), progress=False)
     glb = folder / "sample" / "animation.glb"
     g = GlbReader(glb).gltf
     paths = [c["target"]["path"] for c in g["animations"][0]["channels"]]

@@ -12,6 +12,7 @@ import pytest
 from capture2face.io.video_input import frame_times, iter_frames, iter_segment, open_video
 from capture2face.topology import IOD_PAIR
 from capture2face.tracking import TrackOptions, segments, track_clip
+from capture2face.tracking.landmarker import LandmarkerOptions
 from capture2face.tracking.tracker import Tracker
 from tests.helpers import truncated_copy
 
@@ -118,7 +119,7 @@ def test_short_clip_and_face_index_track_with_one_landmarker(exit_clip, monkeypa
     assert segments.plan_segments(clip, 4) is None  # 150 frames < two segments of 80
     assert _parallel(clip, TrackOptions(workers=4), 4, progress=False) is None
     monkeypatch.setattr(segments, "MIN_SEGMENT_FRAMES", 40)
-    assert _parallel(clip, TrackOptions(workers=2, face=0), 2,
+    assert _parallel(clip, TrackOptions(workers=2, landmarker=LandmarkerOptions(face=0)), 2,
                                    progress=False) is None
 
 

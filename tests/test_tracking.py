@@ -353,7 +353,7 @@ def test_several_faces_keeps_the_one_that_continues_the_track(face_frames, tmp_p
             canvas[:, :256] = cv2.resize(face[24:232, 24:232], (256, 256))
         frames.append(canvas)
     clip = write_clip(tmp_path / "two.mp4", frames, fps=face_frames.fps)
-    track = track_clip(clip, TrackOptions(num_faces=2), progress=False)
+    track = track_clip(clip, TrackOptions(landmarker=LandmarkerOptions(num_faces=2)), progress=False)
     assert track.n_faces_max == 2
     assert track.presence.all()
     assert (track.landmarks_px[:, :, 0].mean(1) > 256).all()

@@ -2,7 +2,7 @@
 
 :func:`run` (:mod:`.runner`) checks everything it can before tracking (:mod:`.preflight`),
 then runs the stages (:mod:`.stages`: track, retarget, export; :mod:`.render_pass`:
-avatar.mp4 and compare.mp4) and writes the report (:mod:`.report`, :mod:`.report_html`).
+avatar.mp4 and compare.mp4) and writes the report (:mod:`.report`).
 Patch names in the module that uses them (e.g. ``capture2face.pipeline.runner.track_stage``):
 this package's copies are re-exports.
 """

@@ -44,8 +44,9 @@ from capture2face.measures import clip_fidelity
 from capture2face.pipeline.options import OUTPUT_FILES, RunOptions, input_files, options_json
 from capture2face.pipeline.preflight import preflight
 from capture2face.pipeline.render_pass import render_stage
-from capture2face.pipeline.report import check_same_clip, track_warnings
-from capture2face.pipeline.report_html import poster_frames, write_report_html
+from capture2face.pipeline.report.html import write_report_html
+from capture2face.pipeline.report.posters import poster_frames
+from capture2face.pipeline.report.run import check_same_clip, track_warnings
 from capture2face.pipeline.stages import (
     export_stage,
     retarget_stage,
@@ -95,7 +96,7 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
     """Clip -> ``out_dir/<clip stem>/`` with avatar.mp4, compare.mp4, track.npz,
     animation.npz, animation.glb, livelink.csv, report.json and report.html (the report as
     a self-contained page: poster frames, curves, fidelity figures;
-    :mod:`capture2face.pipeline.report_html`).
+    :mod:`capture2face.pipeline.report`).
 
     Args:
         clip: the source video.

@@ -26,6 +26,7 @@ from scipy import ndimage
 from capture2face.errors import CaptureError
 from capture2face.io.atomic import atomic_path
 from capture2face.rig import features
+from capture2face.topology import LIDS_LEFT, LIDS_RIGHT
 
 # Teeth: widths (cm, along the arch from the midline) of the incisors, canine and
 # premolars of one side; what shows between open lips.
@@ -264,7 +265,7 @@ def _albedo(u, v, landmark_uvs, layout, rng, eye_iris_theta: dict) -> np.ndarray
            + 0.2 * np.exp(-(((u - 0.5) / 0.06) ** 2 + ((v - 0.86) / 0.04) ** 2)))
     colour += red[..., None] * np.array([6.0, -16.0, -12.0])
     # Around the eyes: slightly darker, cooler skin.
-    for c in (lm[159], lm[386]):
+    for c in (lm[LIDS_RIGHT[0]], lm[LIDS_LEFT[0]]):  # the upper lids' middles
         ring = np.exp(-(((u - c[0]) / 0.07) ** 2 + ((v - c[1] - 0.008) / 0.04) ** 2))
         colour += ring[..., None] * np.array([-14.0, -16.0, -6.0])
     # Lips.

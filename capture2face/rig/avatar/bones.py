@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from capture2face.topology import BROW_LEFT, BROW_RIGHT, LIDS_LEFT, LIDS_RIGHT, LIP_GAP, MOUTH_CORNERS
+
 
 @dataclass(frozen=True)
 class BoneSpec:
@@ -50,22 +52,22 @@ FOREHEAD_PIN_CM, FOREHEAD_PIN_HEAD = 1.4, 0.5
 # (name, landmark, skinning radius). "_R" = subject's right (-x).
 BONES = [
     BoneSpec("head", -1, 0.0, "head"),
-    BoneSpec("brow_inner_R", 107, 3.5, "brow_R", (_BROW_UP, _GLABELLA)),
-    BoneSpec("brow_mid_R", 105, 3.5, "brow_R", (_BROW_UP,)),
-    BoneSpec("brow_outer_R", 70, 3.5, "brow_R", (_BROW_UP,)),
-    BoneSpec("brow_inner_L", 336, 3.5, "brow_L", (_BROW_UP, _GLABELLA)),
-    BoneSpec("brow_mid_L", 334, 3.5, "brow_L", (_BROW_UP,)),
-    BoneSpec("brow_outer_L", 300, 3.5, "brow_L", (_BROW_UP,)),
-    BoneSpec("eyelid_upper_R", 159, 1.2, "eye_R"), BoneSpec("eyelid_lower_R", 145, 1.2, "eye_R"),
-    BoneSpec("eyelid_upper_L", 386, 1.2, "eye_L"), BoneSpec("eyelid_lower_L", 374, 1.2, "eye_L"),
+    BoneSpec("brow_inner_R", BROW_RIGHT[0], 3.5, "brow_R", (_BROW_UP, _GLABELLA)),
+    BoneSpec("brow_mid_R", BROW_RIGHT[1], 3.5, "brow_R", (_BROW_UP,)),
+    BoneSpec("brow_outer_R", BROW_RIGHT[2], 3.5, "brow_R", (_BROW_UP,)),
+    BoneSpec("brow_inner_L", BROW_LEFT[0], 3.5, "brow_L", (_BROW_UP, _GLABELLA)),
+    BoneSpec("brow_mid_L", BROW_LEFT[1], 3.5, "brow_L", (_BROW_UP,)),
+    BoneSpec("brow_outer_L", BROW_LEFT[2], 3.5, "brow_L", (_BROW_UP,)),
+    BoneSpec("eyelid_upper_R", LIDS_RIGHT[0], 1.2, "eye_R"), BoneSpec("eyelid_lower_R", LIDS_RIGHT[1], 1.2, "eye_R"),
+    BoneSpec("eyelid_upper_L", LIDS_LEFT[0], 1.2, "eye_L"), BoneSpec("eyelid_lower_L", LIDS_LEFT[1], 1.2, "eye_L"),
     BoneSpec("cheek_R", 205, 3.2, "cheek_R"), BoneSpec("cheek_L", 425, 3.2, "cheek_L"),
     # Below the outer lower lid: rises in a squint or a smile; reaches the crow's feet.
     BoneSpec("cheek_upper_R", 228, 2.6, "eye_R"), BoneSpec("cheek_upper_L", 448, 2.6, "eye_L"),
     BoneSpec("nose_wing_R", 129, 1.6, "cheek_R"), BoneSpec("nose_wing_L", 358, 1.6, "cheek_L"),
-    BoneSpec("lip_upper_R", 82, 1.4, "lip_upper"), BoneSpec("lip_upper_C", 13, 1.4, "lip_upper"),
+    BoneSpec("lip_upper_R", 82, 1.4, "lip_upper"), BoneSpec("lip_upper_C", LIP_GAP[0], 1.4, "lip_upper"),
     BoneSpec("lip_upper_L", 312, 1.4, "lip_upper"),
-    BoneSpec("mouth_corner_R", 61, 1.6, ""), BoneSpec("mouth_corner_L", 291, 1.6, ""),
-    BoneSpec("lip_lower_R", 87, 1.4, "lip_lower"), BoneSpec("lip_lower_C", 14, 1.4, "lip_lower"),
+    BoneSpec("mouth_corner_R", MOUTH_CORNERS[0], 1.6, ""), BoneSpec("mouth_corner_L", MOUTH_CORNERS[1], 1.6, ""),
+    BoneSpec("lip_lower_R", 87, 1.4, "lip_lower"), BoneSpec("lip_lower_C", LIP_GAP[1], 1.4, "lip_lower"),
     BoneSpec("lip_lower_L", 317, 1.4, "lip_lower"),
     BoneSpec("jaw", 152, 8.5, "lip_lower"),
 ]

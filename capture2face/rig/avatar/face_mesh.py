@@ -11,9 +11,10 @@ from capture2face.rig import canonical, mesh_ops
 from capture2face.rig.avatar.landmarks import LIP_LOWER_LINES, LIP_UPPER_LINES
 from capture2face.rig.avatar.morphs import mirror_map
 from capture2face.rig.avatar.variants import variant_shape
+from capture2face.topology import EYE_RIGHT, LIP_INNER_LOWER, LIP_INNER_UPPER, LIPS_INNER
 
 # Inner-lip vertex pairs (upper, lower) that meet when the lips close.
-LIP_PAIRS = [(191, 95), (80, 88), (81, 178), (82, 87), (13, 14), (312, 317), (311, 402), (310, 318), (415, 324)]
+LIP_PAIRS = list(zip(LIP_INNER_UPPER, LIP_INNER_LOWER))
 
 
 def close_lips(v: np.ndarray) -> np.ndarray:
@@ -88,9 +89,10 @@ def build_face_mesh(variant: str) -> FaceMesh:
     mirror = mirror_map(mesh.vertices.astype(np.float64))
 
     # Open the eyes and the mouth, then subdivide once (original vertices keep their ids).
-    eye_contours = [[33, 246, 161, 160, 159, 158, 157, 173, 133, 155, 154, 153, 145, 144, 163, 7]]
+    # remove_hole_fills reads each contour as a set of vertices: the order does not matter.
+    eye_contours = [list(EYE_RIGHT)]
     eye_contours.append(list(mirror[eye_contours[0]]))
-    lip_contour = [78, 191, 80, 81, 82, 13, 312, 311, 310, 415, 308, 95, 88, 178, 87, 14, 317, 402, 318, 324]
+    lip_contour = list(LIPS_INNER)
     tris0 = remove_hole_fills(mesh.triangles, eye_contours + [lip_contour])
     n0 = mesh_ops.vertex_normals(base, tris0)
     pos, tris, edges = mesh_ops.midpoint_subdivide(base, tris0, n0)

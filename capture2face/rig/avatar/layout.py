@@ -18,6 +18,7 @@ from capture2face.rig.avatar.parts import (
     mouth_interior,
     teeth_and_tongue,
 )
+from capture2face.topology import IOD_PAIR, IRIS_CENTRES, N_LANDMARKS, N_MESH
 
 
 @dataclass
@@ -102,12 +103,12 @@ class Head:
 def add_eyes(parts: Parts, pos: np.ndarray, eye_sets: dict) -> Eyes:
     """The eyeballs (material 1), right then left, behind the skin's eye openings; the
     iris landmarks (468-477) sit on their vertices."""
-    landmark_vertices = np.full(478, -1, np.int32)
-    landmark_vertices[:468] = np.arange(468)
+    landmark_vertices = np.full(N_LANDMARKS, -1, np.int32)
+    landmark_vertices[:N_MESH] = np.arange(N_MESH)
     start = parts.size
     iris_theta = {}
     eye_centres, eye_side = [], []
-    for k, (side, first_landmark) in enumerate((("R", 468), ("L", 473))):
+    for k, (side, first_landmark) in enumerate(zip(("R", "L"), IRIS_CENTRES)):
         ring = eye_sets[side]["ring"]
         ev, euv, etri, iris, iris_theta[side], centre = eyeball(pos[ring], side)
         eye_centres.append(centre)
@@ -164,7 +165,7 @@ def add_ears(parts: Parts, pos: np.ndarray, head: Head) -> int:
     first ear vertex."""
     start = parts.size
     hv, edge = head.verts, head.edge
-    ear_y = 0.5 * (pos[[33, 263], 1].mean() + pos[2, 1])  # between eye and nose base levels
+    ear_y = 0.5 * (pos[list(IOD_PAIR), 1].mean() + pos[2, 1])  # between eye and nose base levels
     ear_z = float(pos[edge, 2].min()) - 2.2
     for side, (u0, u1) in ((-1.0, maps.EAR_U["R"]), (1.0, maps.EAR_U["L"])):
         near = (np.abs(hv[:, 1] - ear_y) < 1.0) & (np.abs(hv[:, 2] - ear_z) < 1.0) & (hv[:, 0] * side > 0)

@@ -10,6 +10,7 @@ from scipy.spatial import cKDTree
 from capture2face.rig import mesh_ops
 from capture2face.rig.avatar.landmarks import BROW_INNER_R, BROW_OUTER_R, BROW_R
 from capture2face.rig.avatar.layout import Head, Mouth, Teeth
+from capture2face.topology import LIP_INNER_CORNERS, MOUTH_CORNERS
 
 
 class MorphBuilder:
@@ -146,7 +147,7 @@ def _brow_morphs(mb: MorphBuilder, mirror: np.ndarray, eye_rings: np.ndarray) ->
 def _mouth_corner_morphs(mb: MorphBuilder, sets: dict, mirror: np.ndarray, eye_rings: np.ndarray
                          ) -> dict[str, np.ndarray]:
     """mouthSmile, mouthFrown, mouthUpperUp and mouthLowerDown, each sided."""
-    corner_l = np.array([291, 308])
+    corner_l = np.array([MOUTH_CORNERS[1], LIP_INNER_CORNERS[1]])
     cheek_l = 425
     out = _sided("mouthSmile", lambda sg, m: mb.extend(
         [(m(corner_l), np.array([0.55 * sg, 0.45, -0.25])), (m(cheek_l), np.array([0.1 * sg, 0.35, 0.15]))],
@@ -168,7 +169,7 @@ def _pucker_and_funnel(mb: MorphBuilder, sets: dict) -> dict[str, np.ndarray]:
     pos = mb.pos
     lips = np.concatenate([sets["lip_upper"], sets["lip_lower"]])
     x = pos[lips, 0]
-    half = np.abs(pos[[61, 291], 0]).mean()
+    half = np.abs(pos[list(MOUTH_CORNERS), 0]).mean()
     centre_weight = np.clip(1.0 - (x / half) ** 2, 0.0, 1.0)
     is_upper = np.isin(lips, sets["lip_upper"])
     press = np.where(is_upper, -0.05, 0.05)

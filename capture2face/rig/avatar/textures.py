@@ -11,6 +11,7 @@ from capture2face.rig.avatar.layout import Head, f32
 from capture2face.rig.avatar.parts import hair_grid, jaw_shadow_grid
 from capture2face.rig.avatar.poses import zone_table
 from capture2face.rig.face_rig import REGION_NAMES, ZONE_NAMES
+from capture2face.topology import MOUTH_CORNERS
 
 
 def map_fields(face: FaceMesh, all_pos: np.ndarray, all_uv: np.ndarray, all_tri: np.ndarray,
@@ -26,7 +27,7 @@ def map_fields(face: FaceMesh, all_pos: np.ndarray, all_uv: np.ndarray, all_tri:
     hv, edge, n_edge, pos = head.verts, head.edge, head.n_edge, face.pos
     textures = maps.build_maps(face.canonical_uvs, all_uv, all_tri, material, iris_theta,
                                head_hair=hair_grid(hv, n_edge),
-                               head_shadow=jaw_shadow_grid(hv, n_edge, float(pos[[61, 291], 1].mean())),
+                               head_shadow=jaw_shadow_grid(hv, n_edge, float(pos[list(MOUTH_CORNERS), 1].mean())),
                                head_edge_uvs=all_uv[edge[np.arange(n_edge + 1) % n_edge]])
     return {"tangents": f32(tangents), "albedo": textures["albedo"], "normal_map": textures["normal"],
             "wrinkle_maps": np.stack([textures["stretch"], textures["compress"]]),

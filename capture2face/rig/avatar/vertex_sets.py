@@ -6,8 +6,9 @@ from __future__ import annotations
 import numpy as np
 
 from capture2face.rig.avatar.face_mesh import FaceMesh, contour_loop, split_loop
-from capture2face.rig.avatar.landmarks import EYE_RINGS, LIP_INNER_CORNERS, LIP_LOWER_LINES, LIP_UPPER_LINES
+from capture2face.rig.avatar.landmarks import EYE_RINGS, LIP_LOWER_LINES, LIP_UPPER_LINES
 from capture2face.rig.avatar.morphs import MorphBuilder
+from capture2face.topology import LIP_GAP, LIP_INNER_CORNERS
 
 
 def vertex_sets(face: FaceMesh, mb: MorphBuilder) -> dict:
@@ -50,8 +51,8 @@ def _lid_profile(pos: np.ndarray, ids: np.ndarray, outer: int, inner: int) -> np
 
 def _lip_sets(face: FaceMesh) -> dict:
     """The inner lip contour ("lip_loop"), its halves and each lip's vertices."""
-    lip_loop = contour_loop(face.loops, 13)
-    inner_upper, inner_lower = split_loop(lip_loop, *LIP_INNER_CORNERS, 13)
+    lip_loop = contour_loop(face.loops, LIP_GAP[0])
+    inner_upper, inner_lower = split_loop(lip_loop, *LIP_INNER_CORNERS, LIP_GAP[0])
     edge_mid = {tuple(e): face.n_base + i for i, e in enumerate(face.edges.tolist())}
 
     def with_midpoints(ids):
