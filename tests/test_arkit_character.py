@@ -17,6 +17,7 @@ from capture2face.character.load import import_glb
 from capture2face.errors import CaptureError
 from capture2face.gltf.arkit_export import export_arkit_character, part_order
 from capture2face.gltf.container import ARRAY_BUFFER, GlbBuilder, GlbReader
+from capture2face.render import RenderOptions
 from capture2face.rig.arkit_names import arkit_morphs, canonical_arkit, drive_mode
 from capture2face.rig.avatar import default_avatar
 from tests.helpers import FPS, NAMES, shared_character, synthetic_track, validate
@@ -389,7 +390,7 @@ def test_run_drives_an_arkit_character_with_no_mapping_file(tmp_path, avatar, sa
 
     char = tmp_path / "char.glb"
     export_arkit_character(avatar, char, naming=".L", skeleton=True, body=True)
-    report = run(sample_clip, tmp_path / "out", RunOptions(character=char, size=128), progress=False)
+    report = run(sample_clip, tmp_path / "out", RunOptions(character=char, render=RenderOptions(size=128)), progress=False)
     folder = tmp_path / "out" / sample_clip.stem
     with av.open(str(folder / "avatar.mp4")) as c:
         frames = [f.to_ndarray(format="rgb24") for f in c.decode(video=0)]

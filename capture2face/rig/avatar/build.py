@@ -49,8 +49,8 @@ def build_avatar(variant: str = "default") -> FaceRig:
     all_joints, all_weights = part_skinning(joints, weights, mouth, teeth, head, V - ears_start)
     position_ids = shared_position_ids(V, head)
     morph_names, mp = all_morphs(skin_morphs, V, mouth, teeth, head)
-    rest_normals = _welded_normals(all_pos, all_tri, position_ids)
-    morphed_normals = _welded_normals(all_pos[None] + mp, all_tri, position_ids)
+    rest_normals = mesh_ops.welded_normals(all_pos, all_tri, position_ids)
+    morphed_normals = mesh_ops.welded_normals(all_pos[None] + mp, all_tri, position_ids)
     mn = morphed_normals - rest_normals[None]
 
     return FaceRig(
@@ -65,8 +65,3 @@ def build_avatar(variant: str = "default") -> FaceRig:
         eye_centres=f32(eyes.centres), eye_vertex_side=eye_vertex_side, double_sided=False,
     )
 
-
-def _welded_normals(positions: np.ndarray, triangles: np.ndarray, position_ids: np.ndarray) -> np.ndarray:
-    """Vertex normals (..., V, 3) computed over positions, not vertices: copies of one
-    position (a UV seam) share one normal, so no shading seam shows."""
-    return mesh_ops.vertex_normals(positions, position_ids[triangles])[..., position_ids, :]
