@@ -85,7 +85,7 @@ def _cpu_seconds() -> float:
 class _Clock:
     """Wall and CPU seconds (all threads, and children waited for) of a ``with`` block."""
 
-    def __enter__(self) -> "_Clock":
+    def __enter__(self) -> _Clock:
         self._wall, self._cpu = time.perf_counter(), _cpu_seconds()
         return self
 
@@ -226,7 +226,7 @@ def _render_rounds(rig, animation, options, progress: bool = True) -> tuple[list
                          eye_rotation=None if animation.eye_rotation is None else animation.eye_rotation[i])
               for i in range(n_render)]
     fps: dict[str, list[float]] = {d: [] for d in drivers}
-    cpu: dict[str, float] = {d: 0.0 for d in drivers}
+    cpu: dict[str, float] = dict.fromkeys(drivers, 0.0)
     rendered: list[np.ndarray] = []
     renderers = {}
     try:

@@ -130,10 +130,9 @@ def test_a_crash_between_renames_leaves_an_incomplete_folder_the_next_run_replac
 
 def test_write_failure_leaves_nothing(tmp_path):
     out = tmp_path / "out"
-    with pytest.raises(OSError):
-        with staged_folder(out / "clip", KNOWN) as tmp:
-            (tmp / "avatar.mp4").write_text("half")
-            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(tmp / "track.npz"))
+    with pytest.raises(OSError), staged_folder(out / "clip", KNOWN) as tmp:
+        (tmp / "avatar.mp4").write_text("half")
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(tmp / "track.npz"))
     assert not out.exists()
 
 

@@ -642,10 +642,9 @@ def test_video_writer_frames_and_rate(tmp_path):
 def test_video_writer_is_atomic(tmp_path):
     from capture2face.io.video_output import VideoWriter
 
-    with pytest.raises(RuntimeError):
-        with VideoWriter(tmp_path / "broken.mp4", 25, (32, 32)) as out:
-            out.write(np.zeros((32, 32, 3), np.uint8))
-            raise RuntimeError("interrupted")
+    with pytest.raises(RuntimeError), VideoWriter(tmp_path / "broken.mp4", 25, (32, 32)) as out:
+        out.write(np.zeros((32, 32, 3), np.uint8))
+        raise RuntimeError("interrupted")
     assert list(tmp_path.iterdir()) == []
 
 

@@ -45,7 +45,7 @@ def test_trajectory_passes_through_neutral_and_reference_poses(avatar, frames, s
     # Elsewhere the performance moves: not stuck at one of the held poses.
     free = perf.key_pose < 0
     assert np.ptp(perf.bone_positions[free], axis=0).max() > 0.2 * np.linalg.norm(avatar.pose_bones - avatar.bone_rest, axis=-1).max()
-    assert 0.0 <= perf.blend_weights.min() and perf.blend_weights.max() <= 1.0
+    assert perf.blend_weights.min() >= 0.0 and perf.blend_weights.max() <= 1.0
 
 
 def test_truth_influences_are_the_grouped_pose_influences(avatar):

@@ -71,7 +71,7 @@ def main() -> None:
             raise SystemExit(f"{path}: no such file")
     try:
         mirror_identity(args.neutral, args.other, args.out, args.amount)
-    except Exception as exc:  # noqa: BLE001 - an unreadable or unmatched pair: one line, not a traceback
+    except Exception as exc:  # an unreadable or unmatched pair: one line, not a traceback
         raise SystemExit(f"cannot mirror {args.neutral} about {args.other}: {exc}") from None
     print(args.out)
 

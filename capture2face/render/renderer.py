@@ -136,7 +136,7 @@ class FrameState:
     eye_rotation: np.ndarray | None = None
 
     @classmethod
-    def at_pose(cls, rig: FaceRig, head_pose: np.ndarray, pose: str | None = None) -> "FrameState":
+    def at_pose(cls, rig: FaceRig, head_pose: np.ndarray, pose: str | None = None) -> FrameState:
         """The rest pose (``pose=None``) or reference pose ``pose`` with its morph weights."""
         if pose is None:
             return cls(rig.bone_rest.copy(), np.zeros(rig.n_morphs, np.float32), np.asarray(head_pose))
@@ -185,7 +185,7 @@ class Renderer:
             raise
 
     @classmethod
-    def create_from_options(cls, rig: FaceRig, options: RenderOptions | None = None) -> "Renderer":
+    def create_from_options(cls, rig: FaceRig, options: RenderOptions | None = None) -> Renderer:
         return cls(rig, options)
 
     # ---- setup --------------------------------------------------------------------
@@ -552,7 +552,7 @@ class Renderer:
             obj.release()
         self._resources.clear()
 
-    def __enter__(self) -> "Renderer":
+    def __enter__(self) -> Renderer:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -143,7 +143,7 @@ class MappedPoints:
             shutil.rmtree(self._dir, ignore_errors=True)
             self._dir = None
 
-    def __enter__(self) -> "MappedPoints":
+    def __enter__(self) -> MappedPoints:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -213,7 +213,7 @@ class SpilledMedian:
             shutil.rmtree(self._dir, ignore_errors=True)
             self._dir = None
 
-    def __enter__(self) -> "SpilledMedian":
+    def __enter__(self) -> SpilledMedian:
         return self
 
     def __exit__(self, *exc) -> None:

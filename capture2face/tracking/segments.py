@@ -181,7 +181,7 @@ class SegmentWorkers:
     def __len__(self) -> int:
         return len(self._procs)
 
-    def __enter__(self) -> "SegmentWorkers":
+    def __enter__(self) -> SegmentWorkers:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -286,7 +286,7 @@ def _worker_main(send, recv, options: LandmarkerOptions) -> None:
     try:
         lm = FaceLandmarker.create_from_options(options)
         lm.prepare()
-    except Exception as exc:  # noqa: BLE001 - reported to the parent, which falls back
+    except Exception as exc:  # reported to the parent, which falls back
         send.send(("error", f"{exc.__class__.__name__}: {exc}"))
         return
     try:
@@ -296,7 +296,7 @@ def _worker_main(send, recv, options: LandmarkerOptions) -> None:
             return
         try:
             send.send(("ok", _track_segment(lm, job, send)))
-        except Exception as exc:  # noqa: BLE001 - reported to the parent, which falls back
+        except Exception as exc:  # reported to the parent, which falls back
             send.send(("error", f"{exc.__class__.__name__}: {exc}"))
     except (EOFError, OSError):
         pass  # the parent went away
