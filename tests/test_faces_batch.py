@@ -186,8 +186,8 @@ def _face(cx: float, cy: float, size: float) -> np.ndarray:
     return np.column_stack([xy, np.zeros(len(xy), np.float32)])
 
 
-@pytest.mark.parametrize("kw, first", [(dict(faces="largest"), 0), (dict(faces="center"), 1),
-                                       (dict(face=0), 2), (dict(face=2), 0)])
+@pytest.mark.parametrize("kw, first", [({"faces": "largest"}, 0), ({"faces": "center"}, 1),
+                                       ({"face": 0}, 2), ({"face": 2}, 0)])
 def test_the_choice_then_continuity(kw, first):
     from capture2face.tracking.landmarker import FaceLandmarker, LandmarkerOptions
 

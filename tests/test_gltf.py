@@ -187,8 +187,8 @@ def _foreign_glb(tmp_path):
         "zone_table": {"jawopen": [0, 0, 0, 0, 0, 0.5, 0.5, 1]},
     }
     (tmp_path / "character.json").write_text(json.dumps(mapping))
-    return path, dict(skin=skin, eye=eye, bones_m=bones_m, albedo=albedo, wt=wt, top=top,
-                      sparse_idx=sparse_idx, sparse_val=sparse_val)
+    return path, {"skin": skin, "eye": eye, "bones_m": bones_m, "albedo": albedo, "wt": wt, "top": top,
+                  "sparse_idx": sparse_idx, "sparse_val": sparse_val}
 
 
 def test_import_foreign_character_with_mapping(tmp_path):

@@ -257,7 +257,7 @@ def test_head_is_joined_to_the_face_without_a_crack(avatar):
     shell = avatar.triangles[np.isin(avatar.material[avatar.triangles], (0, 4)).all(1)]
     loops = mesh_ops.boundary_loops(avatar.position_ids[shell])
     assert len(loops) == 3
-    assert sorted(len(set(l) & {33, 263, 13}) for l in loops) == [1, 1, 1]
+    assert sorted(len(set(loop) & {33, 263, 13}) for loop in loops) == [1, 1, 1]
     shared = np.flatnonzero(avatar.position_ids != np.arange(avatar.n_vertices))
     assert np.all(head[shared]) and (avatar.material[avatar.position_ids[shared]] == 0).sum() > 50
     # Copies share their normal, and stay together under any bones and morphs (the head's

@@ -153,7 +153,7 @@ class FrameArray:
             self._fd = -1
 
     def __del__(self) -> None:
-        try:
+        try:  # noqa: SIM105 - contextlib may already be torn down at interpreter shutdown
             self.close()
         except Exception:  # interpreter shutdown
             pass

@@ -244,8 +244,8 @@ def solve_bones_weights(mapped: MappedPoints, rig, landmarks: np.ndarray, per_ve
     """
     rest = rig.bone_rest.astype(np.float64)
     bone_lm = np.asarray(rig.bone_landmarks)
-    slot = {int(l): i for i, l in enumerate(landmarks)}
-    direct = [(b, slot[int(l)]) for b, l in enumerate(bone_lm) if b > 0 and int(l) in slot]
+    slot = {int(lm): i for i, lm in enumerate(landmarks)}
+    direct = [(b, slot[int(lm)]) for b, lm in enumerate(bone_lm) if b > 0 and int(lm) in slot]
     solve_w = options.solve_blend_weights and per_vertex
     out = _Blend(mapped.frames, rig, solve_w)
     if not per_vertex:  # imported character: bone = its mapped feature point

@@ -176,7 +176,7 @@ class SpilledMedian:
             return
         if self._file is None:
             self._dir = tempfile.mkdtemp(prefix="capture2face-median-")
-            self._file = open(os.path.join(self._dir, "rows.f64"), "w+b")
+            self._file = open(os.path.join(self._dir, "rows.f64"), "w+b")  # noqa: SIM115 - kept open, close() closes it
             for block in self._blocks:
                 self._spill(block)
             self._blocks = []

@@ -100,7 +100,10 @@ def _lid_targets(pos: np.ndarray, e: dict) -> tuple[np.ndarray, np.ndarray]:
     above it) and lower lid (20% of the way up): ((n upper, 3), (n lower, 3))."""
     lo = e["lower_full"]
     order = np.argsort(pos[lo, 0])
-    at_x = lambda x: np.stack([np.interp(x, pos[lo[order], 0], pos[lo[order], c]) for c in range(3)], 1)
+
+    def at_x(x):
+        return np.stack([np.interp(x, pos[lo[order], 0], pos[lo[order], c]) for c in range(3)], 1)
+
     up = e["upper"]
     lower_under_upper = at_x(pos[up, 0])
     meet = lower_under_upper + 0.2 * (pos[up] - lower_under_upper)
