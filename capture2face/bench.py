@@ -30,8 +30,8 @@ Figures (all frames per second of wall time unless named otherwise):
 * ``peak_rss_mb``: this process's peak resident memory.
 * ``cpu_ms_per_frame``: processor time (user + system, every thread of the process:
   MediaPipe's, llvmpipe's, the encoders'; and the tracking worker processes') per frame of
-  the decode, track, render (``auto`` driver), encode and end-to-end measurements. With ``cpu_cores`` cores, no scheduling can
-  run the pipeline faster than ``end_to_end_fps_cpu_bound`` = cores x 1000 /
+  the decode, track, render (``auto`` driver), encode and end-to-end measurements. With
+  ``cpu_cores`` cores, no scheduling can run the pipeline faster than ``end_to_end_fps_cpu_bound`` = cores x 1000 /
   ``cpu_ms_per_frame["end_to_end"]``: the work itself caps the speed, whatever overlaps.
 """
 
@@ -363,4 +363,5 @@ def summary_line(result: dict) -> str:
             f"{result['cpu_cores']}-core CPU bound), track {result['track_fps']:.1f} fps, render auto "
             f"{result['render_fps_wrinkles_auto']:.1f} fps ({result['render_auto_over_off']:.2f}x off), retarget + "
             f"wrinkles {result['retarget_ms_per_frame'] + result['wrinkle_ms_per_frame']:.2f} ms/frame; "
-            f"goals met {len(goals) - len(missed)}/{len(goals)}" + (f" (missed: {'; '.join(missed)})" if missed else ""))
+            f"goals met {len(goals) - len(missed)}/{len(goals)}"
+            + (f" (missed: {'; '.join(missed)})" if missed else ""))

@@ -1,6 +1,7 @@
 """Another ICT-FaceKit identity from two ICT heads: the face opposite one identity about the other.
 
-    python tools/mirror_identity.py ../shared/characters/ict-a.glb ../shared/characters/ict-b.glb ict-c.glb [--amount 1.0]
+    python tools/mirror_identity.py ../shared/characters/ict-a.glb ../shared/characters/ict-b.glb \\
+        ict-c.glb [--amount 1.0]
 
 ICT-FaceKit is linear: a face is the generic neutral plus identity modes plus expression
 shapes, and the expression shapes do not depend on the identity (ict-a and ict-b share every

@@ -379,7 +379,8 @@ def _solve_arkit_weights(track, rest: ActorRest, rig, landmarks: np.ndarray, pri
                                         options.arkit_other_weight, options.arkit_pair_weight)
     options = dataclasses.replace(options, morph_ridge=options.arkit_morph_ridge, sparsity=options.arkit_sparsity)
     network = SteadiedMap(_fit_network(rest, rig, landmarks, solve.model.rest[:len(landmarks)], options),
-                          np.where(np.isin(landmarks, EYE_CONTOURS), options.arkit_eye_share, options.arkit_network_share))
+                          np.where(np.isin(landmarks, EYE_CONTOURS), options.arkit_eye_share,
+                                   options.arkit_network_share))
     windows = frame_windows(track.n_frames, options.window_frames, options.window_overlap)
     weights = np.zeros_like(prior)
     weights[:, solve.fixed] = prior[:, solve.fixed]

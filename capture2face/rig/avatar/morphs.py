@@ -123,7 +123,8 @@ def _eyelid_morphs(mb: MorphBuilder, eye: dict) -> dict[str, np.ndarray]:
         d_up, d_lo = _lid_targets(mb.pos, e)
         out["eyeBlink" + name] = mb.extend([(e["upper"], d_up), (e["lower"], d_lo), (e["corners"], 0.0)], 2.2)
         out["eyeWide" + name] = mb.extend(
-            [(e["upper"], np.array([0.0, 0.28, 0.04]) * e["upper_profile"][:, None]), (e["lower"], 0.0), (e["corners"], 0.0)], 2.2)
+            [(e["upper"], np.array([0.0, 0.28, 0.04]) * e["upper_profile"][:, None]), (e["lower"], 0.0),
+             (e["corners"], 0.0)], 2.2)
         below = e["below"]
         out["eyeSquint" + name] = mb.extend(
             [(e["lower"], np.array([0.0, 0.17, 0.04]) * e["lower_profile"][:, None]),

@@ -384,4 +384,5 @@ def hair_grid(hv: np.ndarray, n_edge: int) -> np.ndarray:
     from_edge = np.vstack([np.zeros((1, n_edge + 1)), np.cumsum(step, axis=0)])
     z_front = float(p[0, :, 2].max())
     hairline = np.interp(p[..., 2] - z_front, [-19.0, -13.0, -8.5, -4.5], [-3.5, 0.5, 4.2, 7.5])
-    return (features.smoothstep((from_edge - 0.1) / 0.7) * features.smoothstep((p[..., 1] - hairline) / 1.2)).astype(np.float32)
+    return (features.smoothstep((from_edge - 0.1) / 0.7)
+            * features.smoothstep((p[..., 1] - hairline) / 1.2)).astype(np.float32)
