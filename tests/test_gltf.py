@@ -136,7 +136,8 @@ def _foreign_glb(tmp_path):
             target = {"bufferView": None, "componentType": 5126, "count": len(pos), "type": "VEC3",
                       "min": [0, 0, 0], "max": [0.005, 0.01, 0.02],
                       "sparse": {"count": 3,
-                                 "indices": {"bufferView": bld.buffer_view(sparse_idx.tobytes()), "componentType": 5123},
+                                 "indices": {"bufferView": bld.buffer_view(sparse_idx.tobytes()),
+                                             "componentType": 5123},
                                  "values": {"bufferView": bld.buffer_view(sparse_val.tobytes())}}}
             del target["bufferView"]
             targets = [{"POSITION": bld.add("accessors", target)}]

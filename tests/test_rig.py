@@ -137,7 +137,8 @@ def test_eyes_turn_about_their_centres_behind_the_lids(avatar):
         np.testing.assert_allclose(gaze_angles(v), [30.0, 20.0], atol=1e-3)
         assert v[0] > 0 and v[1] < 0
         ball = avatar.eye_vertex_side == side
-        np.testing.assert_allclose(np.linalg.norm(pos[ball] - c, axis=1), np.linalg.norm(rest[ball] - c, axis=1), atol=1e-5)
+        np.testing.assert_allclose(np.linalg.norm(pos[ball] - c, axis=1), np.linalg.norm(rest[ball] - c, axis=1),
+                                   atol=1e-5)
         np.testing.assert_allclose(nrm[ball], avatar.normals[ball] @ eye_rotation_matrices(turn[side]).T, atol=1e-5)
     np.testing.assert_allclose(gaze_directions(np.zeros(2)), [0.0, 0.0, 1.0], atol=1e-12)
 
