@@ -31,9 +31,10 @@ import socket
 import sys
 import threading
 import time
+from collections.abc import Iterable
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 from tqdm import tqdm
 
@@ -182,7 +183,7 @@ def _run_clip(path: str, out: str, name: str, options: Any) -> dict:
                 "frames": report["frames"], "output_dir": report["output_dir"]}
     except CaptureError as exc:
         error = str(exc)
-    except Exception as exc:  # noqa: BLE001 - a bug on one clip must not end the batch
+    except Exception as exc:  # a bug on one clip must not end the batch
         error = f"{exc.__class__.__name__}: {exc}"
     return {"status": "failed", "seconds": round(time.perf_counter() - t0, 3), "error": error}
 
@@ -443,7 +444,7 @@ def _run_pool(clips: list[BatchClip], todo: list[int], out: Path, options: Any, 
     """Process pool, one fresh process per clip; a pool broken by a crashing worker
     (segfault, out of memory) is rebuilt and the unfinished clips resubmitted."""
     ctx = multiprocessing.get_context("spawn")  # fork would copy threads and GL state
-    attempts = {i: 0 for i in todo}
+    attempts = dict.fromkeys(todo, 0)
     pending = list(todo)
     while pending:
         retry: list[int] = []
@@ -550,7 +551,7 @@ def _connect_ray(address: str):
         try:
             ray.init(address=address, include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR)
             result["error"] = None
-        except BaseException as exc:  # noqa: BLE001 - handed to the main thread
+        except BaseException as exc:  # handed to the main thread
             result["error"] = exc
 
     thread = threading.Thread(target=connect, name="capture2face-ray-connect", daemon=True)
@@ -586,6 +587,6 @@ def _run_ray(clips: list[BatchClip], todo: list[int], out: Path, options: Any, a
             i = refs[ref]
             try:
                 done(i, ray.get(ref))
-            except Exception as exc:  # noqa: BLE001 - the worker died (RayTaskError, ...)
+            except Exception as exc:  # the worker died (RayTaskError, ...)
                 done(i, {"status": "failed", "seconds": None,
                          "error": f"ray task failed: {exc.__class__.__name__}"})

@@ -30,8 +30,8 @@ Figures (all frames per second of wall time unless named otherwise):
 * ``peak_rss_mb``: this process's peak resident memory.
 * ``cpu_ms_per_frame``: processor time (user + system, every thread of the process:
   MediaPipe's, llvmpipe's, the encoders'; and the tracking worker processes') per frame of
-  the decode, track, render (``auto`` driver), encode and end-to-end measurements. With ``cpu_cores`` cores, no scheduling can
-  run the pipeline faster than ``end_to_end_fps_cpu_bound`` = cores x 1000 /
+  the decode, track, render (``auto`` driver), encode and end-to-end measurements. With
+  ``cpu_cores`` cores, no scheduling can run the pipeline faster than ``end_to_end_fps_cpu_bound`` = cores x 1000 /
   ``cpu_ms_per_frame["end_to_end"]``: the work itself caps the speed, whatever overlaps.
 """
 
@@ -85,7 +85,7 @@ def _cpu_seconds() -> float:
 class _Clock:
     """Wall and CPU seconds (all threads, and children waited for) of a ``with`` block."""
 
-    def __enter__(self) -> "_Clock":
+    def __enter__(self) -> _Clock:
         self._wall, self._cpu = time.perf_counter(), _cpu_seconds()
         return self
 
@@ -226,7 +226,7 @@ def _render_rounds(rig, animation, options, progress: bool = True) -> tuple[list
                          eye_rotation=None if animation.eye_rotation is None else animation.eye_rotation[i])
               for i in range(n_render)]
     fps: dict[str, list[float]] = {d: [] for d in drivers}
-    cpu: dict[str, float] = {d: 0.0 for d in drivers}
+    cpu: dict[str, float] = dict.fromkeys(drivers, 0.0)
     rendered: list[np.ndarray] = []
     renderers = {}
     try:
@@ -363,4 +363,5 @@ def summary_line(result: dict) -> str:
             f"{result['cpu_cores']}-core CPU bound), track {result['track_fps']:.1f} fps, render auto "
             f"{result['render_fps_wrinkles_auto']:.1f} fps ({result['render_auto_over_off']:.2f}x off), retarget + "
             f"wrinkles {result['retarget_ms_per_frame'] + result['wrinkle_ms_per_frame']:.2f} ms/frame; "
-            f"goals met {len(goals) - len(missed)}/{len(goals)}" + (f" (missed: {'; '.join(missed)})" if missed else ""))
+            f"goals met {len(goals) - len(missed)}/{len(goals)}"
+            + (f" (missed: {'; '.join(missed)})" if missed else ""))

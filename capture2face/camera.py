@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from capture2face.maths.rotations import rotation_ypr  # noqa: F401  (re-exported: its old home)
+from capture2face.maths.rotations import rotation_ypr  # also re-exported here: its old home
 from capture2face.rig.arkit_names import is_automatic
 from capture2face.rig.face_rig import FaceRig
 from capture2face.topology import N_MESH

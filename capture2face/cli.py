@@ -225,7 +225,8 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     report = batch.run_batch(args.inputs, args.output, opts, jobs=args.jobs, resume=args.resume,
                        ray_address=args.ray, progress=not args.quiet)
     failed = report["summary"]["failed"]  # this batch's (the report also keeps earlier entries)
-    print(f"{sum(report['summary'][s] for s in ('ok', 'failed', 'skipped', 'pending'))} clips, {failed} failed; see {Path(args.output) / 'batch_report.json'}")
+    print(f"{sum(report['summary'][s] for s in ('ok', 'failed', 'skipped', 'pending'))} clips, {failed} failed; "
+          f"see {Path(args.output) / 'batch_report.json'}")
     return 1 if failed else 0
 
 
@@ -395,7 +396,8 @@ def _add_eval_synthetic_parser(evals, common: argparse.ArgumentParser) -> None:
 
 
 def _add_eval_fidelity_parser(evals, common: argparse.ArgumentParser) -> None:
-    p = evals.add_parser("fidelity", parents=[common], help="does the character do what the actor does? (real clips, no truth)")
+    p = evals.add_parser("fidelity", parents=[common],
+                         help="does the character do what the actor does? (real clips, no truth)")
     p.add_argument("paths", nargs="+", metavar="CLIP_OR_RUN_DIR",
                    help="clips (tracked and retargeted, nothing rendered) or `run` output folders")
     p.add_argument("--character", metavar="FILE", default=None, help="character for clips (default avatar)")
@@ -421,9 +423,11 @@ def _add_batch_parser(sub, common: argparse.ArgumentParser) -> None:
                         "DIR/batch_report.json")
     p.add_argument("--jobs", type=int, default=None,
                    help="parallel clips, 1 or more (default: the cores this process may use)")
-    p.add_argument("--resume", action="store_true", help="skip clips whose outputs are complete and made with the same options "
+    p.add_argument("--resume", action="store_true",
+                   help="skip clips whose outputs are complete and made with the same options "
                         "from the same clip and character content")
-    p.add_argument("--ray", metavar="ADDRESS", default=None, help="distribute over a Ray cluster: local, auto (this machine's cluster), "
+    p.add_argument("--ray", metavar="ADDRESS", default=None,
+                   help="distribute over a Ray cluster: local, auto (this machine's cluster), "
                         "HOST:PORT or ray://HOST:PORT")
     _add_run_options(p)
     p.set_defaults(func=_cmd_batch)

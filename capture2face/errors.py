@@ -2,6 +2,7 @@
 process set-up that makes interruptions clean."""
 
 import atexit
+import contextlib
 import os
 import signal
 import sys
@@ -66,8 +67,6 @@ def exit_interrupted() -> None:
     """
     atexit._run_exitfuncs()
     for stream in (sys.stdout, sys.stderr):
-        try:
+        with contextlib.suppress(OSError, ValueError):
             stream.flush()
-        except (OSError, ValueError):
-            pass
     os._exit(130)

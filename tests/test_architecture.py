@@ -13,7 +13,8 @@ import grimp
 PACKAGE = Path(__file__).resolve().parents[1] / "capture2face"
 MAX_FUNCTION_LINES = 80
 # Imported where they are used: heavy, optional, or loading system libraries.
-LAZY_IMPORTS = {"mediapipe", "ray", "meshoptimizer", "DracoPy", "alktx2", "cv2", "av", "moderngl", "matplotlib", "capture2face"}
+LAZY_IMPORTS = {"mediapipe", "ray", "meshoptimizer", "DracoPy", "alktx2", "cv2", "av", "moderngl", "matplotlib",
+                "capture2face"}
 
 
 def _modules():

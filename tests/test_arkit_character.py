@@ -117,9 +117,11 @@ def _with_landmarks(rig, avatar):
     return rig.replace(
         landmark_vertices=lv, bone_names=rig.bone_names + [AUTO_PREFIX + "brow"],
         bone_rest=np.concatenate([rig.bone_rest, rest[None]]).astype(np.float32),
-        bone_parents=np.r_[rig.bone_parents, 0].astype(np.int32), bone_landmarks=np.r_[rig.bone_landmarks, 105].astype(np.int32),
+        bone_parents=np.r_[rig.bone_parents, 0].astype(np.int32),
+        bone_landmarks=np.r_[rig.bone_landmarks, 105].astype(np.int32),
         bone_groups=np.r_[rig.bone_groups, rig.bone_groups.max() + 1].astype(np.int32),
-        pose_bones=np.concatenate([rig.pose_bones, np.repeat(rest[None, None], len(rig.pose_bones), 0)], 1).astype(np.float32))
+        pose_bones=np.concatenate([rig.pose_bones, np.repeat(rest[None, None], len(rig.pose_bones), 0)],
+                                  1).astype(np.float32))
 
 
 def _performed_track(rig, by: dict[str, int], truth: dict[str, np.ndarray], scores: dict[str, np.ndarray]):
@@ -245,7 +247,8 @@ def test_mapping_json_maps_other_names(tmp_path, avatar):
     out = tmp_path / "fcl.glb"
     _write_glb(out, gltf, binary)
     assert "jawOpen" not in _by_arkit(import_glb(out))
-    (tmp_path / "fcl.json").write_text(json.dumps({"morphs": {"Fcl_MTH_A": "jawOpen", "Fcl_EYE_Close_L": "eyeBlink_L"}}))
+    (tmp_path / "fcl.json").write_text(
+        json.dumps({"morphs": {"Fcl_MTH_A": "jawOpen", "Fcl_EYE_Close_L": "eyeBlink_L"}}))
     rig = import_glb(out)
     mine = _by_arkit(rig)
     assert "jawOpen" in mine and "eyeBlinkLeft" in mine
@@ -315,7 +318,8 @@ def test_cli_refuses_a_bad_character_before_tracking(tmp_path, sample_clip, kind
     took = time.perf_counter() - t0
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and ("no ARKit names" in lines[0] if kind == "undrivable" else "EXT_mesh_gpu_instancing" in lines[0])
+    assert len(lines) == 1 and ("no ARKit names" in lines[0] if kind == "undrivable"
+                                else "EXT_mesh_gpu_instancing" in lines[0])
     assert not (tmp_path / "out" / sample_clip.stem).exists()  # nothing tracked, nothing written
     print(f"refused in {took:.1f} s")
 
@@ -390,7 +394,8 @@ def test_run_drives_an_arkit_character_with_no_mapping_file(tmp_path, avatar, sa
 
     char = tmp_path / "char.glb"
     export_arkit_character(avatar, char, naming=".L", skeleton=True, body=True)
-    report = run(sample_clip, tmp_path / "out", RunOptions(character=char, render=RenderOptions(size=128)), progress=False)
+    report = run(sample_clip, tmp_path / "out", RunOptions(character=char, render=RenderOptions(size=128)),
+                 progress=False)
     folder = tmp_path / "out" / sample_clip.stem
     with av.open(str(folder / "avatar.mp4")) as c:
         frames = [f.to_ndarray(format="rgb24") for f in c.decode(video=0)]
@@ -424,7 +429,8 @@ def _meshopt_compressed(src, dst) -> int:
         out.extend(b"\0" * (-len(out) % 4))
         if target == 34962 and stride and stride % 4 == 0:
             count = len(data) // stride
-            enc = meshoptimizer.encode_vertex_buffer(np.frombuffer(data, np.uint8).reshape(count, stride), count, stride)
+            enc = meshoptimizer.encode_vertex_buffer(np.frombuffer(data, np.uint8).reshape(count, stride),
+                                                     count, stride)
             ext = {"buffer": 0, "byteOffset": len(out), "byteLength": len(enc), "byteStride": stride, "count": count,
                    "mode": "ATTRIBUTES"}
         elif target == 34963 and stride == 4:

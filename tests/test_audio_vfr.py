@@ -166,8 +166,10 @@ def test_cli_no_audio_reaches_the_options(monkeypatch, tmp_path):
     monkeypatch.setattr(capture2face.batch, "run_batch", fake_batch)
     clip = tmp_path / "c.mp4"
     clip.write_bytes(b"x")
-    for argv in (["run", str(clip), "-o", str(tmp_path / "o")], ["run", str(clip), "-o", str(tmp_path / "o"), "--no-audio"],
-                 ["batch", str(clip), "-o", str(tmp_path / "o")], ["batch", str(clip), "-o", str(tmp_path / "o"), "--no-audio"]):
+    for argv in (["run", str(clip), "-o", str(tmp_path / "o")],
+                 ["run", str(clip), "-o", str(tmp_path / "o"), "--no-audio"],
+                 ["batch", str(clip), "-o", str(tmp_path / "o")],
+                 ["batch", str(clip), "-o", str(tmp_path / "o"), "--no-audio"]):
         args = cli.build_parser().parse_args(argv)
         with pytest.raises(Seen):
             args.func(args)

@@ -71,7 +71,8 @@ def inputs(tmp_path_factory) -> dict[str, Path]:
     (d / "corrupt.npz").write_bytes(os.urandom(2048))
     (d / "corrupt.glb").write_bytes(b"glTF" + os.urandom(400))
     return {
-        "noface": faceless, "truncated": truncated, "truncated_tail": d / "truncated_tail.mp4", "empty": d / "empty.mp4", "text": d / "text.mp4",
+        "noface": faceless, "truncated": truncated, "truncated_tail": d / "truncated_tail.mp4",
+        "empty": d / "empty.mp4", "text": d / "text.mp4",
         "folder": d / "folder.mp4", "audio": write_audio_only(d / "audio.mp4"),
         "zero": write_zero_frames(d / "zero.mp4"), "missing": d / "missing.mp4",
         "corrupt_npz": d / "corrupt.npz", "corrupt_glb": d / "corrupt.glb",
@@ -215,7 +216,8 @@ def test_truncated_clip_can_be_salvaged_on_request(sample_clip, tmp_path):
     from capture2face.render import RenderOptions
 
     cut = truncated_copy(sample_clip, tmp_path)
-    report = run(cut, tmp_path / "out", RunOptions(render=RenderOptions(size=128), compare=False, allow_truncated=True), progress=False)
+    report = run(cut, tmp_path / "out",
+                 RunOptions(render=RenderOptions(size=128), compare=False, allow_truncated=True), progress=False)
     assert 10 < report["frames"] < 90
     assert any("truncated" in w for w in report["warnings"])
     with av.open(str(tmp_path / "out" / "cut" / "avatar.mp4")) as c:

@@ -105,7 +105,8 @@ def test_batch_on_a_local_ray_instance(clip_folder, tmp_path):
     from capture2face.render import RenderOptions
 
     out = tmp_path / "out"
-    report = run_batch([clip_folder], out, RunOptions(render=RenderOptions(size=128), compare=False), ray_address="local", progress=False)
+    report = run_batch([clip_folder], out, RunOptions(render=RenderOptions(size=128), compare=False),
+                       ray_address="local", progress=False)
     status = {Path(c["path"]).name: c["status"] for c in report["clips"]}
     assert status == {"good.mp4": "ok", "bad.mp4": "failed"}
     assert {p.name for p in (out / "good").iterdir()} == OUTPUTS - {"compare.mp4"}
@@ -136,8 +137,8 @@ def test_batch_imports_a_glb_character_once(tmp_path, monkeypatch):
     monkeypatch.setattr(load, "_IMPORTED", {})
     monkeypatch.setenv("CAPTURE2FACE_CACHE", str(tmp_path / "cache"))  # no prepared copy from another run
 
-    report = run_batch([clip, tmp_path / "b.mp4"], tmp_path / "out", RunOptions(character=char, render=RenderOptions(size=64), compare=False),
-                       jobs=1, progress=False)
+    report = run_batch([clip, tmp_path / "b.mp4"], tmp_path / "out",
+                       RunOptions(character=char, render=RenderOptions(size=64), compare=False), jobs=1, progress=False)
     assert [c["status"] for c in report["clips"]] == ["ok", "ok"]
     assert len(built) == 1
     rig = load_character(char)

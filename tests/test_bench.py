@@ -13,9 +13,9 @@ import pytest
 
 from tests.helpers import write_video
 
-KEYS = ["decode_fps", "mediapipe_fps", "track_fps", "track_fps_parallel", "retarget_ms_per_frame", "wrinkle_ms_per_frame", "render_fps_wrinkles_off",
-        "render_fps_wrinkles_auto", "render_fps_wrinkles_dynamic", "encode_fps", "end_to_end_fps", "peak_rss_mb",
-        "gl_renderer"]
+KEYS = ["decode_fps", "mediapipe_fps", "track_fps", "track_fps_parallel", "retarget_ms_per_frame",
+        "wrinkle_ms_per_frame", "render_fps_wrinkles_off", "render_fps_wrinkles_auto", "render_fps_wrinkles_dynamic",
+        "encode_fps", "end_to_end_fps", "peak_rss_mb", "gl_renderer"]
 
 
 @pytest.mark.slow
@@ -85,7 +85,8 @@ def test_bench_cli_reports_every_figure(tmp_path):
         n = {"render_wrinkles_auto": RENDER_ROUNDS * n_render, "encode": ENCODE_FRAMES}.get(stage, frames)
         assert 0 < cpu[stage] * n / 1000 <= cores * seconds * 1.05 + 0.02, stage
     process_cpu = usage.ru_utime + usage.ru_stime
-    assert sum(cpu[k] * (ENCODE_FRAMES if k == "encode" else frames) / 1000 for k in cpu if k != "render_wrinkles_auto") \
+    assert sum(cpu[k] * (ENCODE_FRAMES if k == "encode" else frames) / 1000
+               for k in cpu if k != "render_wrinkles_auto") \
         + cpu["render_wrinkles_auto"] * RENDER_ROUNDS * n_render / 1000 < process_cpu
     # Peak memory: the process's own, as the OS measured it (wait4 reports the larger of it
     # and its children's; the tracking workers are smaller).

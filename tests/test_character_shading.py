@@ -232,7 +232,8 @@ def test_unreadable_texture_draws_the_base_colour_factor_with_a_warning(tmp_path
     eyes = (rig.material == 1) & (rig.alpha_mode == 0)  # sclera (white factor) and iris
 
     def colours(r):
-        texels = r.albedo[(r.uvs[eyes, 1] * r.albedo.shape[0]).astype(int), (r.uvs[eyes, 0] * r.albedo.shape[1]).astype(int)]
+        texels = r.albedo[(r.uvs[eyes, 1] * r.albedo.shape[0]).astype(int),
+                          (r.uvs[eyes, 0] * r.albedo.shape[1]).astype(int)]
         return np.unique(texels, axis=0)
 
     assert len(colours(ict)) > 20

@@ -161,7 +161,8 @@ def test_tracker_keeps_its_own_neutral_frame_check():
 
 
 def test_undrivable_character_fails_before_tracking(undrivable_character, tmp_path, no_tracking, capsys):
-    with pytest.raises(CaptureError, match="cannot be driven: its 27 morph targets .* have no ARKit names and no face bones"):
+    with pytest.raises(CaptureError,
+                       match="cannot be driven: its 27 morph targets .* have no ARKit names and no face bones"):
         run(SAMPLE, tmp_path, RunOptions(character=undrivable_character), progress=False)
     code, err = _main(capsys, "run", str(SAMPLE), "-o", str(tmp_path), "--character", str(undrivable_character))
     assert code == 2 and "no ARKit names and no face bones" in err and err.count("\n") == 1
@@ -196,7 +197,8 @@ def test_egl_failure_is_one_line(monkeypatch):
 def test_batch_checks_once_before_any_clip(undrivable_character, tmp_path, no_tracking, capsys, monkeypatch):
     from capture2face.batch import run_batch
 
-    with pytest.raises(CaptureError, match="cannot be driven: its 27 morph targets .* have no ARKit names and no face bones"):
+    with pytest.raises(CaptureError,
+                       match="cannot be driven: its 27 morph targets .* have no ARKit names and no face bones"):
         run_batch([SAMPLE, SAMPLE], tmp_path / "a", RunOptions(character=undrivable_character), progress=False)
     with pytest.raises(CaptureError, match="--size"):
         run_batch([SAMPLE], tmp_path / "b", RunOptions(render=RenderOptions(size=5000)), progress=False)
@@ -403,7 +405,8 @@ def test_a_failed_rename_names_the_target_not_the_temporary_file(tmp_path):
     (["run", "c.mp4", "-o", "o"], {}, {}),
     (["run", "c.mp4", "-o", "o", "--size", "256", "--wrinkles", "off", "--neutral-frame", "4", "--faces", "center",
       "--face-model", "m.task", "--track-workers", "2", "--no-audio", "--allow-truncated", "--character", "wide"],
-     {"size": 256, "wrinkles": "off", "neutral_frame": 4, "faces": "center", "face_model": "m.task", "track_workers": 2},
+     {"size": 256, "wrinkles": "off", "neutral_frame": 4, "faces": "center", "face_model": "m.task",
+      "track_workers": 2},
      {"character": "wide", "audio": False, "allow_truncated": True}),
     (["run", "c.mp4", "-o", "o", "--neutral-image", "rest.jpg", "--face", "1"],
      {"neutral_image": "rest.jpg", "face": 1}, {}),

@@ -17,7 +17,18 @@ from capture2face.topology import BLENDSHAPE_NAMES
 from tests.helpers import make_animation, problems, rot_x, rot_y, rot_z, validate
 
 # Copied character for character from issue 6.
-ISSUE_HEADER = "Timecode,BlendShapeCount,EyeBlinkLeft,EyeLookDownLeft,EyeLookInLeft,EyeLookOutLeft,EyeLookUpLeft,EyeSquintLeft,EyeWideLeft,EyeBlinkRight,EyeLookDownRight,EyeLookInRight,EyeLookOutRight,EyeLookUpRight,EyeSquintRight,EyeWideRight,JawForward,JawRight,JawLeft,JawOpen,MouthClose,MouthFunnel,MouthPucker,MouthRight,MouthLeft,MouthSmileLeft,MouthSmileRight,MouthFrownLeft,MouthFrownRight,MouthDimpleLeft,MouthDimpleRight,MouthStretchLeft,MouthStretchRight,MouthRollLower,MouthRollUpper,MouthShrugLower,MouthShrugUpper,MouthPressLeft,MouthPressRight,MouthLowerDownLeft,MouthLowerDownRight,MouthUpperUpLeft,MouthUpperUpRight,BrowDownLeft,BrowDownRight,BrowInnerUp,BrowOuterUpLeft,BrowOuterUpRight,CheekPuff,CheekSquintLeft,CheekSquintRight,NoseSneerLeft,NoseSneerRight,TongueOut,HeadYaw,HeadPitch,HeadRoll,LeftEyeYaw,LeftEyePitch,LeftEyeRoll,RightEyeYaw,RightEyePitch,RightEyeRoll"
+ISSUE_HEADER = (
+    "Timecode,BlendShapeCount,EyeBlinkLeft,EyeLookDownLeft,EyeLookInLeft,EyeLookOutLeft,EyeLookUpLeft,"
+    "EyeSquintLeft,EyeWideLeft,EyeBlinkRight,EyeLookDownRight,EyeLookInRight,EyeLookOutRight,"
+    "EyeLookUpRight,EyeSquintRight,EyeWideRight,JawForward,JawRight,JawLeft,JawOpen,MouthClose,"
+    "MouthFunnel,MouthPucker,MouthRight,MouthLeft,MouthSmileLeft,MouthSmileRight,MouthFrownLeft,"
+    "MouthFrownRight,MouthDimpleLeft,MouthDimpleRight,MouthStretchLeft,MouthStretchRight,MouthRollLower,"
+    "MouthRollUpper,MouthShrugLower,MouthShrugUpper,MouthPressLeft,MouthPressRight,MouthLowerDownLeft,"
+    "MouthLowerDownRight,MouthUpperUpLeft,MouthUpperUpRight,BrowDownLeft,BrowDownRight,BrowInnerUp,"
+    "BrowOuterUpLeft,BrowOuterUpRight,CheekPuff,CheekSquintLeft,CheekSquintRight,NoseSneerLeft,"
+    "NoseSneerRight,TongueOut,HeadYaw,HeadPitch,HeadRoll,LeftEyeYaw,LeftEyePitch,LeftEyeRoll,RightEyeYaw,"
+    "RightEyePitch,RightEyeRoll"
+)
 
 
 @pytest.fixture(scope="module")
@@ -131,8 +142,10 @@ def test_livelink_csv_header_rows_and_values(avatar, performance, tmp_path):
     np.testing.assert_allclose(values[:, col["HeadRoll"]], 0.1 * np.cos(t) / (np.pi / 2), atol=2e-6)
     # Eye yaw from eyeLook*: left eye looking out (and right eye looking in) = towards +x.
     s = performance.mediapipe_blendshapes
-    np.testing.assert_allclose(values[:, col["LeftEyeYaw"]], (s[:, mp["eyeLookOutLeft"]] - s[:, mp["eyeLookInLeft"]]) / 3, atol=2e-6)
-    np.testing.assert_allclose(values[:, col["RightEyeYaw"]], (s[:, mp["eyeLookInRight"]] - s[:, mp["eyeLookOutRight"]]) / 3, atol=2e-6)
+    np.testing.assert_allclose(values[:, col["LeftEyeYaw"]],
+                               (s[:, mp["eyeLookOutLeft"]] - s[:, mp["eyeLookInLeft"]]) / 3, atol=2e-6)
+    np.testing.assert_allclose(values[:, col["RightEyeYaw"]],
+                               (s[:, mp["eyeLookInRight"]] - s[:, mp["eyeLookOutRight"]]) / 3, atol=2e-6)
     assert np.all(values[:, col["LeftEyeRoll"]] == 0)
 
 

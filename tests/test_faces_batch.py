@@ -60,7 +60,8 @@ def test_largest_and_face_index_pick_different_faces(two_faces):
     assert (_mean_x(second) > 448).all()  # face 1 from the left: the small one
     np.testing.assert_allclose(_mean_x(first), _mean_x(largest), atol=1.0)
     # One face looked for: no choice, no count (today's single-face tracking).
-    assert track_clip(two_faces, TrackOptions(landmarker=LandmarkerOptions(num_faces=1)), progress=False).n_faces_max == 1
+    assert track_clip(two_faces, TrackOptions(landmarker=LandmarkerOptions(num_faces=1)),
+                      progress=False).n_faces_max == 1
 
 
 def test_a_face_index_never_in_view_fails_in_one_line(two_faces):
@@ -118,8 +119,8 @@ def test_resume_skips_same_options_and_reruns_changed_ones(short_clip, tmp_path)
     assert same["clips"][0]["status"] == "skipped" and "rerun" not in same["clips"][0]
     assert (out / "short" / "avatar.mp4").stat().st_mtime_ns == stamp
 
-    bigger = run_batch([short_clip], out, RunOptions(render=RenderOptions(size=128), compare=False), jobs=1, resume=True,
-                       progress=False)
+    bigger = run_batch([short_clip], out, RunOptions(render=RenderOptions(size=128), compare=False), jobs=1,
+                       resume=True, progress=False)
     entry = bigger["clips"][0]
     assert entry["status"] == "ok" and entry["rerun"] == "options changed: size 64 -> 128"
     assert json.loads((out / "short" / "report.json").read_text())["size"] == 128
@@ -154,7 +155,8 @@ def _fake_run(folder: Path, options: RunOptions, drop: tuple[str, ...] = ()) -> 
 
 
 def test_resume_check_normalises_the_stored_options(tmp_path):
-    _fake_run(tmp_path / "a", RunOptions(character="default", render=RenderOptions(size=512), queue_frames=2), drop=("faces", "face"))
+    _fake_run(tmp_path / "a", RunOptions(character="default", render=RenderOptions(size=512), queue_frames=2),
+              drop=("faces", "face"))
     # An older report without the face options: they count as their defaults; the default
     # avatar by name or as None is the same character; queue_frames changes no output.
     assert resume_check(tmp_path / "a", RunOptions()) == (True, None)
@@ -186,8 +188,8 @@ def _face(cx: float, cy: float, size: float) -> np.ndarray:
     return np.column_stack([xy, np.zeros(len(xy), np.float32)])
 
 
-@pytest.mark.parametrize("kw, first", [(dict(faces="largest"), 0), (dict(faces="center"), 1),
-                                       (dict(face=0), 2), (dict(face=2), 0)])
+@pytest.mark.parametrize("kw, first", [({"faces": "largest"}, 0), ({"faces": "center"}, 1),
+                                       ({"face": 0}, 2), ({"face": 2}, 0)])
 def test_the_choice_then_continuity(kw, first):
     from capture2face.tracking.landmarker import FaceLandmarker, LandmarkerOptions
 

@@ -136,7 +136,8 @@ def _foreign_glb(tmp_path):
             target = {"bufferView": None, "componentType": 5126, "count": len(pos), "type": "VEC3",
                       "min": [0, 0, 0], "max": [0.005, 0.01, 0.02],
                       "sparse": {"count": 3,
-                                 "indices": {"bufferView": bld.buffer_view(sparse_idx.tobytes()), "componentType": 5123},
+                                 "indices": {"bufferView": bld.buffer_view(sparse_idx.tobytes()),
+                                             "componentType": 5123},
                                  "values": {"bufferView": bld.buffer_view(sparse_val.tobytes())}}}
             del target["bufferView"]
             targets = [{"POSITION": bld.add("accessors", target)}]
@@ -187,8 +188,8 @@ def _foreign_glb(tmp_path):
         "zone_table": {"jawopen": [0, 0, 0, 0, 0, 0.5, 0.5, 1]},
     }
     (tmp_path / "character.json").write_text(json.dumps(mapping))
-    return path, dict(skin=skin, eye=eye, bones_m=bones_m, albedo=albedo, wt=wt, top=top,
-                      sparse_idx=sparse_idx, sparse_val=sparse_val)
+    return path, {"skin": skin, "eye": eye, "bones_m": bones_m, "albedo": albedo, "wt": wt, "top": top,
+                  "sparse_idx": sparse_idx, "sparse_val": sparse_val}
 
 
 def test_import_foreign_character_with_mapping(tmp_path):

@@ -208,7 +208,7 @@ def test_windowed_retarget_matches_whole_clip(avatar, noisy_track, monkeypatch):
 
 
 def test_windowed_retarget_direct_and_bone_only_modes(avatar, noisy_track):
-    for opts in (dict(joint_solve=False), dict(solve_blend_weights=False)):
+    for opts in ({"joint_solve": False}, {"solve_blend_weights": False}):
         a = retarget(noisy_track, avatar, RetargetOptions(window_frames=10**9, **opts))
         b = retarget(noisy_track, avatar, RetargetOptions(window_frames=100, window_overlap=40, **opts))
         assert np.abs(a.bone_positions - b.bone_positions).max() < 2e-3

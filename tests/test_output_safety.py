@@ -130,10 +130,9 @@ def test_a_crash_between_renames_leaves_an_incomplete_folder_the_next_run_replac
 
 def test_write_failure_leaves_nothing(tmp_path):
     out = tmp_path / "out"
-    with pytest.raises(OSError):
-        with staged_folder(out / "clip", KNOWN) as tmp:
-            (tmp / "avatar.mp4").write_text("half")
-            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(tmp / "track.npz"))
+    with pytest.raises(OSError), staged_folder(out / "clip", KNOWN) as tmp:
+        (tmp / "avatar.mp4").write_text("half")
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(tmp / "track.npz"))
     assert not out.exists()
 
 
@@ -188,7 +187,8 @@ def test_damage_decision_does_not_read_warning_text(sample_clip, tmp_path, monke
 
     monkeypatch.setattr(runner, "track_stage", damaged_track)
     with pytest.raises(CaptureError, match="^frames lost after frame 3$"):
-        pipeline.run(sample_clip, tmp_path / "out", pipeline.RunOptions(compare=False, render=RenderOptions(size=64)), progress=False)
+        pipeline.run(sample_clip, tmp_path / "out", pipeline.RunOptions(compare=False, render=RenderOptions(size=64)),
+                     progress=False)
     assert not (tmp_path / "out").exists() or list((tmp_path / "out").iterdir()) == []
 
 
@@ -228,7 +228,8 @@ def test_run_keeps_user_files_and_replaces_only_its_own(sample_clip, tmp_path, m
     (stale / "track.npz").write_bytes(b"\0" * 4096)
     (stale / OWNER_FILE).write_text(json.dumps({"pid": _dead_pid(), "host": socket.gethostname(),
                                                 "started": time.time() - 5}))
-    report2 = pipeline.run(clip, proj, pipeline.RunOptions(render=RenderOptions(size=64), compare=False), progress=False)
+    report2 = pipeline.run(clip, proj, pipeline.RunOptions(render=RenderOptions(size=64), compare=False),
+                           progress=False)
     assert not stale.exists()
     assert any("staging folder" in w and stale.name in w for w in report2["warnings"])
     assert "compare.mp4" not in report2["outputs"]

@@ -61,7 +61,7 @@ def make_test_rig(n=41, tex=128) -> FaceRig:
     parts = [(pos, tris, uv, material, pids)]
     for mat, centre, dz in ((1, (-3.0, 1.5), 0.3), (2, (0.0, -5.0), -1.5)):
         p, t, _ = _grid_patch(5, 5, (centre[0] - 1, centre[0] + 1), (centre[1] - 0.7, centre[1] + 0.7),
-                              lambda x, y: depth(x, y) + dz)
+                              lambda x, y, dz=dz: depth(x, y) + dz)
         offset = sum(len(q[0]) for q in parts)
         parts.append((p, t + offset, np.full((len(p), 2), 0.9), np.full(len(p), mat, np.uint8),
                       np.arange(len(p)) + offset + 10_000))
@@ -548,7 +548,7 @@ def test_fxaa_smooths_edges_like_msaa(avatar):
     view = framing_pose(avatar, yaw=25.0, pitch=8.0, roll=7.0)
     state = FrameState.at_pose(avatar, view, "compress")
     images = {}
-    for name, kw in {"msaa": dict(samples=4), "one": dict(samples=1), "fxaa": dict(samples=1, fxaa=True)}.items():
+    for name, kw in {"msaa": {"samples": 4}, "one": {"samples": 1}, "fxaa": {"samples": 1, "fxaa": True}}.items():
         with Renderer.create_from_options(avatar, RenderOptions(size=SIZE, wrinkles="auto", **kw)) as r:
             images[name] = r.render(state).astype(int)
             if name == "fxaa":
@@ -642,10 +642,9 @@ def test_video_writer_frames_and_rate(tmp_path):
 def test_video_writer_is_atomic(tmp_path):
     from capture2face.io.video_output import VideoWriter
 
-    with pytest.raises(RuntimeError):
-        with VideoWriter(tmp_path / "broken.mp4", 25, (32, 32)) as out:
-            out.write(np.zeros((32, 32, 3), np.uint8))
-            raise RuntimeError("interrupted")
+    with pytest.raises(RuntimeError), VideoWriter(tmp_path / "broken.mp4", 25, (32, 32)) as out:
+        out.write(np.zeros((32, 32, 3), np.uint8))
+        raise RuntimeError("interrupted")
     assert list(tmp_path.iterdir()) == []
 
 

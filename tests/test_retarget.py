@@ -106,7 +106,7 @@ def test_linear_solver_matches_bounded_least_squares():
     bounds = [(0, 0) if f == pin else ((0, scale[j]) if j >= 3 * nb else (None, None))
               for f in range(frames) for j in range(3 * nb + nm)]
     ref = minimize(objective, np.zeros(frames * (3 * nb + nm)), bounds=bounds, method="L-BFGS-B",
-                   options=dict(maxiter=50000, ftol=1e-15, gtol=1e-10))
+                   options={"maxiter": 50000, "ftol": 1e-15, "gtol": 1e-10})
     np.testing.assert_allclose(x, ref.x.reshape(frames, -1) / scale, atol=1e-4)
     assert x[:, 3 * nb:].min() >= 0.0 and x[:, 3 * nb:].max() <= 1.0
     np.testing.assert_array_equal(x[pin], 0.0)
@@ -235,7 +235,10 @@ def test_cross_character_neutral_and_motion_scale(avatar, wide, performance):
     face = np.arange(1, avatar.n_bones)
     dx_src = np.abs(performance.bone_positions[:, face, 0] - avatar.bone_rest[face, 0]).mean()
     dx_tgt = np.abs(anim.bone_positions[:, face, 0] - wide.bone_rest[face, 0]).mean()
-    skin = lambda r: r.vertices[r.material == 0]
+
+    def skin(r):
+        return r.vertices[r.material == 0]
+
     width_ratio = np.ptp(skin(wide)[:, 0]) / np.ptp(skin(avatar)[:, 0])
     assert width_ratio > 1.05
     assert abs(dx_tgt / dx_src - width_ratio) < 0.5 * (width_ratio - 1.0) + 0.03

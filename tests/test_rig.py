@@ -137,7 +137,8 @@ def test_eyes_turn_about_their_centres_behind_the_lids(avatar):
         np.testing.assert_allclose(gaze_angles(v), [30.0, 20.0], atol=1e-3)
         assert v[0] > 0 and v[1] < 0
         ball = avatar.eye_vertex_side == side
-        np.testing.assert_allclose(np.linalg.norm(pos[ball] - c, axis=1), np.linalg.norm(rest[ball] - c, axis=1), atol=1e-5)
+        np.testing.assert_allclose(np.linalg.norm(pos[ball] - c, axis=1), np.linalg.norm(rest[ball] - c, axis=1),
+                                   atol=1e-5)
         np.testing.assert_allclose(nrm[ball], avatar.normals[ball] @ eye_rotation_matrices(turn[side]).T, atol=1e-5)
     np.testing.assert_allclose(gaze_directions(np.zeros(2)), [0.0, 0.0, 1.0], atol=1e-12)
 
@@ -257,7 +258,7 @@ def test_head_is_joined_to_the_face_without_a_crack(avatar):
     shell = avatar.triangles[np.isin(avatar.material[avatar.triangles], (0, 4)).all(1)]
     loops = mesh_ops.boundary_loops(avatar.position_ids[shell])
     assert len(loops) == 3
-    assert sorted(len(set(l) & {33, 263, 13}) for l in loops) == [1, 1, 1]
+    assert sorted(len(set(loop) & {33, 263, 13}) for loop in loops) == [1, 1, 1]
     shared = np.flatnonzero(avatar.position_ids != np.arange(avatar.n_vertices))
     assert np.all(head[shared]) and (avatar.material[avatar.position_ids[shared]] == 0).sum() > 50
     # Copies share their normal, and stay together under any bones and morphs (the head's

@@ -31,21 +31,27 @@ def test_trajectory_passes_through_neutral_and_reference_poses(avatar, frames, s
     raw = pose_influences(perf.bone_positions, avatar.bone_rest, avatar.pose_bones)
     neutral = np.flatnonzero(perf.key_pose == KEY_NEUTRAL)
     assert len(neutral) >= 3 and neutral[0] < 0.1 * frames  # near the start, held
-    np.testing.assert_array_equal(perf.bone_positions[neutral], np.broadcast_to(avatar.bone_rest, (len(neutral),) + avatar.bone_rest.shape))
+    np.testing.assert_array_equal(perf.bone_positions[neutral],
+                                  np.broadcast_to(avatar.bone_rest, (len(neutral),) + avatar.bone_rest.shape))
     assert np.all(perf.blend_weights[neutral] == 0)
     assert np.all(raw[neutral] == 0)
     for p, name in enumerate(avatar.pose_names):
         held = np.flatnonzero(perf.key_pose == KEY_POSE0 + p)
         assert len(held) >= 3, name
-        np.testing.assert_allclose(perf.bone_positions[held], np.broadcast_to(avatar.pose_bones[p], (len(held),) + avatar.pose_bones[p].shape), atol=1e-6)
-        np.testing.assert_allclose(perf.blend_weights[held], np.broadcast_to(avatar.pose_morph_weights[p], (len(held), avatar.n_morphs)), atol=1e-6)
+        np.testing.assert_allclose(perf.bone_positions[held],
+                                   np.broadcast_to(avatar.pose_bones[p], (len(held),) + avatar.pose_bones[p].shape),
+                                   atol=1e-6)
+        np.testing.assert_allclose(perf.blend_weights[held],
+                                   np.broadcast_to(avatar.pose_morph_weights[p], (len(held), avatar.n_morphs)),
+                                   atol=1e-6)
         moving = _moving(avatar, p)
         assert moving.sum() >= 2
         np.testing.assert_allclose(raw[held][:, p, moving], 1.0, atol=1e-5)
     # Elsewhere the performance moves: not stuck at one of the held poses.
     free = perf.key_pose < 0
-    assert np.ptp(perf.bone_positions[free], axis=0).max() > 0.2 * np.linalg.norm(avatar.pose_bones - avatar.bone_rest, axis=-1).max()
-    assert 0.0 <= perf.blend_weights.min() and perf.blend_weights.max() <= 1.0
+    assert (np.ptp(perf.bone_positions[free], axis=0).max()
+            > 0.2 * np.linalg.norm(avatar.pose_bones - avatar.bone_rest, axis=-1).max())
+    assert perf.blend_weights.min() >= 0.0 and perf.blend_weights.max() <= 1.0
 
 
 def test_truth_influences_are_the_grouped_pose_influences(avatar):

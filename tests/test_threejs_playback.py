@@ -58,7 +58,8 @@ def run_out(tmp_path_factory) -> Path:
     from capture2face.tracking import TrackOptions
 
     out = tmp_path_factory.mktemp("threejs")
-    run(SAMPLE, out, RunOptions(render=RenderOptions(size=128), track=TrackOptions(workers=1), compare=False), progress=False)
+    run(SAMPLE, out, RunOptions(render=RenderOptions(size=128), track=TrackOptions(workers=1), compare=False),
+        progress=False)
     return out / "sample"
 
 

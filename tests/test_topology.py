@@ -34,7 +34,7 @@ def test_named_points_lie_on_their_contours():
     assert set(T.EYE_CORNERS_LEFT + T.LIDS_LEFT) <= set(T.EYE_LEFT)
     assert T.IOD_PAIR == (T.EYE_CORNERS_RIGHT[0], T.EYE_CORNERS_LEFT[0]) == (33, 263)
     assert set(T.LIP_GAP) <= set(T.LIPS_INNER) and set(T.MOUTH_CORNERS) <= set(T.LIPS_OUTER)
-    assert T.LIP_GAP == (T.LIP_INNER_UPPER[4], T.LIP_INNER_LOWER[4])
+    assert (T.LIP_INNER_UPPER[4], T.LIP_INNER_LOWER[4]) == T.LIP_GAP
     assert set(T.BROW_RIGHT + T.BROW_LEFT) <= set(T.BROWS)
     assert all(brow in T.BROWS and corner in T.IOD_PAIR for brow, corner in T.BROW_HEIGHT_PAIRS)
     assert T.IRIS_CENTRES == (468, 473) and T.IRIS_LEFT[-1] == T.N_LANDMARKS - 1

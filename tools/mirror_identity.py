@@ -1,6 +1,7 @@
 """Another ICT-FaceKit identity from two ICT heads: the face opposite one identity about the other.
 
-    python tools/mirror_identity.py ../shared/characters/ict-a.glb ../shared/characters/ict-b.glb ict-c.glb [--amount 1.0]
+    python tools/mirror_identity.py ../shared/characters/ict-a.glb ../shared/characters/ict-b.glb \\
+        ict-c.glb [--amount 1.0]
 
 ICT-FaceKit is linear: a face is the generic neutral plus identity modes plus expression
 shapes, and the expression shapes do not depend on the identity (ict-a and ict-b share every
@@ -71,7 +72,7 @@ def main() -> None:
             raise SystemExit(f"{path}: no such file")
     try:
         mirror_identity(args.neutral, args.other, args.out, args.amount)
-    except Exception as exc:  # noqa: BLE001 - an unreadable or unmatched pair: one line, not a traceback
+    except Exception as exc:  # an unreadable or unmatched pair: one line, not a traceback
         raise SystemExit(f"cannot mirror {args.neutral} about {args.other}: {exc}") from None
     print(args.out)
 

@@ -220,7 +220,8 @@ def _bake_maps(rig: FaceRig, avatar: FaceRig, nearest: np.ndarray, face: np.ndar
             n = decode_normals(sample(src))
             x, y = n[:, 0], n[:, 1] * np.where(m < 0, -1.0, 1.0)
             # A turn in the tangent plane: unit normals stay unit.
-            maps[k, ys, xs] = encode_normals(np.stack([cs[:, 0] * x - cs[:, 1] * y, cs[:, 1] * x + cs[:, 0] * y, n[:, 2]], 1))
+            maps[k, ys, xs] = encode_normals(
+                np.stack([cs[:, 0] * x - cs[:, 1] * y, cs[:, 1] * x + cs[:, 0] * y, n[:, 2]], 1))
     if bake_zones:
         zones[ys, xs, :4] = sample(avatar.zone_masks[..., :4])
         zones[ys, xs, 4:8] = sample(avatar.zone_masks[..., 4:8])

@@ -81,10 +81,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--wrinkles", nargs="+", default=["off", "auto"], choices=WRINKLE_DRIVERS)
     parser.add_argument("--rig", help="a .rig.npz (default: the default avatar)")
     args = parser.parse_args(argv)
-    if args.rig:
-        rig = FaceRig.load(args.rig)
-    else:
-        rig = default_avatar()
+    rig = FaceRig.load(args.rig) if args.rig else default_avatar()
     drivers = list(dict.fromkeys(args.wrinkles))
     fps = interleaved_fps(rig, drivers, args.frames, args.rounds, args.size, samples=args.samples, fxaa=args.fxaa)
     for d in drivers:

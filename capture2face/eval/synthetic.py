@@ -41,9 +41,10 @@ dimensionless) and how each is measured:
   frame, over frames whose eye is open in the truth (its ``eyeBlink`` weight below 0.5:
   a closed lid hides the iris); ``gaze_yaw_error_deg_median`` / ``gaze_pitch_...``: the
   same per angle, with ``gaze_yaw_r`` / ``gaze_pitch_r`` (Pearson r against the truth);
-  ``baseline_straight_gaze_error_deg_median``: the eyes kept straight ahead. The actor is the default avatar, so the gaze is estimated with its eye
-  radius (``RetargetOptions.eye_radius_iod`` = ``retarget.gaze.eye_radius_iod(source)``)
-  unless ``options`` are given.
+  ``baseline_straight_gaze_error_deg_median``: the eyes kept straight ahead. The actor is
+  the default avatar, so the gaze is estimated with its eye radius
+  (``RetargetOptions.eye_radius_iod`` = ``retarget.gaze.eye_radius_iod(source)``) unless
+  ``options`` are given.
 * Retargeting starts from a frame the truth holds at neutral, and again from the
   tracker's own rest (each region's most relaxed frames; one tracking pass, two
   retargets): the second set of figures, same keys, is the nested ``auto_neutral`` block,
@@ -214,7 +215,8 @@ def summary_line(result: dict, label: str = "") -> str:
             f"(tracker's own {result['measures']['mouth_open']['tracker']['gain']:.2f}); "
             + (f"gaze error {result['gaze_error_deg_median']:.1f} deg median, "
                f"{result['gaze_error_deg_p95']:.1f} p95; " if "gaze_error_deg_median" in result else "")
-            + f"goals met {met}/{len(GOALS)}" + ("" if g["frames_as_stated"] else f" (stated for {GOAL_FRAMES} frames)"))
+            + f"goals met {met}/{len(GOALS)}"
+            + ("" if g["frames_as_stated"] else f" (stated for {GOAL_FRAMES} frames)"))
 
 
 def score(track, animation, truth, source, target) -> dict:
@@ -323,8 +325,10 @@ def active_morph_figures(names: list[str], w_true: np.ndarray, w_pred: np.ndarra
         "blendweight_active_morphs": int(len(active)),
         "blendweight_active_r": float(np.mean(list(per_morph.values()))) if len(active) else float("nan"),
         "blendweight_active_r_per_morph": per_morph,
-        "blendweight_active_mae": float(np.abs(w_pred[:, active] - w_true[:, active]).mean()) if len(active) else float("nan"),
-        "baseline_zero_blendweight_active_mae": float(np.abs(w_true[:, active]).mean()) if len(active) else float("nan"),
+        "blendweight_active_mae":
+            float(np.abs(w_pred[:, active] - w_true[:, active]).mean()) if len(active) else float("nan"),
+        "baseline_zero_blendweight_active_mae":
+            float(np.abs(w_true[:, active]).mean()) if len(active) else float("nan"),
     }
 
 
@@ -403,8 +407,10 @@ def gaze_errors(animation, truth, use: np.ndarray) -> dict:
     return {
         "gaze_error_deg_median": float(np.median(err)),
         "gaze_error_deg_p95": float(np.percentile(err, 95)),
-        "gaze_yaw_error_deg_median": float(np.median(np.abs(animation.eye_rotation[..., 0][sel] - truth.eye_rotation[..., 0][sel]))),
-        "gaze_pitch_error_deg_median": float(np.median(np.abs(animation.eye_rotation[..., 1][sel] - truth.eye_rotation[..., 1][sel]))),
+        "gaze_yaw_error_deg_median":
+            float(np.median(np.abs(animation.eye_rotation[..., 0][sel] - truth.eye_rotation[..., 0][sel]))),
+        "gaze_pitch_error_deg_median":
+            float(np.median(np.abs(animation.eye_rotation[..., 1][sel] - truth.eye_rotation[..., 1][sel]))),
         "gaze_yaw_r": pearson(animation.eye_rotation[..., 0][sel], truth.eye_rotation[..., 0][sel]),
         "gaze_pitch_r": pearson(animation.eye_rotation[..., 1][sel], truth.eye_rotation[..., 1][sel]),
         "baseline_straight_gaze_error_deg_median": float(np.median(straight)),

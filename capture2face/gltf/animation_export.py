@@ -77,7 +77,8 @@ def add_animation(builder: GlbBuilder, rig, animation, nodes: dict, fps: float |
     rel32 = np.empty((F, rig.n_bones, 3), np.float32)
     for s in range(0, F, 4096):  # float64 temporaries a block of frames at a time
         pos = np.repeat(rig.bone_rest.astype(np.float64)[None], min(F - s, 4096), axis=0)
-        pos[:, have] = np.asarray(animation.bone_positions[s:s + 4096], np.float64)[:, [src[rig.bone_names[i]] for i in have]]
+        pos[:, have] = np.asarray(animation.bone_positions[s:s + 4096], np.float64)[
+            :, [src[rig.bone_names[i]] for i in have]]
         rel = pos - np.where(parents[None, :, None] >= 0, pos[:, np.maximum(parents, 0)], 0.0)
         rel32[s:s + 4096] = rel * METRES_PER_CM
     for i, node in enumerate(nodes["joints"]):
@@ -133,7 +134,8 @@ class GlbAnimation:
 
 
 def read_glb_animation(path: str | os.PathLike, index: int = 0, cm_per_unit: float = 100.0) -> GlbAnimation:
-    """Read animation ``index`` of a .glb with one skin (as ``capture2face.gltf.export_glb(rig, path, animation=...)`` writes)."""
+    """Read animation ``index`` of a .glb with one skin (as
+    ``capture2face.gltf.export_glb(rig, path, animation=...)`` writes)."""
     r = GlbReader(path)
     g = r.gltf
     anims = g.get("animations", [])

@@ -30,7 +30,8 @@ from capture2face.rig.arkit_names import canonical_arkit
 from capture2face.rig.face_rig import FaceRig
 
 NAMINGS = ("arkit", "_L", ".L", "Left_", "blendShape1.")
-PART_NAMES = {0: "Head", 1: "Eyes", 2: "Mouth", 3: "Teeth", 4: "Scalp"}  # FaceRig material code -> mesh name (others: "Part<code>")
+# FaceRig material code -> mesh name (others: "Part<code>")
+PART_NAMES = {0: "Head", 1: "Eyes", 2: "Mouth", 3: "Teeth", 4: "Scalp"}
 
 
 def part_order(rig: FaceRig) -> np.ndarray:

@@ -258,7 +258,8 @@ def _add_skeleton(b: GlbBuilder, rig: FaceRig, mesh: int) -> dict:
     if rig.has_eyes:
         centres = rig.eye_centres.astype(np.float64)
         for side, name in enumerate(EYE_JOINT_NAMES):
-            eye_nodes.append(b.add("nodes", {"name": name, "translation": ((centres[side] - rest[0]) * METRES_PER_CM).tolist()}))
+            eye_nodes.append(b.add("nodes", {"name": name,
+                                             "translation": ((centres[side] - rest[0]) * METRES_PER_CM).tolist()}))
         b.gltf["nodes"][joint_nodes[0]].setdefault("children", []).extend(eye_nodes)
         joint_rest = np.vstack([rest, centres])
     n_joints = len(joint_rest)
@@ -325,7 +326,8 @@ def export_glb(rig: FaceRig, path: str | os.PathLike, animation=None, fps: float
     """Write ``rig`` as a .glb (atomically); with ``animation`` (an
     :class:`~capture2face.retarget.animation.Animation` of this rig) also one glTF
     animation: per-bone translation channels, a morph ``weights`` channel, the head
-    rotation and the eye joints' rotations (gaze), sampled per frame. ``fps`` replaces the clip's timestamps by frame / fps."""
+    rotation and the eye joints' rotations (gaze), sampled per frame. ``fps`` replaces the
+    clip's timestamps by frame / fps."""
     builder, nodes = build_rig_gltf(rig)
     if animation is not None:
         add_animation(builder, rig, animation, nodes, fps=fps)

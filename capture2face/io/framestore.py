@@ -16,7 +16,7 @@ streaming writers (:mod:`capture2face.io.npz`).
 from __future__ import annotations
 
 import os
-from typing import Iterator
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -141,7 +141,7 @@ class FrameArray:
         for start in range(0, self._frames, rows):
             yield self.read(start, start + rows)
 
-    def reopen_readonly(self) -> "FrameArray":
+    def reopen_readonly(self) -> FrameArray:
         """A read-only FrameArray of the same file (this one stays open)."""
         out = FrameArray(self.path, self.row_shape, self.dtype, mode="r")
         out._frames = self._frames
@@ -153,9 +153,9 @@ class FrameArray:
             self._fd = -1
 
     def __del__(self) -> None:
-        try:
+        try:  # noqa: SIM105 - contextlib may already be torn down at interpreter shutdown
             self.close()
-        except Exception:  # noqa: BLE001 - interpreter shutdown
+        except Exception:  # interpreter shutdown
             pass
 
     def __getstate__(self):

@@ -34,9 +34,8 @@ def save_dataclass(obj: Any, path: str | os.PathLike, format_name: str, compress
             value = np.array(list(value), dtype=str) if len(value) else np.zeros(0, dtype="<U1")
         # Disk-backed arrays (FrameArray: a long clip's landmarks) stream chunk by chunk.
         arrays[field.name] = value if hasattr(value, "iter_chunks") else np.asarray(value)
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as fh:
-            _write_npz(fh, arrays, compress)
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        _write_npz(fh, arrays, compress)
 
 
 def _write_npz(fh, arrays: dict, compress: bool) -> None:

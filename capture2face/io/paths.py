@@ -9,6 +9,7 @@ instead of failing.
 from __future__ import annotations
 
 import codecs
+import contextlib
 import sys
 
 ERRORS = "capture2face-path"
@@ -41,7 +42,6 @@ def readable_streams() -> None:
     for stream in (sys.stdout, sys.stderr):
         reconfigure = getattr(stream, "reconfigure", None)
         if reconfigure is not None:
-            try:
+            # A stream that cannot change (closed, replaced by a test's capture) stays as it is.
+            with contextlib.suppress(ValueError, OSError):
                 reconfigure(errors=ERRORS)
-            except (ValueError, OSError):
-                pass  # a stream that cannot change (closed, replaced by a test's capture)

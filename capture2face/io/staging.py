@@ -54,8 +54,8 @@ import shutil
 import socket
 import tempfile
 import time
+from collections.abc import Collection, Iterable, Iterator
 from pathlib import Path
-from typing import Collection, Iterable, Iterator
 
 from capture2face.errors import CaptureError
 from capture2face.io.atomic import DIR_MODE, FILE_MODE, write_text_atomic

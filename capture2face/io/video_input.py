@@ -25,10 +25,10 @@ import logging
 import os
 import queue
 import threading
+from collections.abc import Iterator
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
@@ -184,10 +184,8 @@ def open_video(path: str | os.PathLike) -> VideoInfo:
     p = _check_path(path)
     container, stream = _open(p)
     try:
-        first = None
         try:
-            for first in container.decode(stream):
-                break
+            first = next(iter(container.decode(stream)), None)
         except Exception as exc:  # av.FFmpegError and friends: damaged data
             raise CaptureError(f"{p}: no video frame could be decoded ({_reason(exc)}); "
                                "the file is truncated or corrupt") from None
@@ -317,10 +315,8 @@ def prefetch(iterable, depth: int = 8):
     finally:
         stop.set()
         while thread.is_alive():  # drain so a blocked put can see the stop flag
-            try:
+            with contextlib.suppress(queue.Empty):
                 q.get(timeout=0.1)
-            except queue.Empty:
-                pass
         thread.join()
 
 

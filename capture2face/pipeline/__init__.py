@@ -30,5 +30,5 @@ from capture2face.pipeline.stages import (
 )
 
 __all__ = ["OUTPUT_FILES", "RenderPass", "RunOptions", "avatar_head_poses", "avatar_head_rotations", "encoder_threads",
-           "export_stage", "load_character", "options_json", "outputs_complete", "render_stage", "retarget_stage", "run",
-           "run_render_options", "start_track_workers", "track_stage"]
+           "export_stage", "load_character", "options_json", "outputs_complete", "render_stage", "retarget_stage",
+           "run", "run_render_options", "start_track_workers", "track_stage"]

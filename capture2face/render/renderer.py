@@ -42,7 +42,9 @@ NORMAL_BLENDS = ("pd", "oat")
 VIEWS = ("shaded", "influence")
 MAX_MAPS = 4  # wrinkle maps travel as a vec4 per vertex
 
-DEFAULT_LIGHT_DIRECTION = (0.44, 0.64, 0.63)  # camera space, towards the key light: raking from above right (elevation 40 deg, 35 deg to the side) so wrinkles read
+# Camera space, towards the key light: raking from above right (elevation 40 deg, 35 deg to
+# the side) so wrinkles read.
+DEFAULT_LIGHT_DIRECTION = (0.44, 0.64, 0.63)
 DEFAULT_LIGHT_COLOR = (1.15, 1.1, 1.05)
 DEFAULT_FILL_COLOR = (0.16, 0.18, 0.22)
 DEFAULT_AMBIENT = (0.10, 0.10, 0.12)
@@ -136,7 +138,7 @@ class FrameState:
     eye_rotation: np.ndarray | None = None
 
     @classmethod
-    def at_pose(cls, rig: FaceRig, head_pose: np.ndarray, pose: str | None = None) -> "FrameState":
+    def at_pose(cls, rig: FaceRig, head_pose: np.ndarray, pose: str | None = None) -> FrameState:
         """The rest pose (``pose=None``) or reference pose ``pose`` with its morph weights."""
         if pose is None:
             return cls(rig.bone_rest.copy(), np.zeros(rig.n_morphs, np.float32), np.asarray(head_pose))
@@ -185,7 +187,7 @@ class Renderer:
             raise
 
     @classmethod
-    def create_from_options(cls, rig: FaceRig, options: RenderOptions | None = None) -> "Renderer":
+    def create_from_options(cls, rig: FaceRig, options: RenderOptions | None = None) -> Renderer:
         return cls(rig, options)
 
     # ---- setup --------------------------------------------------------------------
@@ -227,7 +229,8 @@ class Renderer:
         if driver in ("zones", "dynamic"):
             for name in ("stretch", "compress"):
                 if name not in rig.wrinkle_map_names:
-                    raise CaptureError(f"the '{driver}' wrinkle driver needs a '{name}' wrinkle map; rig '{rig.name}' has none")
+                    raise CaptureError(f"the '{driver}' wrinkle driver needs a '{name}' wrinkle map; "
+                                       f"rig '{rig.name}' has none")
                 slot = np.zeros(4, np.float32)
                 slot[rig.wrinkle_map_names.index(name)] = 1.0
                 self._slots[name] = slot
@@ -358,7 +361,8 @@ class Renderer:
         tex.build_mipmaps()
         # Trilinear filtering and anisotropy are free on GPUs; on llvmpipe, one mip level
         # (bilinear) cuts a frame's work by ~16% and anisotropy would triple it.
-        tex.filter = (moderngl.LINEAR_MIPMAP_NEAREST if self._software else moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+        tex.filter = (moderngl.LINEAR_MIPMAP_NEAREST if self._software else moderngl.LINEAR_MIPMAP_LINEAR,
+                      moderngl.LINEAR)
         tex.anisotropy = 1.0 if self._software else 4.0
 
     def _image_texture(self, image: np.ndarray, internal_format: int | None = None):
@@ -389,12 +393,14 @@ class Renderer:
         _set(prog, "u_projection", _mat(projection))
         self._clip_from_head = projection @ pose
 
-        light = np.asarray(state.light_direction if state.light_direction is not None else DEFAULT_LIGHT_DIRECTION, np.float64)
+        light = np.asarray(state.light_direction if state.light_direction is not None else DEFAULT_LIGHT_DIRECTION,
+                           np.float64)
         light = light / np.linalg.norm(light)
         fill = np.array([-light[0], 0.3 * light[1], light[2]])  # per frame, not per pixel
         _set(prog, "u_light_direction", tuple(light))
         _set(prog, "u_fill_direction", tuple(fill / np.linalg.norm(fill)))
-        _set(prog, "u_light_color", tuple(map(float, state.light_color if state.light_color is not None else DEFAULT_LIGHT_COLOR)))
+        _set(prog, "u_light_color",
+             tuple(map(float, state.light_color if state.light_color is not None else DEFAULT_LIGHT_COLOR)))
         _set(prog, "u_ambient", tuple(map(float, state.ambient if state.ambient is not None else DEFAULT_AMBIENT)))
         _set(prog, "u_fill_color", DEFAULT_FILL_COLOR)
         _set(prog, "u_map_color", self._map_colors)
@@ -552,7 +558,7 @@ class Renderer:
             obj.release()
         self._resources.clear()
 
-    def __enter__(self) -> "Renderer":
+    def __enter__(self) -> Renderer:
         return self
 
     def __exit__(self, *exc) -> None:

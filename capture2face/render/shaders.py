@@ -7,7 +7,7 @@ varyings, so renderers with the same options share one compiled program.
 from __future__ import annotations
 
 import re
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 
 import moderngl
@@ -18,7 +18,7 @@ SHADER_DIR = Path(__file__).with_name("shaders")
 _INCLUDE = re.compile(r'^#include "([\w.]+)"\s*$', re.MULTILINE)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _read(name: str) -> str:
     text = (SHADER_DIR / name).read_text()
     return _INCLUDE.sub(lambda m: _read(m.group(1)), text)

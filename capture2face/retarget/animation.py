@@ -81,5 +81,5 @@ class Animation:
         save_dataclass(self, path, FORMAT)
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "Animation":
+    def load(cls, path: str | os.PathLike) -> Animation:
         return load_dataclass(cls, path, FORMAT)

@@ -134,8 +134,9 @@ def pair_frames(rest_diff: np.ndarray, across: float, min_separation: float) -> 
 
 def expression_pairs(landmarks: np.ndarray) -> np.ndarray:
     """(K, 2) slots into ``landmarks`` (N,) of the :data:`EXPRESSION_PAIRS` it holds."""
-    slot = {int(l): i for i, l in enumerate(landmarks)}
-    return np.array([(slot[a], slot[b]) for a, b in EXPRESSION_PAIRS if a in slot and b in slot], np.int64).reshape(-1, 2)
+    slot = {int(lm): i for i, lm in enumerate(landmarks)}
+    return np.array([(slot[a], slot[b]) for a, b in EXPRESSION_PAIRS if a in slot and b in slot],
+                    np.int64).reshape(-1, 2)
 
 
 def arkit_point_weights(landmarks: np.ndarray, landmark_weights: np.ndarray, other: float, pair: float) -> np.ndarray:

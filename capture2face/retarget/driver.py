@@ -244,8 +244,8 @@ def solve_bones_weights(mapped: MappedPoints, rig, landmarks: np.ndarray, per_ve
     """
     rest = rig.bone_rest.astype(np.float64)
     bone_lm = np.asarray(rig.bone_landmarks)
-    slot = {int(l): i for i, l in enumerate(landmarks)}
-    direct = [(b, slot[int(l)]) for b, l in enumerate(bone_lm) if b > 0 and int(l) in slot]
+    slot = {int(lm): i for i, lm in enumerate(landmarks)}
+    direct = [(b, slot[int(lm)]) for b, lm in enumerate(bone_lm) if b > 0 and int(lm) in slot]
     solve_w = options.solve_blend_weights and per_vertex
     out = _Blend(mapped.frames, rig, solve_w)
     if not per_vertex:  # imported character: bone = its mapped feature point
@@ -379,7 +379,8 @@ def _solve_arkit_weights(track, rest: ActorRest, rig, landmarks: np.ndarray, pri
                                         options.arkit_other_weight, options.arkit_pair_weight)
     options = dataclasses.replace(options, morph_ridge=options.arkit_morph_ridge, sparsity=options.arkit_sparsity)
     network = SteadiedMap(_fit_network(rest, rig, landmarks, solve.model.rest[:len(landmarks)], options),
-                          np.where(np.isin(landmarks, EYE_CONTOURS), options.arkit_eye_share, options.arkit_network_share))
+                          np.where(np.isin(landmarks, EYE_CONTOURS), options.arkit_eye_share,
+                                   options.arkit_network_share))
     windows = frame_windows(track.n_frames, options.window_frames, options.window_overlap)
     weights = np.zeros_like(prior)
     weights[:, solve.fixed] = prior[:, solve.fixed]

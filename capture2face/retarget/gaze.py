@@ -60,7 +60,7 @@ def iris_offsets(landmarks_head, chunk: int = 512) -> tuple[np.ndarray, np.ndarr
         landmarks_head: (F, 478, 3) head-coordinate landmarks (an array or a disk-backed
             FrameArray: read a block of frames at a time).
     """
-    ids = sorted({int(i) for iris, c, l in EYES for i in (*iris, *c, *l)} | set(IOD_PAIR))
+    ids = sorted({int(i) for iris, c, lids in EYES for i in (*iris, *c, *lids)} | set(IOD_PAIR))
     col = {i: k for k, i in enumerate(ids)}
     pts = take_points(landmarks_head, ids, chunk)  # ~20 landmarks
     n = len(pts)

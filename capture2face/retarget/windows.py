@@ -143,7 +143,7 @@ class MappedPoints:
             shutil.rmtree(self._dir, ignore_errors=True)
             self._dir = None
 
-    def __enter__(self) -> "MappedPoints":
+    def __enter__(self) -> MappedPoints:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -176,7 +176,7 @@ class SpilledMedian:
             return
         if self._file is None:
             self._dir = tempfile.mkdtemp(prefix="capture2face-median-")
-            self._file = open(os.path.join(self._dir, "rows.f64"), "w+b")
+            self._file = open(os.path.join(self._dir, "rows.f64"), "w+b")  # noqa: SIM115 - kept open, close() closes it
             for block in self._blocks:
                 self._spill(block)
             self._blocks = []
@@ -213,7 +213,7 @@ class SpilledMedian:
             shutil.rmtree(self._dir, ignore_errors=True)
             self._dir = None
 
-    def __enter__(self) -> "SpilledMedian":
+    def __enter__(self) -> SpilledMedian:
         return self
 
     def __exit__(self, *exc) -> None:

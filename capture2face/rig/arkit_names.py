@@ -106,7 +106,8 @@ def drive_mode(rig) -> str:
     if arkit_morphs(rig.morph_names):
         return "arkit"
     names = ", ".join(rig.morph_names[:4]) + (", ..." if rig.n_morphs > 4 else "")
-    have = f"its {rig.n_morphs} morph targets ({names}) have no ARKit names" if rig.n_morphs else "it has no morph targets"
+    have = (f"its {rig.n_morphs} morph targets ({names}) have no ARKit names" if rig.n_morphs
+            else "it has no morph targets")
     raise CaptureError(f"character '{rig.name}' cannot be driven: {have} and no face bones are tied to tracker "
                        "landmarks (name morphs like jawOpen / eyeBlink_L, or map them in a mapping JSON)")
 

@@ -135,7 +135,8 @@ def load_canonical_mesh(model_path: str | os.PathLike | None = None) -> Canonica
         with zipfile.ZipFile(path) as zf:
             data = zf.read(MEMBER)
     except (zipfile.BadZipFile, KeyError, OSError) as exc:
-        raise CaptureError(f"{path}: not a face_landmarker.task with a canonical mesh ({exc.__class__.__name__})") from None
+        raise CaptureError(f"{path}: not a face_landmarker.task with a canonical mesh "
+                           f"({exc.__class__.__name__})") from None
     mesh = parse_geometry_metadata(data)
     if mesh.vertices.shape[0] != N_MESH or mesh.triangles.size == 0:
         raise CaptureError(f"{path}: unexpected canonical mesh ({mesh.vertices.shape[0]} vertices)")

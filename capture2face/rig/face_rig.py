@@ -212,7 +212,7 @@ class FaceRig:
         a, b = landmark_points(self, self.vertices, list(IOD_PAIR))
         return float(np.linalg.norm(a - b))
 
-    def replace(self, **changes) -> "FaceRig":
+    def replace(self, **changes) -> FaceRig:
         return dataclasses.replace(self, **changes)
 
     # ---- persistence ----------------------------------------------------------------
@@ -221,7 +221,7 @@ class FaceRig:
         save_dataclass(self, path, FORMAT)
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "FaceRig":
+    def load(cls, path: str | os.PathLike) -> FaceRig:
         """Read a rig written by :meth:`save`; a bad file raises ``CaptureError``."""
         return load_dataclass(cls, path, FORMAT)
 

@@ -46,11 +46,18 @@ def feature_layout(landmark_uvs: np.ndarray) -> FeatureLayout:
     wing_l, wing_r, mouth_l, mouth_r = uv[278], uv[48], uv[MOUTH_CORNERS[1]], uv[MOUTH_CORNERS[0]]
     lip_low, chin_low = uv[17], uv[152]
     brow_v = 0.5 * (brow_l[1] + brow_r[1])
-    forehead = ((0.5, 0.5 * (top[1] + brow_v) + 0.01), (0.92 * (brow_l[0] - brow_r[0]) / 2 + 0.06, 0.5 * (brow_v - top[1]) - 0.005))
-    glabella = ((0.5, 0.5 * (brow_inner_l[1] + nose_root[1])), (0.42 * (brow_inner_l[0] - brow_inner_r[0]), 0.55 * (nose_root[1] - brow_inner_l[1]) + 0.02))
-    crows = lambda c, s: ((c[0] + s * 0.042, c[1] + 0.004), (0.036, 0.058))
-    # The fold runs from just above-lateral of the nose wing to below-lateral of the mouth corner.
-    naso = lambda w, m, s: ((w[0] + s * 0.022, w[1] - 0.004), (m[0] + s * 0.036, m[1] + 0.04))
+    forehead = ((0.5, 0.5 * (top[1] + brow_v) + 0.01),
+                (0.92 * (brow_l[0] - brow_r[0]) / 2 + 0.06, 0.5 * (brow_v - top[1]) - 0.005))
+    glabella = ((0.5, 0.5 * (brow_inner_l[1] + nose_root[1])),
+                (0.42 * (brow_inner_l[0] - brow_inner_r[0]), 0.55 * (nose_root[1] - brow_inner_l[1]) + 0.02))
+
+    def crows(c, s):
+        return (c[0] + s * 0.042, c[1] + 0.004), (0.036, 0.058)
+
+    def naso(w, m, s):
+        # The fold runs from just above-lateral of the nose wing to below-lateral of the mouth corner.
+        return (w[0] + s * 0.022, w[1] - 0.004), (m[0] + s * 0.036, m[1] + 0.04)
+
     # Upper brow edges, outer to inner: right brow, then the left's mirror landmarks.
     brow_top = uv[[70, 63, 105, 66, 107, 336, 296, 334, 293, 300]]
     chin = ((0.5, lip_low[1] + 0.47 * (chin_low[1] - lip_low[1])), (0.07, 0.36 * (chin_low[1] - lip_low[1])))

@@ -52,7 +52,8 @@ def _incidence(triangles: np.ndarray, n_vertices: int) -> sp.csr_matrix:
     return sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_vertices, len(triangles)))
 
 
-def midpoint_subdivide(vertices: np.ndarray, triangles: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def midpoint_subdivide(vertices: np.ndarray, triangles: np.ndarray,
+                       normals: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One 1-to-4 split. Original vertices keep their indices (0..V-1); edge vertex e is
     V + e. New vertices sit on a cubic Hermite curve between the edge's ends (tangents
     from the end normals, as in PN triangles), so the surface rounds out instead of

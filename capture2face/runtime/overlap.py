@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import queue
 import threading
-from typing import Any, Callable, Iterator
+from collections.abc import Callable, Iterator
+from typing import Any
 
 _POLL_S = 0.05
 _END = object()
@@ -28,7 +29,7 @@ class Cancelled(Exception):
 class Channel:
     """A bounded FIFO between two stages that gives up when the group stops."""
 
-    def __init__(self, group: "StageGroup", maxsize: int):
+    def __init__(self, group: StageGroup, maxsize: int):
         self._q: queue.Queue = queue.Queue(maxsize)
         self._group = group
 
@@ -83,7 +84,7 @@ class StageGroup:
                 fn(*args)
             except Cancelled:
                 pass
-            except BaseException as exc:  # noqa: BLE001 - re-raised in the main thread
+            except BaseException as exc:  # re-raised in the main thread
                 with self._lock:
                     self._errors.append(exc)
                 self._stop.set()
@@ -107,7 +108,7 @@ class StageGroup:
         if self._errors:
             raise self._errors[0]
 
-    def __enter__(self) -> "StageGroup":
+    def __enter__(self) -> StageGroup:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> bool:

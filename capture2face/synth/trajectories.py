@@ -154,7 +154,7 @@ class Values:
     light: np.ndarray  # (N, 3) light directions
     gaze: np.ndarray  # (N, 2, 2) eye yaw, pitch (degrees)
 
-    def map(self, fn) -> "Values":
+    def map(self, fn) -> Values:
         """``fn`` applied to every array."""
         return Values(*(fn(getattr(self, f.name)) for f in fields(self)))
 
@@ -281,7 +281,7 @@ def exact_holds(k: Keys, c: Values, frames: int) -> np.ndarray:
     the (F,) ``key_pose`` labels."""
     key_pose = np.full(frames, KEY_FREE, np.int8)
     keys, label, at = k.keys, k.label, k.values
-    for i in range(0, len(keys) - 1):
+    for i in range(len(keys) - 1):
         if label[i] != KEY_FREE and label[i + 1] == label[i]:
             span = slice(keys[i], keys[i + 1] + 1)
             key_pose[span] = label[i]

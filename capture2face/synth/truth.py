@@ -111,7 +111,7 @@ class SyntheticTruth:
         save_dataclass(self, path, FORMAT)
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "SyntheticTruth":
+    def load(cls, path: str | os.PathLike) -> SyntheticTruth:
         return load_dataclass(cls, path, FORMAT)
 
 

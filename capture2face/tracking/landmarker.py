@@ -22,17 +22,17 @@ import os
 os.environ.setdefault("GLOG_minloglevel", "2")
 os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
 
-import contextlib  # noqa: E402
-import importlib  # noqa: E402
-import sys  # noqa: E402
-import types  # noqa: E402
-from dataclasses import dataclass  # noqa: E402
+import contextlib
+import importlib
+import sys
+import types
+from dataclasses import dataclass
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from capture2face.errors import CaptureError  # noqa: E402
-from capture2face.models.face_model import find_face_model  # noqa: E402
-from capture2face.topology import BLENDSHAPE_NAMES, N_LANDMARKS  # noqa: E402
+from capture2face.errors import CaptureError
+from capture2face.models.face_model import find_face_model
+from capture2face.topology import BLENDSHAPE_NAMES, N_LANDMARKS
 
 
 @dataclass
@@ -222,7 +222,7 @@ class FaceLandmarker:
         return max(n, int(options.face) + 1) if options.face is not None else n
 
     @classmethod
-    def create_from_options(cls, options: LandmarkerOptions | None = None) -> "FaceLandmarker":
+    def create_from_options(cls, options: LandmarkerOptions | None = None) -> FaceLandmarker:
         options = options or LandmarkerOptions()
         options.validate()
         model = find_face_model(options.face_model)
@@ -240,7 +240,7 @@ class FaceLandmarker:
             lm.close()  # once each (the single-face one is the main one when max_faces == 1)
         self._lm = self._single = None
 
-    def __enter__(self) -> "FaceLandmarker":
+    def __enter__(self) -> FaceLandmarker:
         return self
 
     def __exit__(self, *exc) -> None:

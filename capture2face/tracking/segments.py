@@ -32,6 +32,7 @@ sequential: a worker cannot know what was chosen before its segment.
 from __future__ import annotations
 
 import collections
+import contextlib
 import logging
 import os
 import pickle
@@ -170,10 +171,9 @@ class SegmentWorkers:
                 self._recv.append(Connection(os.dup(proc.stdout.fileno()), writable=False))
                 proc.stdin.close()
                 proc.stdout.close()
-                try:
+                # One that died at start-up: its result() says so, and the clip is tracked by one.
+                with contextlib.suppress(OSError):
                     self._send[-1].send(options)
-                except OSError:
-                    pass  # it died at start-up: its result() says so, and the clip is tracked by one
         except BaseException:
             self.close()
             raise
@@ -181,7 +181,7 @@ class SegmentWorkers:
     def __len__(self) -> int:
         return len(self._procs)
 
-    def __enter__(self) -> "SegmentWorkers":
+    def __enter__(self) -> SegmentWorkers:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -242,10 +242,8 @@ class SegmentWorkers:
             if i in self._busy:
                 self._procs[i].terminate()
                 continue
-            try:
+            with contextlib.suppress(OSError, ValueError):
                 conn.send(None)
-            except (OSError, ValueError):
-                pass
         self._busy.clear()
         deadline = time.monotonic() + 2.0
         for proc in self._procs:
@@ -286,7 +284,7 @@ def _worker_main(send, recv, options: LandmarkerOptions) -> None:
     try:
         lm = FaceLandmarker.create_from_options(options)
         lm.prepare()
-    except Exception as exc:  # noqa: BLE001 - reported to the parent, which falls back
+    except Exception as exc:  # reported to the parent, which falls back
         send.send(("error", f"{exc.__class__.__name__}: {exc}"))
         return
     try:
@@ -296,7 +294,7 @@ def _worker_main(send, recv, options: LandmarkerOptions) -> None:
             return
         try:
             send.send(("ok", _track_segment(lm, job, send)))
-        except Exception as exc:  # noqa: BLE001 - reported to the parent, which falls back
+        except Exception as exc:  # reported to the parent, which falls back
             send.send(("error", f"{exc.__class__.__name__}: {exc}"))
     except (EOFError, OSError):
         pass  # the parent went away

@@ -91,5 +91,5 @@ class Track:
         save_dataclass(self, path, FORMAT)
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "Track":
+    def load(cls, path: str | os.PathLike) -> Track:
         return load_dataclass(cls, path, FORMAT)

@@ -274,7 +274,7 @@ class Tracker:
         self._landmarker = FaceLandmarker.create_from_options(self.options.landmarker)
         self._builder = TrackBuilder(info, self.options, workdir)
 
-    def __enter__(self) -> "Tracker":
+    def __enter__(self) -> Tracker:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -4,6 +4,7 @@ covers the source of every builder module, so a code change rebuilds it."""
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 from pathlib import Path
@@ -69,9 +70,7 @@ def default_avatar(variant: str | None = None) -> FaceRig:
     rig = load_entry(path, FaceRig.load)  # a corrupt cache file is rebuilt
     if rig is None:
         rig = build_avatar(variant)
-        try:
+        with contextlib.suppress(UNWRITABLE):  # a read-only cache still gives the rig, just not cached
             store_entry(path, rig.save)
-        except UNWRITABLE:
-            pass  # a read-only cache still gives the rig, just not cached
     _MEMO[key] = rig
     return rig

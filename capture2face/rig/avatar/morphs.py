@@ -100,7 +100,10 @@ def _lid_targets(pos: np.ndarray, e: dict) -> tuple[np.ndarray, np.ndarray]:
     above it) and lower lid (20% of the way up): ((n upper, 3), (n lower, 3))."""
     lo = e["lower_full"]
     order = np.argsort(pos[lo, 0])
-    at_x = lambda x: np.stack([np.interp(x, pos[lo[order], 0], pos[lo[order], c]) for c in range(3)], 1)
+
+    def at_x(x):
+        return np.stack([np.interp(x, pos[lo[order], 0], pos[lo[order], c]) for c in range(3)], 1)
+
     up = e["upper"]
     lower_under_upper = at_x(pos[up, 0])
     meet = lower_under_upper + 0.2 * (pos[up] - lower_under_upper)
@@ -120,7 +123,8 @@ def _eyelid_morphs(mb: MorphBuilder, eye: dict) -> dict[str, np.ndarray]:
         d_up, d_lo = _lid_targets(mb.pos, e)
         out["eyeBlink" + name] = mb.extend([(e["upper"], d_up), (e["lower"], d_lo), (e["corners"], 0.0)], 2.2)
         out["eyeWide" + name] = mb.extend(
-            [(e["upper"], np.array([0.0, 0.28, 0.04]) * e["upper_profile"][:, None]), (e["lower"], 0.0), (e["corners"], 0.0)], 2.2)
+            [(e["upper"], np.array([0.0, 0.28, 0.04]) * e["upper_profile"][:, None]), (e["lower"], 0.0),
+             (e["corners"], 0.0)], 2.2)
         below = e["below"]
         out["eyeSquint" + name] = mb.extend(
             [(e["lower"], np.array([0.0, 0.17, 0.04]) * e["lower_profile"][:, None]),

@@ -88,7 +88,10 @@ def eyeball(ring_pos: np.ndarray, side: str):
     z_front = ring_pos[middle, 2].min() - 0.12
     cz = z_front - radius
     # Push the sphere back until every contour vertex is at least 0.06 cm in front of it.
-    depth_at = lambda c: c + np.sqrt(np.maximum(radius**2 - reach**2, 0.0))
+
+    def depth_at(c):
+        return c + np.sqrt(np.maximum(radius**2 - reach**2, 0.0))
+
     cz -= max(0.0, float((depth_at(cz) - ring_pos[:, 2] + 0.06).max()))
     centre = np.array([centre_xy[0], centre_xy[1], cz])
     n_phi = 24
@@ -186,7 +189,10 @@ def teeth_and_tongue(ring: np.ndarray):
     # further back at the corners than at the front (what a dental arch does).
     ends = sum(maps.TOOTH_WIDTHS)
     xs = np.linspace(-1.0, 1.0, 41)
-    curve = lambda x, dz: np.stack([x * (half - 0.15), np.zeros_like(x), z_front - dz - 1.3 * x**2], 1)
+
+    def curve(x, dz):
+        return np.stack([x * (half - 0.15), np.zeros_like(x), z_front - dz - 1.3 * x**2], 1)
+
     verts, uvs, tris, part = [], [], [], []
     offset = 0
     for k, (row, (edge_dy, height, back)) in enumerate(TEETH.items()):
@@ -324,7 +330,10 @@ def ear(centre: np.ndarray, side: float, height: float, width: float):
     out = np.array([side * np.cos(0.35), 0.0, np.sin(0.35)])  # outward, turned 20 degrees forwards
     up = np.array([0.0, 1.0, 0.0])
     along = np.cross(up, out) * side  # towards the back of the head
-    depth = lambda r: 0.45 * np.exp(-((r - 0.88) / 0.1) ** 2) - 0.35 * np.exp(-((r - 0.35) / 0.2) ** 2)
+
+    def depth(r):
+        return 0.45 * np.exp(-((r - 0.88) / 0.1) ** 2) - 0.35 * np.exp(-((r - 0.35) / 0.2) ** 2)
+
     thick = 0.45
     verts, coords, front = [centre + out * depth(0.0)], [(0.0, 0.0)], [True]
     for face in (0, 1):
@@ -375,4 +384,5 @@ def hair_grid(hv: np.ndarray, n_edge: int) -> np.ndarray:
     from_edge = np.vstack([np.zeros((1, n_edge + 1)), np.cumsum(step, axis=0)])
     z_front = float(p[0, :, 2].max())
     hairline = np.interp(p[..., 2] - z_front, [-19.0, -13.0, -8.5, -4.5], [-3.5, 0.5, 4.2, 7.5])
-    return (features.smoothstep((from_edge - 0.1) / 0.7) * features.smoothstep((p[..., 1] - hairline) / 1.2)).astype(np.float32)
+    return (features.smoothstep((from_edge - 0.1) / 0.7)
+            * features.smoothstep((p[..., 1] - hairline) / 1.2)).astype(np.float32)

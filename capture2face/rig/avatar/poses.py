@@ -99,7 +99,10 @@ def _pose_displacements(pose: str) -> np.ndarray:
 
 def zone_table(morph_names: list[str]) -> np.ndarray:
     table = np.zeros((len(morph_names), len(ZONE_NAMES)))
-    swap = lambda z: z.replace("left", "@").replace("right", "left").replace("@", "right")
+
+    def swap(z):
+        return z.replace("left", "@").replace("right", "left").replace("@", "right")
+
     for name, entries in _ZONE_TABLE.items():
         rows = [(name, entries)]
         if name.endswith("Left"):

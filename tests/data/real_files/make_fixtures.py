@@ -3,8 +3,9 @@
 
 ``base.glb``: the shared ICT head ict-a.glb simplified by gltfpack to 2 % of its triangles
 (every mesh and material kept; ``-noq``: plain floats), nine morphs kept (every mesh keeps
-at least one), pruned and its morph targets made sparse by glTF-Transform, its three textures shrunk to an eighth (so the fixtures stay small). Every
-other file is one of the real tools' own outputs from ``base.glb``.
+at least one), pruned and its morph targets made sparse by glTF-Transform, its three
+textures shrunk to an eighth (so the fixtures stay small). Every other file is one of the
+real tools' own outputs from ``base.glb``.
 """
 
 from __future__ import annotations
