@@ -215,7 +215,8 @@ def _cmd_eval_shading(args: argparse.Namespace) -> int:
         write_text_atomic(args.json, json.dumps({"runs": results, "summary": summary}, indent=2) + "\n")
     for r in results:
         print(f"{r['run']}: skin darkening p95 " + ", ".join(f"{k} {v:.1%}" for k, v in r["darkening_p95"].items())
-              + f"; mouth opening r {r['mouth_open_r']:.2f}")
+              + f"; mouth opening r {r['mouth_open_r']:.2f} gain {r['mouth_open_gain']:.2f}, brows r "
+              f"{r['brows_r']:.2f} gain {r['brows_gain']:.2f}, eyes r {r['eyes_r']:.2f} gain {r['eyes_gain']:.2f}")
     print(summary)
     return 0
 
