@@ -75,8 +75,8 @@ def test_gallery_on_the_sample_clip(tmp_path):
         sheet = cv2.imread(str(out / f"{name}.png"))
         band = max(12, int(cell * LABEL_BAND))
         assert sheet.shape[1] == 6 * cell + 7 * GAP
-        top = sheet.shape[0] - GAP - 3 * (cell + band + GAP)  # the title's height
-        for r in range(3):
+        top = sheet.shape[0] - GAP - 4 * (cell + band + GAP)  # the title's height
+        for r in range(4):
             for c in range(6):
                 assert not _cell_is_blank(sheet, top + GAP + r * (cell + band + GAP) + band, c, cell), (name, r, c)
     assert rows["default"]["shading"]["mouth_open_r"] > 0.8

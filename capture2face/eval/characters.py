@@ -5,9 +5,11 @@ exported into ``DIR/<name>/`` (a ``run`` folder without compare.mp4 and report),
 
 * a contact sheet ``DIR/<name>.png``: the actor (a crop of the source frame) above the
   character at rest and at the clip's peaks of jawOpen, browInnerUp, eyeBlink,
-  mouthSmile and browDown (the clip's ARKit curves, ``Animation.arkit_weights``), then
+  mouthSmile and browDown (the clip's ARKit curves, ``Animation.arkit_weights``); then
   frontal close-ups of the forehead, the glabella and an eye's outer corner (wrinkles),
-  each beside the actor's, at the largest brow raise, frown and squint;
+  each beside the actor's, at the clip's largest brow raise, frown and squint; then the
+  same close-ups at rest and at full influence (the character's reference pose,
+  ``stretch`` for the forehead, ``compress`` for the others);
 * the figures of the issue's goals: landmark fidelity (judged measures faithful, as
   ``eval fidelity``) and the video tracked back (``eval shading``: mouth, brows and eyes
   r and gain, skin darkening p95).
@@ -35,13 +37,15 @@ from capture2face.io.video_input import iter_frames
 from capture2face.measures import clip_fidelity
 from capture2face.pipeline import RenderPass, RunOptions, export_stage, retarget_stage, track_stage
 from capture2face.pipeline.preflight import check_character
-from capture2face.render import Renderer, RenderOptions
+from capture2face.render import FrameState, Renderer, RenderOptions
 from capture2face.rig.face_rig import FaceRig, landmark_points
 from capture2face.topology import IOD_PAIR
 from capture2face.tracking.track import Track
 
 REPO = Path(__file__).resolve().parents[2]
-DEFAULT_CLIPS = (REPO.parent / "shared" / "clips" / "d3.mp4", REPO / "sample_videos" / "sample.mp4")
+# d12: a wide-open mouth, brow raises, smiles and blinks in 183 frames (the close-ups at full
+# influence show the frown's wrinkles it lacks).
+DEFAULT_CLIPS = (REPO.parent / "shared" / "clips" / "d12.mp4", REPO / "sample_videos" / "sample.mp4")
 
 #: Sheet columns: label -> the ARKit curves whose mean peaks there (None: the actor's rest).
 EXPRESSIONS: dict[str, tuple[str, ...] | None] = {
@@ -53,17 +57,18 @@ EXPRESSIONS: dict[str, tuple[str, ...] | None] = {
     "browDown": ("browDownLeft", "browDownRight"),
 }
 #: Close-ups: label -> (curves whose peak frame, landmarks whose mean is the centre, width in
-#: inter-ocular distances, the centre's place as a fraction of the face's height and width
-#: from its centre where the character has no landmarks).
+#: inter-ocular distances, the centre's place as a fraction of the face's height from its
+#: centre where the character has no landmarks, the reference pose of full influence).
 CLOSE_UPS = {
-    "forehead": (("browInnerUp",), (151, 9), 1.3, (0.0, 0.33)),
-    "glabella": (("browDownLeft", "browDownRight"), (9, 168), 0.75, (0.0, 0.2)),
-    "eye corner": (("eyeSquintRight", "mouthSmileRight", "cheekSquintRight"), (33,), 0.7, (-0.2, 0.12)),
+    "forehead": (("browInnerUp",), (151, 9), 1.3, (0.0, 0.33), "stretch"),
+    "glabella": (("browDownLeft", "browDownRight"), (9, 168), 0.75, (0.0, 0.2), "compress"),
+    "eye corner": (("eyeSquintRight", "mouthSmileRight", "cheekSquintRight"), (33,), 0.7, (-0.2, 0.12),
+                   "compress"),
 }
 
 
 def default_clip() -> Path:
-    """../shared/clips/d3.mp4 beside the repository when present, else the sample clip."""
+    """../shared/clips/d12.mp4 beside the repository when present, else the sample clip."""
     return next((p for p in DEFAULT_CLIPS if p.is_file()), DEFAULT_CLIPS[-1])
 
 
@@ -116,7 +121,7 @@ def actor_crop(rgb: np.ndarray, px: np.ndarray, landmarks=None, width_iod: float
 # ---- close-ups ------------------------------------------------------------------------------
 def close_up_target(rig: FaceRig, label: str) -> tuple[np.ndarray, float]:
     """(centre (3,) head cm, width cm) of close-up ``label`` on the character at rest."""
-    _, landmarks, width_iod, fallback = CLOSE_UPS[label]
+    _, landmarks, width_iod, fallback, _ = CLOSE_UPS[label]
     ids = list(landmarks) + list(IOD_PAIR)
     if np.all(np.asarray(rig.landmark_vertices)[ids] >= 0):
         points = landmark_points(rig, rig.vertices, ids).astype(np.float64)
@@ -148,16 +153,20 @@ def _fidelity(track, animation, rig: FaceRig, name: str) -> dict:
 
 def _render(clip, track, animation, rig: FaceRig, folder: Path, options: RunOptions, frames: dict,
             progress: bool) -> tuple[dict, dict]:
-    """avatar.mp4 into ``folder``; (the kept frames, the close-ups) as RGB images."""
+    """avatar.mp4 into ``folder``; (the kept frames, the close-ups) as RGB images. The
+    close-ups: ``label`` at the clip's frame, ``(label, "rest")`` and ``(label, "full")``."""
     render_pass = RenderPass(clip, track, animation, rig, folder, options,
                              keep_frames=[f for f, _ in frames.values()])
     kept = render_pass.run(progress)["kept"]
-    render_options = render_pass.render_options
+    fov = render_pass.render_options.fov_y_degrees
+    front = np.eye(4)
     close = {}
-    with Renderer.create_from_options(rig, render_options) as renderer:
-        for label in CLOSE_UPS:
-            state = render_pass.frame_state(frames[label][0])
-            close[label] = renderer.render(close_up_state(rig, state, label, render_options.fov_y_degrees))
+    with Renderer.create_from_options(rig, render_pass.render_options) as renderer:
+        for label, spec in CLOSE_UPS.items():
+            states = {label: render_pass.frame_state(frames[label][0]), (label, "rest"): FrameState.at_pose(rig, front),
+                      (label, "full"): FrameState.at_pose(rig, front, spec[4] if spec[4] in rig.pose_names else None)}
+            for key, state in states.items():
+                close[key] = renderer.render(close_up_state(rig, state, label, fov))
     return kept, close
 
 
@@ -192,12 +201,14 @@ def _sheet_rows(clip, track: Track, frames: dict, kept: dict, close: dict) -> li
         f, value = frames[label]
         actor.append(Cell(actor_crop(source[f], track.landmarks_px[f]), f"actor f{f}"))
         character.append(Cell(kept.get(f), label if label == "rest" else f"{label} {value:.2f}"))
-    closes = []
-    for label, (_, landmarks, width_iod, _) in CLOSE_UPS.items():
-        f, _ = frames[label]
+    closes, full = [], []
+    for label, (_, landmarks, width_iod, _, pose) in CLOSE_UPS.items():
+        f, value = frames[label]
         closes.append(Cell(actor_crop(source[f], track.landmarks_px[f], landmarks, width_iod), f"actor f{f}"))
-        closes.append(Cell(close[label], label))
-    return [actor, character, closes]
+        closes.append(Cell(close[label], f"{label} {value:.2f}"))
+        full.append(Cell(close[(label, "rest")], f"{label} at rest"))
+        full.append(Cell(close[(label, "full")], f"{label} full {pose}"))
+    return [actor, character, closes, full]
 
 
 def _title(name: str, clip, row: dict) -> list[str]:
