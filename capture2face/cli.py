@@ -433,7 +433,7 @@ def _add_eval_characters_parser(evals, common: argparse.ArgumentParser) -> None:
     p.add_argument("characters", nargs="*", metavar="FILE",
                    help="characters (.glb, FaceRig .npz, a built-in name; default: the default avatar)")
     p.add_argument("--clip", default=None,
-                   help="the clip they perform (default: ../shared/clips/d3.mp4 beside the repository, "
+                   help="the clip they perform (default: ../shared/clips/d12.mp4 beside the repository, "
                         "else sample_videos/sample.mp4)")
     p.add_argument("-o", "--output", default="gallery", metavar="DIR",
                    help="writes DIR/<name>.png (the sheet) and DIR/<name>/ (avatar.mp4, animation.glb, ...); "

@@ -44,6 +44,14 @@ def test_peak_frame_skips_frames_without_a_face():
     assert characters.peak_frame(Anim, Tr, None) == (1, 0.0)
 
 
+def test_goals_met_follows_the_issues_thresholds():
+    shading = {"mouth_open_r": 0.9, "mouth_open_gain": 0.7, "eyes_r": 0.8, "eyes_gain": 0.69,
+               "brows_r": 0.74, "brows_gain": 1.0, "darkening_p95_mean": 0.03}
+    met = characters.goals_met({"shading": shading, "fidelity": {"judged": 10, "faithful": 9}})
+    assert met == {"mouth_open": True, "eyes": False, "brows": False, "darkening": True, "fidelity": True}
+    assert "fidelity" not in characters.goals_met({"shading": shading, "fidelity": {"judged": 0, "faithful": 0}})
+
+
 def _cell_is_blank(sheet: np.ndarray, row_top: int, col: int, cell: int) -> bool:
     x = GAP + col * (cell + GAP)
     return float(sheet[row_top:row_top + cell, x:x + cell].std()) < 2.0
@@ -68,7 +76,7 @@ def test_gallery_on_the_sample_clip(tmp_path):
     for name in ("default", rpm.stem):
         row = rows[name]
         assert row["status"] == "ok", row
-        assert row["fidelity"]["judged"] > 0
+        assert row["fidelity"]["judged"] > 0 and set(row["goals"]) >= {"mouth_open", "eyes", "brows", "darkening"}
         for key in ("mouth_open_r", "mouth_open_gain", "brows_r", "eyes_r", "darkening_p95_mean"):
             assert np.isfinite(row["shading"][key]), key
         assert (out / name / "avatar.mp4").is_file() and (out / name / "animation.glb").is_file()

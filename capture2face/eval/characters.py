@@ -67,6 +67,13 @@ CLOSE_UPS = {
 }
 
 
+#: Issue 31's goals, tracked back from avatar.mp4: feature -> (r at least, gain at least);
+#: skin darkening p95 at most DARKENING_GOAL; landmark fidelity FIDELITY_GOAL of the judged.
+FOLLOW_GOALS = {"mouth_open": (0.85, 0.7), "eyes": (0.8, 0.7), "brows": (0.75, 0.6)}
+DARKENING_GOAL = 0.03
+FIDELITY_GOAL = 0.9
+
+
 def default_clip() -> Path:
     """../shared/clips/d12.mp4 beside the repository when present, else the sample clip."""
     return next((p for p in DEFAULT_CLIPS if p.is_file()), DEFAULT_CLIPS[-1])
@@ -187,11 +194,23 @@ def perform(spec, clip, track: Track, out_dir: Path, size: int, cell: int, progr
     row = {"landmarks": int(np.count_nonzero(np.asarray(rig.landmark_vertices) >= 0)),
            "fidelity": _fidelity(track, animation, rig, name)}
     row["shading"] = shading.shading_of(folder, progress=progress)
+    row["goals"] = goals_met(row)
     sheet = draw_sheet(_sheet_rows(clip, track, frames, kept, close), cell, _title(name, clip, row))
     row["sheet"] = os.fspath(out_dir / f"{name}.png")
     write_image(sheet, row["sheet"])
     row["seconds"] = round(time.perf_counter() - t0, 1)
     return row
+
+
+def goals_met(row: dict) -> dict[str, bool]:
+    """Which of the goals (:data:`FOLLOW_GOALS`, :data:`DARKENING_GOAL`,
+    :data:`FIDELITY_GOAL`) a character's figures meet (fidelity: only where judged)."""
+    sh, fid = row["shading"], row["fidelity"]
+    out = {k: bool(sh[f"{k}_r"] >= r and sh[f"{k}_gain"] >= g) for k, (r, g) in FOLLOW_GOALS.items()}
+    out["darkening"] = bool(sh["darkening_p95_mean"] <= DARKENING_GOAL)
+    if fid["judged"]:
+        out["fidelity"] = bool(fid["faithful"] >= FIDELITY_GOAL * fid["judged"])
+    return out
 
 
 def _sheet_rows(clip, track: Track, frames: dict, kept: dict, close: dict) -> list[list[Cell]]:
@@ -250,20 +269,29 @@ def evaluate_characters(characters: list, clip=None, out_dir: str | os.PathLike 
 def summary_line(rows: list[dict]) -> str:
     ok = [r for r in rows if r["status"] == "ok"]
     refused = sum(r["status"] == "refused" for r in rows)
-    return f"{len(rows)} characters: {len(ok)} performed, {refused} refused, {len(rows) - len(ok) - refused} failed"
+    met = sum(all(r["goals"].values()) for r in ok)
+    return (f"{len(rows)} characters: {len(ok)} performed ({met} meet every goal: mouth r >= "
+            f"{FOLLOW_GOALS['mouth_open'][0]} gain >= {FOLLOW_GOALS['mouth_open'][1]}, eyes r >= "
+            f"{FOLLOW_GOALS['eyes'][0]} gain >= {FOLLOW_GOALS['eyes'][1]}, brows r >= {FOLLOW_GOALS['brows'][0]} "
+            f"gain >= {FOLLOW_GOALS['brows'][1]}, darkening p95 <= {DARKENING_GOAL:.0%}, fidelity >= "
+            f"{FIDELITY_GOAL:.0%}), {refused} refused, {len(rows) - len(ok) - refused} failed")
+
+
+def _mark(met: bool | None) -> str:
+    return "" if met is None else (" ✓" if met else " ✗")
 
 
 def table(rows: list[dict]) -> str:
-    """A Markdown table, one row per character."""
+    """A Markdown table, one row per character (✓ / ✗: the goal met or not)."""
     lines = ["| character | landmarks | fidelity | mouth r / gain | brows r / gain | eyes r / gain | darkening p95 |",
              "|---|---|---|---|---|---|---|"]
     for r in rows:
         if r["status"] != "ok":
             lines.append(f"| {r['name']} | {r['status']}: {r['message']} | | | | | |")
             continue
-        fid, sh = r["fidelity"], r["shading"]
-        cells = [str(r["landmarks"]), f"{fid['faithful']}/{fid['judged']}"]
-        cells += [f"{sh[k + '_r']:.2f} / {sh[k + '_gain']:.2f}" for k in ("mouth_open", "brows", "eyes")]
-        cells.append(f"{sh['darkening_p95_mean']:.1%}")
+        fid, sh, met = r["fidelity"], r["shading"], r["goals"]
+        cells = [str(r["landmarks"]), f"{fid['faithful']}/{fid['judged']}{_mark(met.get('fidelity'))}"]
+        cells += [f"{sh[k + '_r']:.2f} / {sh[k + '_gain']:.2f}{_mark(met[k])}" for k in ("mouth_open", "brows", "eyes")]
+        cells.append(f"{sh['darkening_p95_mean']:.1%}{_mark(met['darkening'])}")
         lines.append(f"| {r['name']} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
