@@ -152,9 +152,6 @@ def _cmd_track(args: argparse.Namespace) -> int:
 
 def _cmd_run(args: argparse.Namespace) -> int:
     opts = options_from_args(args)
-    if args.name is not None and (not args.name.strip() or Path(args.name).name != args.name
-                                  or args.name in (".", "..") or args.name.startswith(".tmp-")):
-        raise CaptureError(f"--name {args.name!r}: must be a plain folder name (no '/', not '.' or '..')")
     report = pipeline.run(args.clip, args.output, opts, progress=not args.quiet, name=args.name)
     for warning in report["warnings"]:  # also in report.json
         print(f"capture2face: warning: {warning}", file=sys.stderr)
