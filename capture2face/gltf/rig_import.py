@@ -47,7 +47,7 @@ from capture2face.gltf.mapping import Mapping, load_mapping
 from capture2face.gltf.materials import ALPHA_MODES, MATERIAL_CODES, double_sided, overlay_vertices
 from capture2face.gltf.morphs import merge_morphs
 from capture2face.gltf.own_extras import apply_own_extras, own_extras
-from capture2face.gltf.scene import mesh_nodes, world_matrices
+from capture2face.gltf.scene import check_hierarchy, mesh_nodes, world_matrices
 from capture2face.gltf.skins import head_weights, read_skeleton, skin_weights
 from capture2face.gltf.surface import scene_surface
 from capture2face.gltf.textures import ATLAS_MAX, DEFAULT_TEXTURE_SIZE, read_textures
@@ -105,6 +105,7 @@ def _build(r: GlbReader, glb: Path, mapping: Mapping, ours: dict | None) -> Face
     """The import's passes (the module docs); then what the mapping (or our own extras) adds."""
     g = r.gltf
     scale = _scale(mapping, ours)
+    check_hierarchy(g.get("nodes", []), str(glb))
     picked = mesh_nodes(g, str(glb))
     skeleton = read_skeleton(r, picked, world_matrices(g.get("nodes", [])), mapping.head_bone)
     surface = scene_surface(r, picked, skeleton, mapping, scale)

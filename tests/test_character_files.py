@@ -1,0 +1,97 @@
+"""Odd character files through the command line, as a user types them (issue 33): a node
+that is its own child, textures that cannot be read, a .gltf folder missing a PNG, a
+mapping naming a morph the file lacks, a head that gets no automatic wrinkles. A failure
+is exit 2 and one line naming the cause, before tracking; a warning is printed as
+``capture2face: warning: ...`` and kept in report.json; never a traceback."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import uuid
+from pathlib import Path
+
+import pytest
+
+from tests.helpers import REPO
+
+ENV = dict(os.environ, GLOG_minloglevel="2", TF_CPP_MIN_LOG_LEVEL="2", PYTHONUNBUFFERED="1")
+SAMPLE = REPO / "sample_videos" / "sample.mp4"
+FOLDER = REPO / "tests" / "data" / "real_files" / "folder"
+KTX2_MAGIC = b"\xabKTX 20\xbb\r\n\x1a\n"
+
+
+def cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "capture2face", "-q", *args], capture_output=True, text=True,
+                          timeout=timeout, env=ENV)
+
+
+def failed_in_one_line(result: subprocess.CompletedProcess, *mentions: str) -> str:
+    assert result.returncode == 2, (result.returncode, result.stderr[-3000:])
+    lines = [ln for ln in result.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("capture2face: error: "), result.stderr[-3000:]
+    assert "Traceback" not in result.stderr
+    for m in mentions:
+        assert m in lines[0], lines[0]
+    return lines[0]
+
+
+def warnings_of(result: subprocess.CompletedProcess) -> list[str]:
+    """The run's stderr: every line a ``capture2face: warning:`` (no traceback, no bare
+    message, no NumPy RuntimeWarning)."""
+    assert result.returncode == 0, result.stderr[-3000:]
+    lines = [ln for ln in result.stderr.splitlines() if ln.strip()]
+    stray = [ln for ln in lines if not ln.startswith("capture2face: warning: ")]
+    assert not stray, result.stderr[-3000:]
+    return [ln[len("capture2face: warning: "):] for ln in lines]
+
+
+def unique(gltf: dict) -> dict:
+    """A file no earlier test run prepared (the prepared-character cache is keyed on content)."""
+    gltf.setdefault("asset", {})["generator"] = f"capture2face test {uuid.uuid4().hex}"
+    return gltf
+
+
+@pytest.fixture(scope="module")
+def hero(tmp_path_factory) -> Path:
+    """An ARKit character: the default avatar exported with ARKit morph names."""
+    from capture2face.gltf.arkit_export import export_arkit_character
+    from capture2face.rig.avatar import default_avatar
+
+    path = tmp_path_factory.mktemp("hero") / "hero.glb"
+    export_arkit_character(default_avatar(), path)
+    return path
+
+
+def rewrite(src: Path, dst: Path, change) -> Path:
+    """``src`` with ``change(gltf, binary)`` applied (its JSON as the file has it)."""
+    from capture2face.gltf.container import read_gltf_document, write_glb
+
+    gltf, binary = read_gltf_document(src)
+    binary = bytearray(binary)
+    change(gltf, binary)
+    dst.write_bytes(write_glb(unique(gltf), binary))
+    return dst
+
+
+# ---- item 1: a node that is its own child ------------------------------------------------
+@pytest.mark.parametrize("children", [[[0]], [[1], [0]]], ids=["own-child", "two-node-loop"])
+def test_node_cycle_fails_in_one_line_before_tracking(hero, tmp_path, children):
+    def loop(gltf, _):
+        for i, c in enumerate(children):
+            gltf["nodes"][i]["children"] = c
+
+    glb = rewrite(hero, tmp_path / "loop.glb", loop)
+    result = cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(glb), timeout=120)
+    line = failed_in_one_line(result, str(glb), "node 0", "cycle")
+    assert "Recursion" not in line
+    assert not (tmp_path / "out").exists()
+
+
+def test_node_with_a_child_out_of_range_fails_in_one_line(hero, tmp_path):
+    glb = rewrite(hero, tmp_path / "far.glb", lambda g, _: g["nodes"][0].update(children=[99]))
+    result = cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(glb), timeout=120)
+    failed_in_one_line(result, str(glb), "node 0", "99")
