@@ -95,3 +95,19 @@ def test_node_with_a_child_out_of_range_fails_in_one_line(hero, tmp_path):
     glb = rewrite(hero, tmp_path / "far.glb", lambda g, _: g["nodes"][0].update(children=[99]))
     result = cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(glb), timeout=120)
     failed_in_one_line(result, str(glb), "node 0", "99")
+
+
+# ---- item 6: a mapping naming a morph the file does not have ------------------------------
+@pytest.mark.parametrize("morphs,named,closest", [
+    ({"NoSuchMorph": "jawOpen"}, "NoSuchMorph", None),
+    ({"jawOpn": "jawOpen"}, "jawOpn", "jawOpen"),  # a typo: the closest names are offered
+    ({"mouthSmile_L": "mouthSmileLeft", "browinnerup": "browInnerUp"}, "browinnerup", "browInnerUp"),
+])
+def test_mapping_morph_the_file_lacks_fails_before_tracking(hero, tmp_path, morphs, named, closest):
+    glb = rewrite(hero, tmp_path / "hero.glb", lambda g, _: None)
+    (tmp_path / "hero.json").write_text(json.dumps({"morphs": morphs}))
+    result = cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(glb), timeout=120)
+    line = failed_in_one_line(result, str(tmp_path / "hero.json"), f"'{named}'", "no morph")
+    if closest:
+        assert f"'{closest}'" in line.split("closest")[1], line
+    assert not (tmp_path / "out").exists()
