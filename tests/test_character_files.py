@@ -111,3 +111,49 @@ def test_mapping_morph_the_file_lacks_fails_before_tracking(hero, tmp_path, morp
     if closest:
         assert f"'{closest}'" in line.split("closest")[1], line
     assert not (tmp_path / "out").exists()
+
+
+# ---- item 7: a head that gets no automatic wrinkles ---------------------------------------
+def _no_pose_morphs(gltf, _):
+    """The brow, eye and nose morphs renamed out of ARKit's names: the head is still
+    driven (jaw, mouth) but has nothing to make its wrinkle reference poses from."""
+    for mesh in gltf["meshes"]:
+        names = (mesh.get("extras") or {}).get("targetNames")
+        if names:
+            mesh["extras"]["targetNames"] = [f"custom_{k}" if n.startswith(("brow", "eye", "nose")) else n
+                                             for k, n in enumerate(names)]
+
+
+NO_WRINKLES = "no automatic wrinkles: character 'plain'"
+
+
+def test_no_automatic_wrinkles_is_said_on_every_run(hero, tmp_path):
+    """First run (the character prepared), second run (read from the cache): the same
+    warning, with the prefix, on screen and in report.json."""
+    glb = rewrite(hero, tmp_path / "plain.glb", _no_pose_morphs)
+    for name in ("first", "cached"):
+        result = cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--name", name, "--character", str(glb),
+                     "--size", "64", timeout=300)
+        said = warnings_of(result)
+        assert sum(NO_WRINKLES in w for w in said) == 1, (name, said)
+        report = json.loads((tmp_path / "out" / name / "report.json").read_text())
+        assert sum(NO_WRINKLES in w for w in report["warnings"]) == 1, (name, report["warnings"])
+
+
+def test_no_automatic_wrinkles_in_a_batch(hero, tmp_path):
+    """batch --jobs 2: said once on screen with the prefix (the batch's check), and in each
+    clip's report.json (its worker's)."""
+    glb = rewrite(hero, tmp_path / "plain.glb", _no_pose_morphs)
+    clips = tmp_path / "clips"
+    clips.mkdir()
+    for name in ("a.mp4", "b.mp4"):
+        shutil.copy(SAMPLE, clips / name)
+    result = cli("batch", str(clips), "-o", str(tmp_path / "out"), "--jobs", "2", "--character", str(glb),
+                 "--size", "64", timeout=600)
+    assert result.returncode == 0, result.stderr[-3000:]
+    lines = [ln for ln in result.stderr.splitlines() if NO_WRINKLES in ln]
+    assert len(lines) == 1 and lines[0].startswith("capture2face: warning: "), result.stderr[-3000:]
+    assert "RuntimeWarning" not in result.stderr and "Traceback" not in result.stderr
+    for name in ("a", "b"):
+        report = json.loads((tmp_path / "out" / name / "report.json").read_text())
+        assert sum(NO_WRINKLES in w for w in report["warnings"]) == 1, report["warnings"]
