@@ -157,3 +157,38 @@ def test_no_automatic_wrinkles_in_a_batch(hero, tmp_path):
     for name in ("a", "b"):
         report = json.loads((tmp_path / "out" / name / "report.json").read_text())
         assert sum(NO_WRINKLES in w for w in report["warnings"]) == 1, report["warnings"]
+
+
+# ---- item 2: a texture that cannot be read, in every stage --------------------------------
+def _ktx2_undeclared(drop_uvs: bool):
+    """Every image a KTX2 payload that does not transcode, used as the plain ``source``
+    without ``KHR_texture_basisu`` declared (as a Face Cap head from a portfolio site has it);
+    ``drop_uvs``: no TEXCOORD_0 either, so the face covers no texel of the texture (the
+    automatic-wrinkle bake had nothing to sample: cv2.remap with an empty map)."""
+    def change(gltf, binary):
+        for image in gltf["images"]:
+            data = KTX2_MAGIC + b"\0" * 68 + os.urandom(64)
+            binary.extend(b"\0" * (-len(binary) % 4))
+            gltf["bufferViews"].append({"buffer": 0, "byteOffset": len(binary), "byteLength": len(data)})
+            binary.extend(data)
+            image.update(bufferView=len(gltf["bufferViews"]) - 1, mimeType="image/ktx2")
+        for mesh in gltf["meshes"] if drop_uvs else []:
+            for prim in mesh["primitives"]:
+                prim["attributes"].pop("TEXCOORD_0", None)
+                prim["attributes"].pop("TANGENT", None)
+    return change
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("drop_uvs", [True, False], ids=["no-uvs", "uvs"])
+def test_unreadable_texture_runs_with_one_warning_per_image(hero, tmp_path, drop_uvs):
+    glb = rewrite(hero, tmp_path / "facecap.glb", _ktx2_undeclared(drop_uvs))
+    result = cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(glb), "--size", "64",
+                 timeout=300)
+    said = warnings_of(result)
+    for image in ("face_albedo", "face_normal"):
+        assert sum(f"(image '{image}')" in w for w in said) == 1, said
+    assert sum("no automatic wrinkles" in w for w in said) == int(drop_uvs), said
+    folder = tmp_path / "out" / "sample"
+    assert json.loads((folder / "report.json").read_text())["warnings"] == said
+    assert (folder / "animation.glb").stat().st_size > 0 and (folder / "avatar.mp4").stat().st_size > 0
