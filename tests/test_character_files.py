@@ -192,3 +192,30 @@ def test_unreadable_texture_runs_with_one_warning_per_image(hero, tmp_path, drop
     folder = tmp_path / "out" / "sample"
     assert json.loads((folder / "report.json").read_text())["warnings"] == said
     assert (folder / "animation.glb").stat().st_size > 0 and (folder / "avatar.mp4").stat().st_size > 0
+
+
+# ---- item 3: a .gltf folder with one PNG deleted ------------------------------------------
+@pytest.mark.slow
+def test_gltf_folder_missing_a_png_runs_with_its_base_colour(tmp_path):
+    """Said at the checks, before tracking (one warning naming the PNG), drawn with the
+    material's base colour, and animation.glb written (self-contained, that image white so
+    the material shows its base colour factor there too)."""
+    from capture2face.gltf.container import GlbReader, read_gltf_document
+
+    folder = tmp_path / "character"
+    shutil.copytree(FOLDER, folder)
+    gltf = json.loads((folder / "character.gltf").read_text())
+    (folder / "character.gltf").write_text(json.dumps(unique(gltf)))
+    (folder / "baseColor_1.png").unlink()
+    result = cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(folder / "character.gltf"),
+                 "--size", "64", timeout=300)
+    said = warnings_of(result)
+    missing = [w for w in said if "baseColor_1.png" in w]
+    assert len(missing) == 1 and "is missing" in missing[0] and "base colour" in missing[0], said
+    out = tmp_path / "out" / "sample"
+    assert json.loads((out / "report.json").read_text())["warnings"] == said
+    doc, _ = read_gltf_document(out / "animation.glb")
+    assert not any("uri" in x for x in doc.get("images", []) + doc.get("buffers", []))
+    lost = GlbReader(out / "animation.glb").image(0)
+    assert lost.shape[:2] == (1, 1) and (lost[..., :3] == 255).all()
+    assert GlbReader(out / "animation.glb").image(1).shape[:2] != (1, 1)  # the others kept as they are

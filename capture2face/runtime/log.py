@@ -61,10 +61,8 @@ class _Stderr(logging.Handler):
     def emit(self, record: logging.LogRecord) -> None:
         if _reporting[0]:
             return  # the report says it (and ``run`` prints the report's warnings)
-        try:
+        with contextlib.suppress(OSError, ValueError):  # stderr closed: a warning is not worth a failure
             print(WARNING_PREFIX + record.getMessage(), file=sys.stderr, flush=True)
-        except (OSError, ValueError):  # stderr closed: a warning is not worth a failure
-            pass
 
 
 def warnings_to_stderr() -> None:
