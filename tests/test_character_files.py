@@ -219,3 +219,16 @@ def test_gltf_folder_missing_a_png_runs_with_its_base_colour(tmp_path):
     lost = GlbReader(out / "animation.glb").image(0)
     assert lost.shape[:2] == (1, 1) and (lost[..., :3] == 255).all()
     assert GlbReader(out / "animation.glb").image(1).shape[:2] != (1, 1)  # the others kept as they are
+
+
+@pytest.mark.slow
+def test_no_skin_under_the_landmarks_gets_no_wrinkles_without_numpy_warnings(hero, tmp_path):
+    """A mapping that marks the face as eye: no landmark lands on skin (the median depth of
+    none was a NumPy RuntimeWarning, and the renderer's face size a ValueError); the head is
+    still driven, with one warning."""
+    glb = rewrite(hero, tmp_path / "eyeface.glb", lambda g, _: None)
+    (tmp_path / "eyeface.json").write_text(json.dumps({"materials": {"Face": "eye"}}))
+    result = cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(glb), "--size", "64",
+                 timeout=300)
+    said = warnings_of(result)  # every line a prefixed warning: no RuntimeWarning
+    assert sum("no automatic wrinkles: character 'eyeface'" in w for w in said) == 1, said
