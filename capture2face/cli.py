@@ -32,6 +32,7 @@ from capture2face.pipeline.preflight import check_neutral_frame
 from capture2face.render.renderer import WRINKLE_DRIVERS
 from capture2face.rig.avatar import default_avatar
 from capture2face.rig.maps import write_maps
+from capture2face.runtime.log import warnings_to_stderr
 from capture2face.runtime.moved_options import set_path
 from capture2face.synth import SynthOptions, synthesize
 from capture2face.synth.trajectories import STARTS
@@ -504,6 +505,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     install_process_defaults()
+    warnings_to_stderr()  # a warning no report carries: `capture2face: warning: ...`
     readable_streams()  # a file name that is not UTF-8 prints as \xNN, never fails a command
     if argv is None:  # the process is the command (not a caller's main(args))
         defer_pyplot()  # it imports MediaPipe, never matplotlib

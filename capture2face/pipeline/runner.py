@@ -143,7 +143,8 @@ def _timed(fn, *args, **kwargs) -> float:
 def _run(clip, out_dir, options: RunOptions, progress: bool, name: str | None, workers, t_start: float) -> dict:
     # Bad input fails here, before anything is written or tracked: options and limits, the
     # clip, the neutral frame, the face model, a drivable character, the GL context.
-    info, rig = preflight(clip, options, progress=progress)
+    with collect_warnings() as checked:  # the character's warnings (prepared or read back) are the run's too
+        info, rig = preflight(clip, options, progress=progress)
     # What the result is made from (report.json's "inputs"; batch --resume compares them).
     inputs = {role: fingerprint(path) for role, path in input_files(clip, options).items()}
     final = Path(out_dir) / (name or Path(clip).stem)
@@ -177,7 +178,8 @@ def _run(clip, out_dir, options: RunOptions, progress: bool, name: str | None, w
         seconds["fidelity"] = time.perf_counter() - t
 
         seconds["total"] = time.perf_counter() - t_start
-        report = _report(clip, final, rig, track, info, options, outputs, seconds, list(warnings), fidelity)
+        report = _report(clip, final, rig, track, info, options, outputs, seconds, checked + list(warnings),
+                         fidelity)
         report["inputs"] = inputs
         # report.html shows the seconds up to here; report.json adds its own and the total.
         t = time.perf_counter()
