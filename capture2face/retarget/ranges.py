@@ -107,7 +107,8 @@ def range_targets(solve: MorphSolve, landmarks: np.ndarray, actor_neutral: np.nd
     iod = float(np.linalg.norm(rest[slot[IOD_PAIR[0]]] - rest[slot[IOD_PAIR[1]]]))
     actor_iod = float(np.linalg.norm(actor_neutral[slot[IOD_PAIR[0]]] - actor_neutral[slot[IOD_PAIR[1]]]))
     frames = solve.pair_frames
-    touching = np.array([np.allclose(f, np.eye(3)) for f in frames]) if frames is not None else np.ones(len(present), bool)
+    touching = (np.array([np.allclose(f, np.eye(3)) for f in frames]) if frames is not None
+                else np.ones(len(present), bool))
     components = np.where(touching, 1, 0)
     ranges = character_ranges(solve, components, iod)
     keep = np.flatnonzero(np.isin(present, RANGE_PAIRS))
