@@ -169,7 +169,9 @@ def test_arkit_character_is_retargeted_from_the_feature_points(tmp_path, avatar)
               "cheekPuff": puff}  # a score the points cannot see
     track = _performed_track(rig, by, truth, scores)
     curves = arkit_curves(track)
-    anim = retarget(track, rig, RetargetOptions(depth_motion=1.0))  # a perfect actor: its depth is kept whole
+    # A perfect actor with the character's own face: its depth is kept whole, and its
+    # range is the character's (not a human's, which retarget.ranges maps onto the character's).
+    anim = retarget(track, rig, RetargetOptions(depth_motion=1.0, arkit_own_range=False))
     only = retarget(track, rig, RetargetOptions(solve_blend_weights=False))  # the curves alone
     w = anim.blend_weights
     assert w.min() >= 0.0 and w.max() <= 1.0
@@ -187,6 +189,35 @@ def test_arkit_character_is_retargeted_from_the_feature_points(tmp_path, avatar)
     # What the points cannot see takes its curve (cheekPuff: curve-only whatever it moves).
     np.testing.assert_allclose(w[:, by["cheekPuff"]], curves[:, NAMES.index("cheekPuff")], atol=1e-6)
     assert w[:, by["cheekPuff"]].max() > 0.9
+
+
+@pytest.mark.parametrize("factor", [0.5, 2.0])
+def test_arkit_character_performs_at_its_own_range(tmp_path, avatar, factor):
+    """Issue 31: a character whose morphs move its landmarks ``factor`` times as
+    far as the actor's face does raises its brows to the same weights (its own full range),
+    not ``1 / factor`` of them."""
+    from capture2face.retarget import RetargetOptions, retarget
+
+    path = tmp_path / "head.glb"
+    export_arkit_character(avatar, path, naming="_L")
+    actor = _with_landmarks(import_glb(path), avatar)
+    by = _by_arkit(actor)
+    k = np.arange(120)
+    brow, jaw = (np.clip(1 - np.abs(k - c) / 15, 0, 1) for c in (35, 85))
+    truth = {"browInnerUp": brow, "browOuterUpLeft": brow, "browOuterUpRight": brow, "jawOpen": 0.9 * jaw}
+    track = _performed_track(actor, by, truth, truth)
+    rig = actor.replace(morph_positions=actor.morph_positions * np.float32(factor))  # every morph's size
+    w = {name: retarget(track, r, RetargetOptions(depth_motion=1.0)).blend_weights for name, r in
+         (("own", actor), ("scaled", rig))}
+    # The brows (their pairs carry the fit); the jaw is held back by the lips' contour points,
+    # which still follow the network (2x: 0.44 where its own face reaches 0.70).
+    for name in ("browInnerUp", "browOuterUpLeft", "browOuterUpRight"):
+        own, other = w["own"][:, by[name]], w["scaled"][:, by[name]]
+        # 0.5x: what the character can do, at its full range; 2x: the same weights, not half.
+        expected = np.minimum(own, 1.0)
+        assert np.abs(other - expected).max() < 0.2, (name, other.max(), own.max())
+    assert w["scaled"][:, by["browInnerUp"]].max() > 0.8
+    # Left for later: browDown is still set against the raise here (0.16 at 0.5x, 0.55 at 2x).
 
 
 def test_head_joint_turns_the_head_and_not_the_body(tmp_path, avatar):

@@ -227,17 +227,27 @@ class CurveShifted:
         mapped: :class:`~capture2face.retarget.windows.MappedPoints`.
         solve: the :class:`MorphSolve`.
         prior: (F, M) the curves as morph weights.
+        ranged: :class:`~capture2face.retarget.ranges.RangeTargets` of the solve, or None
+            (every pair as the network maps it).
     """
 
-    def __init__(self, mapped, solve: MorphSolve, prior: np.ndarray):
-        self.mapped, self.solve, self.prior = mapped, solve, prior
+    def __init__(self, mapped, solve: MorphSolve, prior: np.ndarray, ranged=None):
+        self.mapped, self.solve, self.prior, self.ranged = mapped, solve, prior, ranged
         self.windows, self.frames = mapped.windows, mapped.frames
 
     def read(self, w) -> np.ndarray:
         """(k, N + K, 3) the model's points of the window's frames."""
         pts = self.mapped.read(w)
+        shifted = pts
         d = self.solve.fixed_deltas
         if len(d):
             shift = (self.prior[w.start:w.stop, self.solve.fixed].astype(np.float64) @ d.reshape(len(d), -1))
-            pts = pts - shift.reshape(pts.shape)
-        return self.solve.points(pts)
+            shifted = pts - shift.reshape(pts.shape)
+        out = self.solve.points(shifted)
+        if self.ranged is None:
+            return out
+        # The ranged pairs' targets come from the actor's motion (retarget.ranges); the
+        # curve-only morphs' part of them is taken off as from the mapped points.
+        fixed = self.ranged.components_of(self.solve.points(pts)) - self.ranged.components_of(out)
+        actor = np.asarray(self.mapped.source[w.start:w.stop], np.float64)[:, self.mapped.landmarks]
+        return self.ranged.apply(out, actor, fixed)

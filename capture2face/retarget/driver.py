@@ -17,6 +17,7 @@ from capture2face.retarget import gaze
 from capture2face.retarget.animation import Animation
 from capture2face.retarget.arkit import arkit_curves
 from capture2face.retarget.arkit_solve import EYE_CONTOURS, CurveShifted, SteadiedMap, arkit_point_weights, morph_solve
+from capture2face.retarget.ranges import range_targets
 from capture2face.retarget.rbf import FeatureMap, fit_feature_map
 from capture2face.retarget.solve import LinearSolver, linear_rig_model
 from capture2face.retarget.windows import MappedPoints, SpilledMedian, frame_windows
@@ -78,6 +79,9 @@ class RetargetOptions:
         arkit_pair_across: its weight across the pair's rest direction against along it.
         arkit_network_share, arkit_eye_share: the network's share of the mapped motion (the
             rest: the faces' similarity), off the eyes and on their lids.
+        arkit_own_range: the lips' and brows' separations follow the actor's motion
+            scaled onto the character's own range (:mod:`capture2face.retarget.ranges`);
+            False: as the network maps them.
     """
 
     kernel: str = "cubic"
@@ -110,6 +114,7 @@ class RetargetOptions:
     arkit_pair_across: float = 0.1
     arkit_network_share: float = 0.5
     arkit_eye_share: float = 1.0
+    arkit_own_range: bool = True
 
 
 def shared_blendshapes(morph_names: list[str], blendshape_names: list[str]) -> list[tuple[int, int]]:
@@ -381,6 +386,7 @@ def _solve_arkit_weights(track, rest: ActorRest, rig, landmarks: np.ndarray, pri
     network = SteadiedMap(_fit_network(rest, rig, landmarks, solve.model.rest[:len(landmarks)], options),
                           np.where(np.isin(landmarks, EYE_CONTOURS), options.arkit_eye_share,
                                    options.arkit_network_share))
+    ranged = range_targets(solve, landmarks, network.network.source_neutral) if options.arkit_own_range else None
     windows = frame_windows(track.n_frames, options.window_frames, options.window_overlap)
     weights = np.zeros_like(prior)
     weights[:, solve.fixed] = prior[:, solve.fixed]
@@ -390,7 +396,7 @@ def _solve_arkit_weights(track, rest: ActorRest, rig, landmarks: np.ndarray, pri
     prior_x = np.zeros((track.n_frames, len(strength)), np.float32)
     prior_x[:, nf:] = prior[:, solved]
     with MappedPoints(track.landmarks_head, network, landmarks, windows, 1 + options.reweight_iterations) as mapped:
-        for w, x in solve_windows(CurveShifted(mapped, solve, prior), solve.model, point_weights, options,
+        for w, x in solve_windows(CurveShifted(mapped, solve, prior, ranged), solve.model, point_weights, options,
                                   rest.single_frame, prior=prior_x, prior_strength=strength):
             weights[w.start:w.stop, solved] += (w.fade[:, None] * x[:, nf:]).astype(np.float32)
     return weights

@@ -1,0 +1,125 @@
+"""Each ARKit character at its own range: the expression pairs' targets from the actor's
+motion, scaled by how far the character's own morphs move them.
+
+The feature-point network maps the actor's landmarks onto the character's; how far a
+mapped point moves is the network's local stretch, set by where the two faces' landmarks
+sit, not by what the character's morphs can do. A Ready Player Me head's ``browInnerUp``
+at 1 raises its inner brows 0.13 inter-ocular distances (IOD), an ICT scan's 0.05: mapped
+brow motion of a human's size asked for 0.36 of it, and the solve made up the rest of the
+forehead's motion by setting ``browDown`` against it (0.68 where the actor never frowns).
+Its lips part 0.38 IOD at ``jawOpen`` 1, but the network, stretched by the head's thin
+lips, mapped a full opening to 0.67 of the actor's amplitude.
+
+So each expression pair's separation (:data:`RANGE_PAIRS` of
+:data:`~capture2face.retarget.arkit_solve.EXPRESSION_PAIRS`: the lips' gap columns, the
+mouth's width, each brow against its eye) is given its target directly: the actor's
+change of that separation in its own IOD, times the character's IOD, times the ratio of
+the character's range (its morphs at 1, measured at load from the solve's model) to a
+human's (:data:`REFERENCE_RANGE`). The actor's full raise lands on the character's full
+raise, whatever its morphs' size; a head with a human's range follows the actor's motion
+in proportion to its face. The lids keep the network's motion (their measure is relative
+to the eye's own opening, which the network keeps).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from capture2face.retarget.arkit_solve import EXPRESSION_PAIRS, MorphSolve
+from capture2face.topology import IOD_PAIR
+
+#: Indices into EXPRESSION_PAIRS whose separation is mapped onto the character's range.
+RANGE_PAIRS = np.arange(6, 16)
+
+#: (up, down) change of each EXPRESSION_PAIRS separation (IOD) at the morph that moves it
+#: most, on ICT-FaceKit's generic neutral (ict-a.glb): a human's morphs at 1. Rows 0-5 (the
+#: lids) are not used.
+REFERENCE_RANGE = np.array([
+    [0.031, 0.103], [0.032, 0.088], [0.028, 0.089], [0.031, 0.104], [0.032, 0.092], [0.027, 0.090],
+    [0.360, 0.425], [0.330, 0.411], [0.336, 0.414], [0.079, 0.106],
+    [0.065, 0.021], [0.048, 0.032], [0.052, 0.028], [0.065, 0.022], [0.049, 0.033], [0.044, 0.025],
+])
+
+#: Bounds of the range ratio (a character a quarter or four times a human's size).
+RATIO_BOUNDS = (0.25, 4.0)
+
+
+@dataclass
+class RangeTargets:
+    """The ranged pairs' targets of an ARKit character's solve.
+
+    Attributes:
+        rows: (R,) model points (N + k) of the ranged pairs.
+        components: (R,) the separation's component in each pair's frame: 0 (along the
+            rest direction), or 1 (vertical) for a pair touching at rest (the lips).
+        ends: (R, 2) slots (into the N landmarks) of each pair's two points.
+        rest: (R,) the component at the character's rest.
+        gain: (R, 2) the character's range over a human's, (up, down).
+        actor_rest: (R,) each pair's separation on the actor's neutral.
+        scale: the character's IOD over the actor's.
+    """
+
+    rows: np.ndarray
+    components: np.ndarray
+    ends: np.ndarray
+    rest: np.ndarray
+    gain: np.ndarray
+    actor_rest: np.ndarray
+    scale: float
+
+    def apply(self, model_points: np.ndarray, actor: np.ndarray, fixed: np.ndarray) -> np.ndarray:
+        """``model_points`` (k, N + K, 3) with the ranged components set from ``actor`` (k, N, 3),
+        the actor's landmarks; ``fixed`` (k, R): the curve-only morphs' part of each
+        component, which the solved morphs do not explain."""
+        sep = np.linalg.norm(actor[:, self.ends[:, 0]] - actor[:, self.ends[:, 1]], axis=-1) - self.actor_rest
+        gain = np.where(sep > 0, self.gain[:, 0], self.gain[:, 1])
+        out = model_points.copy()
+        out[:, self.rows, self.components] = self.rest + self.scale * gain * sep - fixed
+        return out
+
+    def components_of(self, model_points: np.ndarray) -> np.ndarray:
+        """(k, R) the ranged components of ``model_points`` (k, N + K, 3)."""
+        return model_points[:, self.rows, self.components]
+
+
+def character_ranges(solve: MorphSolve, components: np.ndarray, iod: float) -> np.ndarray:
+    """(K, 2) (up, down) IOD: the largest change of each of the solve's pairs (its
+    ``components`` (K,)) that one of its solved morphs makes at 1."""
+    n = len(solve.model.rest) - len(solve.pairs)
+    nf = solve.model.n_free_vars
+    rows = solve.model.matrix[3 * n + 3 * np.arange(len(solve.pairs)) + components, nf:] / iod
+    if rows.shape[1] == 0:
+        return np.zeros((len(solve.pairs), 2))
+    return np.stack([np.maximum(rows.max(1), 0.0), np.maximum(-rows.min(1), 0.0)], 1)
+
+
+def range_targets(solve: MorphSolve, landmarks: np.ndarray, actor_neutral: np.ndarray) -> RangeTargets | None:
+    """The :class:`RangeTargets` of ``solve`` at ``landmarks`` (N,), ``actor_neutral``
+    (N, 3) the actor's neutral the network maps from; None without the eyes' corners."""
+    slot = {int(lm): i for i, lm in enumerate(landmarks)}
+    if not all(lm in slot for lm in IOD_PAIR):
+        return None
+    present = [k for k, (a, b) in enumerate(EXPRESSION_PAIRS) if int(a) in slot and int(b) in slot]
+    n = len(landmarks)
+    rest = solve.model.rest
+    iod = float(np.linalg.norm(rest[slot[IOD_PAIR[0]]] - rest[slot[IOD_PAIR[1]]]))
+    actor_iod = float(np.linalg.norm(actor_neutral[slot[IOD_PAIR[0]]] - actor_neutral[slot[IOD_PAIR[1]]]))
+    frames = solve.pair_frames
+    touching = (np.array([np.allclose(f, np.eye(3)) for f in frames]) if frames is not None
+                else np.ones(len(present), bool))
+    components = np.where(touching, 1, 0)
+    ranges = character_ranges(solve, components, iod)
+    keep = np.flatnonzero(np.isin(present, RANGE_PAIRS))
+    if not len(keep) or iod <= 0 or actor_iod <= 0:
+        return None
+    reference = REFERENCE_RANGE[np.asarray(present)[keep]]
+    gain = np.clip(ranges[keep] / reference, *RATIO_BOUNDS)
+    ends = solve.pairs[keep]
+    return RangeTargets(
+        rows=n + keep, components=components[keep], ends=ends,
+        rest=rest[n + keep, components[keep]], gain=gain,
+        actor_rest=np.linalg.norm(actor_neutral[ends[:, 0]] - actor_neutral[ends[:, 1]], axis=-1),
+        scale=iod / actor_iod,
+    )
