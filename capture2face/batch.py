@@ -19,6 +19,7 @@ answers fails in one line within :data:`RAY_CONNECT_S` seconds.
 
 from __future__ import annotations
 
+import codecs
 import concurrent.futures as cf
 import contextlib
 import dataclasses
@@ -51,7 +52,7 @@ from capture2face.runtime.cores import free_cores
 VIDEO_EXTENSIONS = (".mp4", ".mov", ".m4v", ".mkv", ".avi", ".webm", ".mpg", ".mpeg", ".wmv", ".flv")
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".webp", ".bmp", ".tif", ".tiff")
 NEUTRAL_SUFFIX = ".neutral"  # CLIP.neutral.jpg / CLIP.neutral.mp4 beside CLIP.mp4: its rest take
-LIST_COLUMNS = ("\t", " | ")  # a list file's line: CLIP, then optionally its rest take after either
+_QUOTES = "\"'"  # a list line's names may be quoted
 LIST_EXTENSIONS = (".txt", ".lst")
 REPORT_NAME = "batch_report.json"
 _GLOB_CHARS = set("*?[")
@@ -71,8 +72,8 @@ class BatchClip:
 
 def expand_inputs(inputs: Iterable[str | os.PathLike]) -> list[BatchClip]:
     """Clips from folders (their video files, sorted, not recursive), glob patterns, list
-    files (``.txt``/``.lst``: one clip per line, ``#`` comments, paths relative to the
-    list) and plain paths. A path that does not exist is kept: the batch reports it as
+    files (``.txt``/``.lst``: one clip per line, paths relative to the list; see
+    :func:`read_list`) and plain paths. A path that does not exist is kept: the batch reports it as
     failed rather than silently dropping it.
 
     Each clip's rest take: a list line's second column (after a tab or `` | ``), else a
@@ -99,14 +100,10 @@ def expand_inputs(inputs: Iterable[str | os.PathLike]) -> list[BatchClip]:
                 raise CaptureError(f"no file matches {text}")
             paths += [Path(m) for m in matches if not Path(m).is_dir() and not _is_sidecar(Path(m))]
         elif p.is_file() and p.suffix.lower() in LIST_EXTENSIONS:
-            # surrogateescape: a listed name that is not UTF-8 (Latin-1 bytes) still names its file
-            for line in p.read_text(encoding="utf-8", errors="surrogateescape").splitlines():
-                line = line.split("#", 1)[0].strip()
-                if line:
-                    clip, neutral = _list_columns(line)
-                    paths.append(p.parent / clip)  # an absolute path stays itself
-                    if neutral:
-                        listed[paths[-1]] = p.parent / neutral
+            for clip, neutral in read_list(p):
+                paths.append(p.parent / clip)  # an absolute path stays itself
+                if neutral:
+                    listed[paths[-1]] = p.parent / neutral
         else:
             paths.append(p)
     seen: set[Path] = set()
@@ -134,13 +131,52 @@ def expand_inputs(inputs: Iterable[str | os.PathLike]) -> list[BatchClip]:
     return clips
 
 
-def _list_columns(line: str) -> tuple[str, str | None]:
-    """A list file's line -> (clip, its rest take or None)."""
-    for sep in LIST_COLUMNS:
-        if sep in line:
-            clip, neutral = line.split(sep, 1)
-            return clip.strip(), neutral.strip() or None
-    return line, None
+def read_list(path: Path) -> list[tuple[str, str | None]]:
+    """A list file's entries: (clip, its rest take or None), as the lines name them.
+
+    UTF-8, with or without the BOM Windows editors write (UTF-16 with its BOM too); a name
+    that is not UTF-8 (Latin-1 bytes) still names its file (surrogateescape)."""
+    data = path.read_bytes()
+    if data.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
+        text = data.decode("utf-16", errors="surrogateescape")
+    else:
+        text = data.decode("utf-8-sig", errors="surrogateescape")
+    return [entry for line in text.splitlines() if (entry := _list_entry(line)) is not None]
+
+
+def _list_entry(line: str) -> tuple[str, str | None] | None:
+    """A list file's line -> (clip, its rest take or None); None for a blank or comment line.
+
+    A comment starts the line or follows whitespace (``take#2.mp4`` is a name); the rest
+    take follows a tab or `` | ``; a name in quotes (``"take 1.mp4"``, ``'a | b.mp4'``)
+    keeps what they hold, ``#`` and ``|`` included."""
+    cut, sep, quote = len(line), None, None
+    for i, c in enumerate(line):
+        after_blank = i == 0 or line[i - 1].isspace()
+        if quote is not None:
+            quote = None if c == quote else quote
+        elif c in _QUOTES and (after_blank or line[i - 1] == "|") and c in line[i + 1:]:
+            quote = c  # opens a quoted name (an apostrophe inside a name does not)
+        elif c == "#" and after_blank:
+            cut = i
+            break
+        elif sep is None and (c == "\t" or line.startswith(" | ", i)):
+            sep = (i, 1 if c == "\t" else 3)
+    if sep is None:
+        clip, neutral = _unquoted(line[:cut]), None
+    else:
+        clip, neutral = _unquoted(line[:sep[0]]), _unquoted(line[sep[0] + sep[1]:cut]) or None
+    if not clip:
+        return None
+    return clip, neutral
+
+
+def _unquoted(text: str) -> str:
+    """``text`` without its blanks around and the quotes it is wrapped in, if any."""
+    text = text.strip()
+    if len(text) >= 2 and text[0] in _QUOTES and text[-1] == text[0]:
+        return text[1:-1]
+    return text
 
 
 def _is_sidecar(path: Path) -> bool:

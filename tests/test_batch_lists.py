@@ -1,0 +1,56 @@
+"""``capture2face batch``: list files as users write them, resume across folders and
+character files, Ctrl-C with clips queued (issue 33, items 5, 8-12)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from capture2face import cli
+from capture2face.batch import expand_inputs
+
+
+def _entries(out: Path) -> dict[str, dict]:
+    return {Path(c["path"]).name: c for c in json.loads((out / "batch_report.json").read_text())["clips"]}
+
+
+# ---- lists (items 9, 10, 11) ----------------------------------------------------------------
+def test_a_list_keeps_hashes_in_names_quotes_and_a_bom(tmp_path, capsys):
+    for name in ["take#2.mp4", "d3s.mp4", "my take.mp4", "rest #1.jpg"]:
+        (tmp_path / name).write_bytes(b"not a video")  # each clip fails on its content, found by its name
+    (tmp_path / "list.txt").write_bytes(
+        "\ufefftake#2.mp4   # the good one\n"  # a BOM, then a '#' inside a name
+        '"d3s.mp4"\n'
+        "\"my take.mp4\" | 'rest #1.jpg'\n".encode())
+    code = cli.main(["-q", "batch", str(tmp_path / "list.txt"), "-o", str(tmp_path / "out"), "--jobs", "1"])
+    err = capsys.readouterr().err
+    assert code == 1, err  # the clips are not videos: each names its own file
+    entries = _entries(tmp_path / "out")
+    assert set(entries) == {"take#2.mp4", "d3s.mp4", "my take.mp4"}, entries
+    assert all(Path(e["path"]).is_file() and "no such file" not in e["error"] for e in entries.values()), entries
+    assert Path(entries["my take.mp4"]["neutral"]) == tmp_path / "rest #1.jpg"
+    assert "\ufeff" not in err and '"' not in err
+
+
+@pytest.mark.parametrize("text, clip, neutral", [
+    ("take#2.mp4\n", "take#2.mp4", None),
+    ("take#2.mp4\t# tab, then a comment\n", "take#2.mp4", None),
+    ("#take.mp4\n  # indented comment\nx.mp4#y\n", "x.mp4#y", None),
+    ("\ufeff'd3s.mp4'\r\n", "d3s.mp4", None),  # a BOM and Windows line ends
+    ('"a | b #1.mp4"\t"rest.jpg"\n', "a | b #1.mp4", "rest.jpg"),
+    ("it's.mp4  # an apostrophe opens no quote\n", "it's.mp4", None),
+    ('"unclosed.mp4\n', '"unclosed.mp4', None),
+])
+def test_list_line_spellings(tmp_path, text, clip, neutral):
+    (tmp_path / "l.txt").write_text(text, encoding="utf-8", newline="")
+    (got,) = expand_inputs([tmp_path / "l.txt"])
+    assert got.path == str(tmp_path / clip)
+    assert got.neutral == (None if neutral is None else str(tmp_path / neutral))
+
+
+def test_a_utf16_list_with_its_bom(tmp_path):
+    (tmp_path / "l.txt").write_text("take#2.mp4\n", encoding="utf-16")  # Notepad's "Unicode"
+    (got,) = expand_inputs([tmp_path / "l.txt"])
+    assert got.path == str(tmp_path / "take#2.mp4")
