@@ -19,21 +19,22 @@ answers fails in one line within :data:`RAY_CONNECT_S` seconds.
 
 from __future__ import annotations
 
+import atexit
 import codecs
-import concurrent.futures as cf
 import contextlib
 import dataclasses
 import glob
 import json
 import logging
 import multiprocessing
+import multiprocessing.connection
 import os
+import signal
 import socket
 import sys
 import threading
 import time
 from collections.abc import Iterable
-from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
@@ -57,6 +58,7 @@ LIST_EXTENSIONS = (".txt", ".lst")
 REPORT_NAME = "batch_report.json"
 _GLOB_CHARS = set("*?[")
 _MAX_ATTEMPTS = 2  # a clip whose worker process dies twice is marked failed
+_STOP_S = 15.0  # a clip's process that has not ended this long after its result or SIGTERM is killed
 RAY_CONNECT_S = 10.0  # --ray HOST:PORT: joined within this (the command's checks before it included: 15 s)
 
 
@@ -202,12 +204,6 @@ def clip_options(clip: BatchClip, options: Any) -> Any:
         return options
     kind = "neutral_image" if Path(clip.neutral).suffix.lower() in IMAGE_EXTENSIONS else "neutral_clip"
     return dataclasses.replace(options, track=dataclasses.replace(track, **{kind: clip.neutral}))
-
-
-def _worker_init() -> None:
-    """Pool worker start-up (outputs are staged, so a terminated worker leaves nothing
-    half-written)."""
-    install_process_defaults()
 
 
 def _run_clip(path: str, out: str, name: str, options: Any) -> dict:
@@ -477,40 +473,132 @@ def _run_clips(clips: list[BatchClip], todo: list[int], out: Path, options: Any,
 
 def _run_pool(clips: list[BatchClip], todo: list[int], out: Path, options: Any, n_jobs: int,
               done) -> None:
-    """Process pool, one fresh process per clip; a pool broken by a crashing worker
-    (segfault, out of memory) is rebuilt and the unfinished clips resubmitted."""
+    """The clips ``todo``, ``n_jobs`` at a time, each in a fresh process of its own,
+    started only when a slot is free: an interrupt leaves no clip queued to start after
+    it. A clip whose process dies (segfault, out of memory) is run once more."""
     ctx = multiprocessing.get_context("spawn")  # fork would copy threads and GL state
+    queue, running = list(todo), []
     attempts = dict.fromkeys(todo, 0)
-    pending = list(todo)
-    while pending:
-        retry: list[int] = []
-        with cf.ProcessPoolExecutor(n_jobs, mp_context=ctx, max_tasks_per_child=1,
-                                    initializer=_worker_init) as pool:
-            futures = {pool.submit(_run_clip, clips[i].path, str(out), clips[i].name,
-                                   clip_options(clips[i], options)): i for i in pending}
-            for attempts_i in futures.values():
-                attempts[attempts_i] += 1
-            try:
-                for fut in cf.as_completed(futures):
-                    i = futures[fut]
-                    try:
-                        done(i, fut.result())
-                    except BrokenProcessPool:
-                        if attempts[i] >= _MAX_ATTEMPTS:
-                            done(i, {"status": "failed", "seconds": None,
-                                     "error": "the worker process crashed on this clip"})
-                        else:
-                            retry.append(i)
-            except BaseException:
-                # Interrupted: drop queued clips and ask running workers to unwind (their
-                # SIGTERM handler raises KeyboardInterrupt, so staged outputs are removed).
-                for f in futures:
-                    f.cancel()
-                for proc in list(getattr(pool, "_processes", {}).values()):
-                    if proc.is_alive():
-                        proc.terminate()
-                raise
-        pending = retry
+    try:
+        while queue or running:
+            while queue and len(running) < n_jobs:
+                worker = _clip_worker(ctx, clips, queue.pop(0), out, options)
+                running.append(worker)  # before it starts: an interrupt stops it too
+                attempts[worker.i] += 1
+                worker.start()
+            ready = set(multiprocessing.connection.wait([w.conn for w in running]))
+            for worker in [w for w in running if w.conn in ready]:
+                result = worker.result()
+                running.remove(worker)
+                if result is None and attempts[worker.i] < _MAX_ATTEMPTS:
+                    queue.insert(0, worker.i)
+                    continue
+                done(worker.i, result or {"status": "failed", "seconds": None,
+                                          "error": "the worker process crashed on this clip"})
+    except BaseException:
+        # Interrupted: the running clips unwind (SIGTERM raises KeyboardInterrupt there,
+        # so their staged outputs are removed) before this process exits.
+        for worker in running:
+            worker.terminate()
+        for worker in running:
+            worker.join()
+            worker.conn.close()
+        raise
+
+
+@dataclasses.dataclass
+class _Worker:
+    """A clip's process and the ends of the pipe its result comes through."""
+
+    i: int
+    process: Any
+    conn: Any  # this process's end
+    send: Any  # the child's end, closed here once it started
+
+    def start(self) -> None:
+        """Start the process. The child starts with SIGINT blocked (a Ctrl-C while it imports
+        would print a traceback there) and unblocks it once its handler is in place; an
+        interrupt of this process meanwhile is held until the child is started (and so
+        known to the caller, who stops it), then raised."""
+        if threading.current_thread() is not threading.main_thread():
+            self._start()
+            return
+        held: list[int] = []
+
+        def hold(signum, frame):
+            held.append(signum)
+
+        handlers = {sig: signal.signal(sig, hold) for sig in (signal.SIGINT, signal.SIGTERM)}
+        blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        try:
+            self._start()
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+            for sig, handler in handlers.items():
+                signal.signal(sig, handler)
+        if held:
+            raise KeyboardInterrupt
+
+    def _start(self) -> None:
+        try:
+            self.process.start()
+        finally:
+            self.send.close()  # the pipe ends (EOF) when the child does
+
+    def result(self) -> dict | None:
+        """The clip's result (None: the process died without one); waits for the process."""
+        try:
+            result = self.conn.recv()
+        except (EOFError, OSError):
+            result = None
+        self.conn.close()
+        self.join()
+        if isinstance(result, dict) and result.get("status") == "interrupted":
+            raise KeyboardInterrupt  # the worker alone was stopped (SIGTERM, SIGINT): so is the batch
+        return result
+
+    def terminate(self) -> None:
+        if self.process.pid is not None and self.process.is_alive():
+            self.process.terminate()
+
+    def join(self) -> None:
+        """Wait for the process to end: :data:`_STOP_S` seconds, then it is killed."""
+        if self.process.pid is None:
+            return
+        self.process.join(_STOP_S)
+        if self.process.is_alive():
+            self.process.kill()
+            self.process.join()
+
+
+def _clip_worker(ctx, clips: list[BatchClip], i: int, out: Path, options: Any) -> _Worker:
+    """Clip ``i``'s process, not started."""
+    receive, send = ctx.Pipe(duplex=False)
+    process = ctx.Process(target=_clip_process, name=f"capture2face-clip-{i}",
+                          args=(send, clips[i].path, str(out), clips[i].name, clip_options(clips[i], options)))
+    return _Worker(i, process, receive, send)
+
+
+def _clip_process(conn, path: str, out: str, name: str, options: Any) -> None:
+    """A clip's process: runs it and sends its result ({"status": "interrupted"} after
+    SIGINT or SIGTERM, which unwind like Ctrl-C: outputs are staged, so nothing is left
+    half-written)."""
+    install_process_defaults()
+    try:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # see _Worker.start
+        result = _run_clip(path, out, name, options)
+    except KeyboardInterrupt:
+        result = {"status": "interrupted"}
+    with contextlib.suppress(OSError, KeyboardInterrupt):
+        conn.send(result)
+    # Done: its outputs are in place (or removed). Ended here, after the exit handlers:
+    # Python's own exit waits for every thread, and one an interrupt left behind (started
+    # but not yet known to its pool) would keep the process, and the batch, waiting.
+    with contextlib.suppress(BaseException):
+        atexit._run_exitfuncs()
+        for stream in (sys.stdout, sys.stderr):
+            stream.flush()
+    os._exit(0)
 
 
 def _ray_endpoint(address: str) -> tuple[str, int] | None:

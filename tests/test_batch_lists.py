@@ -54,3 +54,44 @@ def test_a_utf16_list_with_its_bom(tmp_path):
     (tmp_path / "l.txt").write_text("take#2.mp4\n", encoding="utf-16")  # Notepad's "Unicode"
     (got,) = expand_inputs([tmp_path / "l.txt"])
     assert got.path == str(tmp_path / "take#2.mp4")
+
+
+# ---- Ctrl-C with clips queued (item 12) -----------------------------------------------------
+@pytest.mark.slow
+@pytest.mark.parametrize("to", ["group", "batch"])  # a terminal's Ctrl-C (every process), kill -INT PID
+def test_ctrl_c_starts_no_queued_clip_and_exits_130_promptly(sample_clip, tmp_path, to):
+    import os
+    import shutil
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    clips, out = tmp_path / "clips", tmp_path / "out"
+    clips.mkdir()
+    for name in "abcd":
+        shutil.copy(sample_clip, clips / f"{name}.mp4")
+    env = dict(os.environ, GLOG_minloglevel="2", TF_CPP_MIN_LOG_LEVEL="2")
+    proc = subprocess.Popen([sys.executable, "-m", "capture2face", "-q", "batch", str(clips), "-o", str(out),
+                             "--size", "64", "--jobs", "2"], stderr=subprocess.PIPE, text=True, env=env,
+                            start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out.is_dir() and any(p.name.startswith(".tmp-") for p in out.iterdir())):  # a clip started
+            assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()
+            time.sleep(0.05)
+        time.sleep(1.0)
+        t0 = time.monotonic()
+        os.killpg(proc.pid, signal.SIGINT) if to == "group" else proc.send_signal(signal.SIGINT)
+        err = proc.communicate(timeout=60)[1]
+        seconds = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130 and err.strip().splitlines()[-1] == "capture2face: interrupted", err[-2000:]
+    assert "Traceback" not in err, err[-2000:]
+    assert seconds < 10, seconds  # the running clips unwind; none waits its turn
+    time.sleep(3)  # a clip started after the interrupt would show now
+    assert sorted(p.name for p in out.iterdir()) == ["batch_report.json"]  # no clip, nothing staged, no lock
+    report = json.loads((out / "batch_report.json").read_text())
+    assert report["summary"]["pending"] == 4 and report["summary"]["ok"] == 0, report
