@@ -95,3 +95,37 @@ def test_ctrl_c_starts_no_queued_clip_and_exits_130_promptly(sample_clip, tmp_pa
     assert sorted(p.name for p in out.iterdir()) == ["batch_report.json"]  # no clip, nothing staged, no lock
     report = json.loads((out / "batch_report.json").read_text())
     assert report["summary"]["pending"] == 4 and report["summary"]["ok"] == 0, report
+
+
+# ---- a character given relative to the working folder (item 8) ------------------------------
+@pytest.mark.slow
+def test_a_relative_character_is_found_again_from_another_folder(sample_clip, tmp_path):
+    import os
+    import shutil
+    import subprocess
+    import sys
+
+    from capture2face.rig.avatar import default_avatar
+
+    here, elsewhere = tmp_path / "here", tmp_path / "elsewhere"
+    here.mkdir()
+    elsewhere.mkdir()
+    shutil.copy(sample_clip, here / "take.mp4")
+    default_avatar().save(here / "hero.npz")
+    env = dict(os.environ, GLOG_minloglevel="2", TF_CPP_MIN_LOG_LEVEL="2")
+
+    def c2f(cwd: Path, *args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "capture2face", "-q", *args], cwd=cwd, env=env,
+                              capture_output=True, text=True, timeout=600)
+
+    made = c2f(here, "batch", "take.mp4", "-o", "out", "--character", "hero.npz", "--size", "64", "--jobs", "1")
+    assert made.returncode == 0, made.stderr[-2000:]
+    stored = json.loads((here / "out" / "take" / "report.json").read_text())["options"]["character"]
+    assert stored == str(here / "hero.npz")
+    fidelity = c2f(elsewhere, "eval", "fidelity", "../here/out/take")
+    assert fidelity.returncode == 0, fidelity.stderr[-2000:]
+    again = c2f(elsewhere, "batch", "../here/take.mp4", "-o", "../here/out", "--character", "../here/hero.npz",
+                "--size", "64", "--jobs", "1", "--resume")
+    assert again.returncode == 0, again.stderr[-2000:]
+    (entry,) = json.loads((here / "out" / "batch_report.json").read_text())["clips"]
+    assert entry["status"] == "skipped", entry

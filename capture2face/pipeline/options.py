@@ -140,6 +140,8 @@ def options_json(options: RunOptions) -> dict:
             v = v.name
         elif isinstance(v, os.PathLike):
             v = os.fspath(v)
+        if name == "character" and isinstance(v, str) and Path(v).exists():
+            v = os.path.abspath(v)  # a file: found again from any folder (eval fidelity RUN_DIR, batch --resume)
         out[name] = v
     for part in ("track", "render", "retarget"):
         skip = {path[1:] for path in MOVED_TO_STAGES.values() if path[0] == part}
