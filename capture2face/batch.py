@@ -308,7 +308,7 @@ def resume_check(folder: str | os.PathLike, options: Any, clip: str | os.PathLik
     if clip is not None:
         if not isinstance(stored.get("inputs"), dict):
             return False, "no input fingerprints in its report.json (made by an older version)"
-        changed = [f"{role} {path} changed ({', '.join(diff)})"
+        changed = [f"{role.split(':', 1)[0]} {path} changed ({', '.join(diff)})"  # "character file:a.bin" -> its path
                    for role, path in input_files(clip, options).items()
                    if (diff := changes(stored["inputs"].get(role), fingerprint(path)))]
         if changed:

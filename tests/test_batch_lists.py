@@ -129,3 +129,33 @@ def test_a_relative_character_is_found_again_from_another_folder(sample_clip, tm
     assert again.returncode == 0, again.stderr[-2000:]
     (entry,) = json.loads((here / "out" / "batch_report.json").read_text())["clips"]
     assert entry["status"] == "skipped", entry
+
+
+# ---- --resume and the files a .gltf references (item 5) -------------------------------------
+@pytest.mark.slow
+def test_resume_reruns_a_gltf_whose_bin_or_texture_changed(sample_clip, tmp_path, capsys):
+    import shutil
+
+    folder = tmp_path / "hero"
+    shutil.copytree(Path(__file__).parent / "data" / "real_files" / "folder", folder)
+    out = tmp_path / "out"
+    args = ["-q", "batch", str(sample_clip), "-o", str(out), "--character", str(folder / "character.gltf"),
+            "--size", "64", "--no-audio", "--jobs", "1"]
+
+    def resume() -> dict:
+        code = cli.main([*args, "--resume"])
+        assert code == 0, capsys.readouterr().err
+        (entry,) = json.loads((out / "batch_report.json").read_text())["clips"]
+        return entry
+
+    assert cli.main(args) == 0, capsys.readouterr().err
+    assert resume()["status"] == "skipped"
+    shutil.copy(folder / "baseColor_2.png", folder / "baseColor_1.png")  # a texture edited
+    entry = resume()
+    assert entry["status"] == "ok", entry
+    assert entry["rerun"].startswith(f"character file {folder / 'baseColor_1.png'} changed"), entry
+    assert resume()["status"] == "skipped"
+    with open(folder / "character.bin", "ab") as fh:  # the buffer edited
+        fh.write(b"\0" * 16)
+    entry = resume()
+    assert entry["status"] == "ok" and f"character file {folder / 'character.bin'} changed" in entry["rerun"], entry
