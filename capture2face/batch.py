@@ -516,10 +516,11 @@ class _Worker:
     send: Any  # the child's end, closed here once it started
 
     def start(self) -> None:
-        """Start the process. The child starts with SIGINT blocked (a Ctrl-C while it imports
-        would print a traceback there) and unblocks it once its handler is in place; an
-        interrupt of this process meanwhile is held until the child is started (and so
-        known to the caller, who stops it), then raised."""
+        """Start the process. It inherits SIGINT ignored, until its handler is in place (a
+        Ctrl-C while it imports would print a traceback there; this process stops it with
+        SIGTERM). Meanwhile, the ~20 ms of the start, this process ignores SIGINT too and
+        holds SIGTERM, raised once the child is started (and so known to the caller, who
+        stops it)."""
         if threading.current_thread() is not threading.main_thread():
             self._start()
             return
@@ -528,12 +529,11 @@ class _Worker:
         def hold(signum, frame):
             held.append(signum)
 
-        handlers = {sig: signal.signal(sig, hold) for sig in (signal.SIGINT, signal.SIGTERM)}
-        blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        handlers = {signal.SIGINT: signal.signal(signal.SIGINT, signal.SIG_IGN),
+                    signal.SIGTERM: signal.signal(signal.SIGTERM, hold)}
         try:
             self._start()
         finally:
-            signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
             for sig, handler in handlers.items():
                 signal.signal(sig, handler)
         if held:
@@ -583,9 +583,8 @@ def _clip_process(conn, path: str, out: str, name: str, options: Any) -> None:
     """A clip's process: runs it and sends its result ({"status": "interrupted"} after
     SIGINT or SIGTERM, which unwind like Ctrl-C: outputs are staged, so nothing is left
     half-written)."""
-    install_process_defaults()
+    install_process_defaults()  # SIGINT too, ignored until here (see _Worker.start)
     try:
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # see _Worker.start
         result = _run_clip(path, out, name, options)
     except KeyboardInterrupt:
         result = {"status": "interrupted"}
