@@ -19,20 +19,22 @@ answers fails in one line within :data:`RAY_CONNECT_S` seconds.
 
 from __future__ import annotations
 
-import concurrent.futures as cf
+import atexit
+import codecs
 import contextlib
 import dataclasses
 import glob
 import json
 import logging
 import multiprocessing
+import multiprocessing.connection
 import os
+import signal
 import socket
 import sys
 import threading
 import time
 from collections.abc import Iterable
-from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
@@ -52,11 +54,12 @@ from capture2face.runtime.log import warnings_to_stderr
 VIDEO_EXTENSIONS = (".mp4", ".mov", ".m4v", ".mkv", ".avi", ".webm", ".mpg", ".mpeg", ".wmv", ".flv")
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".webp", ".bmp", ".tif", ".tiff")
 NEUTRAL_SUFFIX = ".neutral"  # CLIP.neutral.jpg / CLIP.neutral.mp4 beside CLIP.mp4: its rest take
-LIST_COLUMNS = ("\t", " | ")  # a list file's line: CLIP, then optionally its rest take after either
+_QUOTES = "\"'"  # a list line's names may be quoted
 LIST_EXTENSIONS = (".txt", ".lst")
 REPORT_NAME = "batch_report.json"
 _GLOB_CHARS = set("*?[")
 _MAX_ATTEMPTS = 2  # a clip whose worker process dies twice is marked failed
+_STOP_S = 15.0  # a clip's process that has not ended this long after its result or SIGTERM is killed
 RAY_CONNECT_S = 10.0  # --ray HOST:PORT: joined within this (the command's checks before it included: 15 s)
 
 
@@ -72,8 +75,8 @@ class BatchClip:
 
 def expand_inputs(inputs: Iterable[str | os.PathLike]) -> list[BatchClip]:
     """Clips from folders (their video files, sorted, not recursive), glob patterns, list
-    files (``.txt``/``.lst``: one clip per line, ``#`` comments, paths relative to the
-    list) and plain paths. A path that does not exist is kept: the batch reports it as
+    files (``.txt``/``.lst``: one clip per line, paths relative to the list; see
+    :func:`read_list`) and plain paths. A path that does not exist is kept: the batch reports it as
     failed rather than silently dropping it.
 
     Each clip's rest take: a list line's second column (after a tab or `` | ``), else a
@@ -100,14 +103,10 @@ def expand_inputs(inputs: Iterable[str | os.PathLike]) -> list[BatchClip]:
                 raise CaptureError(f"no file matches {text}")
             paths += [Path(m) for m in matches if not Path(m).is_dir() and not _is_sidecar(Path(m))]
         elif p.is_file() and p.suffix.lower() in LIST_EXTENSIONS:
-            # surrogateescape: a listed name that is not UTF-8 (Latin-1 bytes) still names its file
-            for line in p.read_text(encoding="utf-8", errors="surrogateescape").splitlines():
-                line = line.split("#", 1)[0].strip()
-                if line:
-                    clip, neutral = _list_columns(line)
-                    paths.append(p.parent / clip)  # an absolute path stays itself
-                    if neutral:
-                        listed[paths[-1]] = p.parent / neutral
+            for clip, neutral in read_list(p):
+                paths.append(p.parent / clip)  # an absolute path stays itself
+                if neutral:
+                    listed[paths[-1]] = p.parent / neutral
         else:
             paths.append(p)
     seen: set[Path] = set()
@@ -135,13 +134,52 @@ def expand_inputs(inputs: Iterable[str | os.PathLike]) -> list[BatchClip]:
     return clips
 
 
-def _list_columns(line: str) -> tuple[str, str | None]:
-    """A list file's line -> (clip, its rest take or None)."""
-    for sep in LIST_COLUMNS:
-        if sep in line:
-            clip, neutral = line.split(sep, 1)
-            return clip.strip(), neutral.strip() or None
-    return line, None
+def read_list(path: Path) -> list[tuple[str, str | None]]:
+    """A list file's entries: (clip, its rest take or None), as the lines name them.
+
+    UTF-8, with or without the BOM Windows editors write (UTF-16 with its BOM too); a name
+    that is not UTF-8 (Latin-1 bytes) still names its file (surrogateescape)."""
+    data = path.read_bytes()
+    if data.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
+        text = data.decode("utf-16", errors="surrogateescape")
+    else:
+        text = data.decode("utf-8-sig", errors="surrogateescape")
+    return [entry for line in text.splitlines() if (entry := _list_entry(line)) is not None]
+
+
+def _list_entry(line: str) -> tuple[str, str | None] | None:
+    """A list file's line -> (clip, its rest take or None); None for a blank or comment line.
+
+    A comment starts the line or follows whitespace (``take#2.mp4`` is a name); the rest
+    take follows a tab or `` | ``; a name in quotes (``"take 1.mp4"``, ``'a | b.mp4'``)
+    keeps what they hold, ``#`` and ``|`` included."""
+    cut, sep, quote = len(line), None, None
+    for i, c in enumerate(line):
+        after_blank = i == 0 or line[i - 1].isspace()
+        if quote is not None:
+            quote = None if c == quote else quote
+        elif c in _QUOTES and (after_blank or line[i - 1] == "|") and c in line[i + 1:]:
+            quote = c  # opens a quoted name (an apostrophe inside a name does not)
+        elif c == "#" and after_blank:
+            cut = i
+            break
+        elif sep is None and (c == "\t" or line.startswith(" | ", i)):
+            sep = (i, 1 if c == "\t" else 3)
+    if sep is None:
+        clip, neutral = _unquoted(line[:cut]), None
+    else:
+        clip, neutral = _unquoted(line[:sep[0]]), _unquoted(line[sep[0] + sep[1]:cut]) or None
+    if not clip:
+        return None
+    return clip, neutral
+
+
+def _unquoted(text: str) -> str:
+    """``text`` without its blanks around and the quotes it is wrapped in, if any."""
+    text = text.strip()
+    if len(text) >= 2 and text[0] in _QUOTES and text[-1] == text[0]:
+        return text[1:-1]
+    return text
 
 
 def _is_sidecar(path: Path) -> bool:
@@ -167,13 +205,6 @@ def clip_options(clip: BatchClip, options: Any) -> Any:
         return options
     kind = "neutral_image" if Path(clip.neutral).suffix.lower() in IMAGE_EXTENSIONS else "neutral_clip"
     return dataclasses.replace(options, track=dataclasses.replace(track, **{kind: clip.neutral}))
-
-
-def _worker_init() -> None:
-    """Pool worker start-up (outputs are staged, so a terminated worker leaves nothing
-    half-written)."""
-    install_process_defaults()
-    warnings_to_stderr()
 
 
 def _run_clip(path: str, out: str, name: str, options: Any) -> dict:
@@ -278,7 +309,7 @@ def resume_check(folder: str | os.PathLike, options: Any, clip: str | os.PathLik
     if clip is not None:
         if not isinstance(stored.get("inputs"), dict):
             return False, "no input fingerprints in its report.json (made by an older version)"
-        changed = [f"{role} {path} changed ({', '.join(diff)})"
+        changed = [f"{role.split(':', 1)[0]} {path} changed ({', '.join(diff)})"  # "character file:a.bin" -> its path
                    for role, path in input_files(clip, options).items()
                    if (diff := changes(stored["inputs"].get(role), fingerprint(path)))]
         if changed:
@@ -443,40 +474,132 @@ def _run_clips(clips: list[BatchClip], todo: list[int], out: Path, options: Any,
 
 def _run_pool(clips: list[BatchClip], todo: list[int], out: Path, options: Any, n_jobs: int,
               done) -> None:
-    """Process pool, one fresh process per clip; a pool broken by a crashing worker
-    (segfault, out of memory) is rebuilt and the unfinished clips resubmitted."""
+    """The clips ``todo``, ``n_jobs`` at a time, each in a fresh process of its own,
+    started only when a slot is free: an interrupt leaves no clip queued to start after
+    it. A clip whose process dies (segfault, out of memory) is run once more."""
     ctx = multiprocessing.get_context("spawn")  # fork would copy threads and GL state
+    queue, running = list(todo), []
     attempts = dict.fromkeys(todo, 0)
-    pending = list(todo)
-    while pending:
-        retry: list[int] = []
-        with cf.ProcessPoolExecutor(n_jobs, mp_context=ctx, max_tasks_per_child=1,
-                                    initializer=_worker_init) as pool:
-            futures = {pool.submit(_run_clip, clips[i].path, str(out), clips[i].name,
-                                   clip_options(clips[i], options)): i for i in pending}
-            for attempts_i in futures.values():
-                attempts[attempts_i] += 1
-            try:
-                for fut in cf.as_completed(futures):
-                    i = futures[fut]
-                    try:
-                        done(i, fut.result())
-                    except BrokenProcessPool:
-                        if attempts[i] >= _MAX_ATTEMPTS:
-                            done(i, {"status": "failed", "seconds": None,
-                                     "error": "the worker process crashed on this clip"})
-                        else:
-                            retry.append(i)
-            except BaseException:
-                # Interrupted: drop queued clips and ask running workers to unwind (their
-                # SIGTERM handler raises KeyboardInterrupt, so staged outputs are removed).
-                for f in futures:
-                    f.cancel()
-                for proc in list(getattr(pool, "_processes", {}).values()):
-                    if proc.is_alive():
-                        proc.terminate()
-                raise
-        pending = retry
+    try:
+        while queue or running:
+            while queue and len(running) < n_jobs:
+                worker = _clip_worker(ctx, clips, queue.pop(0), out, options)
+                running.append(worker)  # before it starts: an interrupt stops it too
+                attempts[worker.i] += 1
+                worker.start()
+            ready = set(multiprocessing.connection.wait([w.conn for w in running]))
+            for worker in [w for w in running if w.conn in ready]:
+                result = worker.result()
+                running.remove(worker)
+                if result is None and attempts[worker.i] < _MAX_ATTEMPTS:
+                    queue.insert(0, worker.i)
+                    continue
+                done(worker.i, result or {"status": "failed", "seconds": None,
+                                          "error": "the worker process crashed on this clip"})
+    except BaseException:
+        # Interrupted: the running clips unwind (SIGTERM raises KeyboardInterrupt there,
+        # so their staged outputs are removed) before this process exits.
+        for worker in running:
+            worker.terminate()
+        for worker in running:
+            worker.join()
+            worker.conn.close()
+        raise
+
+
+@dataclasses.dataclass
+class _Worker:
+    """A clip's process and the ends of the pipe its result comes through."""
+
+    i: int
+    process: Any
+    conn: Any  # this process's end
+    send: Any  # the child's end, closed here once it started
+
+    def start(self) -> None:
+        """Start the process. It inherits SIGINT ignored, until its handler is in place (a
+        Ctrl-C while it imports would print a traceback there; this process stops it with
+        SIGTERM). Meanwhile, the ~20 ms of the start, this process ignores SIGINT too and
+        holds SIGTERM, raised once the child is started (and so known to the caller, who
+        stops it)."""
+        if threading.current_thread() is not threading.main_thread():
+            self._start()
+            return
+        held: list[int] = []
+
+        def hold(signum, frame):
+            held.append(signum)
+
+        handlers = {signal.SIGINT: signal.signal(signal.SIGINT, signal.SIG_IGN),
+                    signal.SIGTERM: signal.signal(signal.SIGTERM, hold)}
+        try:
+            self._start()
+        finally:
+            for sig, handler in handlers.items():
+                signal.signal(sig, handler)
+        if held:
+            raise KeyboardInterrupt
+
+    def _start(self) -> None:
+        try:
+            self.process.start()
+        finally:
+            self.send.close()  # the pipe ends (EOF) when the child does
+
+    def result(self) -> dict | None:
+        """The clip's result (None: the process died without one); waits for the process."""
+        try:
+            result = self.conn.recv()
+        except (EOFError, OSError):
+            result = None
+        self.conn.close()
+        self.join()
+        if isinstance(result, dict) and result.get("status") == "interrupted":
+            raise KeyboardInterrupt  # the worker alone was stopped (SIGTERM, SIGINT): so is the batch
+        return result
+
+    def terminate(self) -> None:
+        if self.process.pid is not None and self.process.is_alive():
+            self.process.terminate()
+
+    def join(self) -> None:
+        """Wait for the process to end: :data:`_STOP_S` seconds, then it is killed."""
+        if self.process.pid is None:
+            return
+        self.process.join(_STOP_S)
+        if self.process.is_alive():
+            self.process.kill()
+            self.process.join()
+
+
+def _clip_worker(ctx, clips: list[BatchClip], i: int, out: Path, options: Any) -> _Worker:
+    """Clip ``i``'s process, not started."""
+    receive, send = ctx.Pipe(duplex=False)
+    process = ctx.Process(target=_clip_process, name=f"capture2face-clip-{i}",
+                          args=(send, clips[i].path, str(out), clips[i].name, clip_options(clips[i], options)))
+    return _Worker(i, process, receive, send)
+
+
+def _clip_process(conn, path: str, out: str, name: str, options: Any) -> None:
+    """A clip's process: runs it and sends its result ({"status": "interrupted"} after
+    SIGINT or SIGTERM, which unwind like Ctrl-C: outputs are staged, so nothing is left
+    half-written)."""
+    install_process_defaults()  # SIGINT too, ignored until here (see _Worker.start)
+    warnings_to_stderr()  # the clip's warnings with the usual prefix
+    try:
+        result = _run_clip(path, out, name, options)
+    except KeyboardInterrupt:
+        result = {"status": "interrupted"}
+    with contextlib.suppress(OSError, KeyboardInterrupt):
+        conn.send(result)
+    # Done: its outputs are in place (or removed). Ended here, after the exit handlers:
+    # Python's own exit waits for every thread, and one an interrupt left behind (started
+    # but not yet known to its pool) would keep the process, and the batch, waiting.
+    with contextlib.suppress(BaseException):
+        atexit._run_exitfuncs()
+        for stream in (sys.stdout, sys.stderr):
+            stream.flush()
+    os._exit(0)
 
 
 def _ray_endpoint(address: str) -> tuple[str, int] | None:

@@ -16,6 +16,7 @@ import functools
 import hashlib
 import json
 import os
+import urllib.parse
 from pathlib import Path
 
 from capture2face.io.cache import UNWRITABLE, cache_dir, load_entry, prune_entries, store_entry
@@ -48,30 +49,31 @@ def _update_with_file(h, path: Path) -> None:
         h.update(b"\0missing")  # the import says what is wrong with it
 
 
-def _referenced(path: Path) -> list[Path]:
-    """Files a .gltf or a mapping JSON names by relative path (buffers, images, maps)."""
+def referenced_files(path: Path) -> list[Path]:
+    """Files a .gltf or a mapping JSON names by relative path: buffers and images (their
+    URIs percent-decoded; data URIs are none), wrinkle maps and zone masks."""
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
+        doc = json.loads(Path(path).read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return []
-    names: list[str] = []
-    if isinstance(doc, dict):
-        for key in ("buffers", "images"):
-            names += [item.get("uri") for item in doc.get(key) or [] if isinstance(item, dict)]
-        maps = doc.get("wrinkle_maps")
-        names += list(maps.values()) if isinstance(maps, dict) else []
-        masks = doc.get("zone_masks")
-        names += list(masks) if isinstance(masks, list) else []
-    return [path.parent / n for n in names if isinstance(n, str) and n and not n.startswith("data:")]
+    if not isinstance(doc, dict):
+        return []
+    uris = [item.get("uri") for key in ("buffers", "images") for item in doc.get(key) or [] if isinstance(item, dict)]
+    names = [urllib.parse.unquote(u) for u in uris if isinstance(u, str) and u and not u.startswith("data:")]
+    maps = doc.get("wrinkle_maps")
+    names += list(maps.values()) if isinstance(maps, dict) else []
+    masks = doc.get("zone_masks")
+    names += list(masks) if isinstance(masks, list) else []
+    return [Path(path).parent / n for n in names if isinstance(n, str) and n]
 
 
 def preparation_key(source: Path, mapping: Path | None) -> str:
     """Hex key of a character's files (``source`` .glb/.gltf, its ``mapping`` JSON or None)
     and of the package's code."""
     h = hashlib.sha256(_code_hash().encode())
-    files = [source] + (_referenced(source) if source.suffix.lower() == ".gltf" else [])
+    files = [source] + (referenced_files(source) if source.suffix.lower() == ".gltf" else [])
     if mapping is not None:
-        files += [mapping] + _referenced(mapping)
+        files += [mapping] + referenced_files(mapping)
     for path in files:
         _update_with_file(h, path)
     return h.hexdigest()[:32]

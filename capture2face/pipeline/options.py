@@ -8,6 +8,7 @@ from dataclasses import KW_ONLY, dataclass, field, fields, is_dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from capture2face.character.prepared import referenced_files
 from capture2face.errors import CaptureError
 from capture2face.render import RenderOptions
 from capture2face.render.context import software_gl
@@ -140,6 +141,8 @@ def options_json(options: RunOptions) -> dict:
             v = v.name
         elif isinstance(v, os.PathLike):
             v = os.fspath(v)
+        if name == "character" and isinstance(v, str) and Path(v).exists():
+            v = os.path.abspath(v)  # a file: found again from any folder (eval fidelity RUN_DIR, batch --resume)
         out[name] = v
     for part in ("track", "render", "retarget"):
         skip = {path[1:] for path in MOVED_TO_STAGES.values() if path[0] == part}
@@ -169,8 +172,10 @@ def _changed_settings(options: Any, skip: set[tuple[str, ...]], prefix: tuple[st
 
 def input_files(clip: str | os.PathLike, options: RunOptions) -> dict[str, str | None]:
     """The files a run's result depends on, by role: ``clip``, a neutral take, and for a character file
-    ``character`` and (.glb / .gltf) ``mapping``, the JSON beside it, which need not exist.
-    A built-in avatar or a FaceRig object has none."""
+    ``character`` and (.glb / .gltf) ``mapping``, the JSON beside it, which need not exist, and
+    the files they reference (``character file:<name>``: a .gltf's buffers and images;
+    ``mapping file:<name>``: wrinkle maps, zone masks). A built-in avatar or a FaceRig object
+    has none."""
     files: dict[str, str | None] = {"clip": os.fspath(clip)}
     for role in ("neutral_image", "neutral_clip"):
         if getattr(options.track, role) is not None:
@@ -179,5 +184,13 @@ def input_files(clip: str | os.PathLike, options: RunOptions) -> dict[str, str |
     if isinstance(character, (str, os.PathLike)) and Path(character).is_file():
         files["character"] = os.fspath(character)
         if Path(character).suffix.lower() in (".glb", ".gltf"):
-            files["mapping"] = os.fspath(Path(character).with_suffix(".json"))
+            mapping = Path(character).with_suffix(".json")
+            files["mapping"] = os.fspath(mapping)
+            # A .gltf's .bin and textures, the maps its mapping names: by role "<owner> file:<path>".
+            owners = ([("character", Path(character))] if Path(character).suffix.lower() == ".gltf" else []) \
+                + [("mapping", mapping)]
+            for owner, path in owners:
+                for ref in referenced_files(path):
+                    name = Path(os.path.relpath(ref, path.parent)).as_posix()
+                    files.setdefault(f"{owner} file:{name}", os.fspath(ref))
     return files
