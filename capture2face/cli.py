@@ -287,8 +287,9 @@ def _add_face_choice_options(p: argparse.ArgumentParser) -> None:
 def _add_run_options(p: argparse.ArgumentParser) -> None:
     """The options `run` and `batch` share (RunOptions)."""
     p.add_argument("--character", metavar="FILE", default=None,
-                   help="a FaceRig .npz or a .glb: ARKit-named morphs need nothing else; a mapping "
-                        ".json beside it for face bones or other morph names")
+                   help="a FaceRig .npz, a .glb or a .vrm: ARKit-named morphs, visemes, VRM presets and Rocketbox "
+                        "expressions need nothing else; a mapping .json beside it for face bones or other "
+                        "morph names")
     p.add_argument("--wrinkles", choices=WRINKLE_DRIVERS, default="auto",
                    help="wrinkle driver: auto (each bone's progress to the reference poses, "
                         "default), zones (masked face zones), dynamic (the mesh's area change "

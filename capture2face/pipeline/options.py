@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from capture2face.errors import CaptureError
+from capture2face.gltf.container import CHARACTER_SUFFIXES
 from capture2face.render import RenderOptions
 from capture2face.render.context import software_gl
 from capture2face.retarget import RetargetOptions
@@ -178,6 +179,6 @@ def input_files(clip: str | os.PathLike, options: RunOptions) -> dict[str, str |
     character = options.character
     if isinstance(character, (str, os.PathLike)) and Path(character).is_file():
         files["character"] = os.fspath(character)
-        if Path(character).suffix.lower() in (".glb", ".gltf"):
+        if Path(character).suffix.lower() in CHARACTER_SUFFIXES:
             files["mapping"] = os.fspath(Path(character).with_suffix(".json"))
     return files
