@@ -77,8 +77,11 @@ def test_lip_shapes_pick_their_viseme():
     assert _weights(VISEMES, jawOpen=0.8, mouthFunnel=0.9)["viseme_O"] > 0.5
     assert _weights(VISEMES, mouthPucker=0.9)["viseme_U"] > 0.5
     assert _weights(VISEMES, mouthPressLeft=0.8, mouthPressRight=0.8)["viseme_PP"] > 0.5
-    spread = _weights(VISEMES, jawOpen=0.6, mouthStretchLeft=0.9, mouthStretchRight=0.9)
-    assert spread["viseme_E"] > 0.5 and spread["viseme_aa"] < 0.1
+    spread = _weights(VISEMES, jawOpen=0.45, mouthStretchLeft=1.0, mouthStretchRight=1.0)
+    assert spread["viseme_E"] > 0.4 and spread["viseme_aa"] < 0.1  # half open and spread: E
+    scream = _weights(VISEMES, jawOpen=1.0, mouthSmileLeft=0.6, mouthSmileRight=0.6)
+    assert scream["viseme_aa"] == 1.0 and scream["viseme_E"] == 0.0  # wide open: aa whatever the corners do
+    assert _weights(VRM0, jawOpen=1.0, mouthSmileLeft=0.6, mouthSmileRight=0.6)["fun"] == 0.0  # speech wins
 
 
 def test_blinks_keep_their_side_and_give_way_to_a_both_eyes_blink():

@@ -12,8 +12,8 @@ where a factor is an ARKit curve (``jawOpen``), a derived channel of :data:`DERI
 (``smile``: both corners' mean), ``~x`` (1 - x) or ``has(name)`` (1 when the character has
 a morph the table knows by that name, else 0: a one-eye blink gives way to a
 both-eyes one). The mouth's opening is split between the visemes by the lips' shape
-(``aa`` open, ``O`` round and open, ``E`` spread and open), so the mouth opens once, not
-once per viseme. Sides are the character's own, as ARKit's (``Blink_L``: ``eyeBlinkLeft``;
+(``aa`` open, ``O`` round and open, ``E`` spread and half open), so the mouth opens once,
+not once per viseme; a wide-open jaw is ``aa`` whatever the corners do. Sides are the character's own, as ARKit's (``Blink_L``: ``eyeBlinkLeft``;
 Rocketbox's ``R...``: ``...Right``).
 
 A character with any ARKit-named morph is driven by those alone (its visemes stay 0, as
@@ -53,6 +53,10 @@ DERIVED = {
     "noseSneer": ("mean of noseSneerLeft/Right", _mean("noseSneerLeft", "noseSneerRight")),
     "spread": ("max of smile, stretch", lambda c: np.maximum(c["smile"], c["stretch"])),
     "round": ("max of mouthFunnel, mouthPucker", lambda c: np.maximum(c["mouthFunnel"], c["mouthPucker"])),
+    # A spread mouth is a half-open shape (E): the jaw's opening goes to it up to half open,
+    # then back to the open shape (aa), so a wide-open scream with its corners pulled is aa.
+    "spreadOpen": ("jawOpen * min(1, 2 (1 - jawOpen)) * spread",
+                   lambda c: c["jawOpen"] * np.minimum(1.0, 2.0 * (1.0 - c["jawOpen"])) * c["spread"]),
     "blinkBoth": ("min of eyeBlinkLeft/Right", lambda c: np.minimum(c["eyeBlinkLeft"], c["eyeBlinkRight"])),
     "duchenne": ("smile * max(cheekSquint, eyeSquint), a smile that reaches the eyes",
                  lambda c: c["smile"] * np.maximum(c["cheekSquint"], c["eyeSquint"])),
@@ -64,9 +68,9 @@ DERIVED = {
 }
 
 # Shared by the viseme-like sets: the jaw's opening split by the lips' shape.
-_OPEN = "jawOpen*~round*~spread"
+_OPEN = "jawOpen*~round - spreadOpen*~round"
 _ROUND_OPEN = "mouthFunnel*~mouthPucker"
-_SPREAD_OPEN = "jawOpen*spread"
+_SPREAD_OPEN = "spreadOpen*~round"
 _SPREAD_CLOSED = "stretch*~jawOpen"
 _BLINK_L = "eyeBlinkLeft - blinkBoth*has({both})"
 _BLINK_R = "eyeBlinkRight - blinkBoth*has({both})"
@@ -76,8 +80,9 @@ def _vrm(a, i, u, e, o, joy, angry, sorrow, fun, surprised, blink, blink_l, blin
     """A VRM preset set by its names (VRM 0.x and 1.0 name the same presets differently)."""
     return {
         a: _OPEN, i: _SPREAD_CLOSED, u: "mouthPucker", e: _SPREAD_OPEN, o: _ROUND_OPEN,
-        joy: "duchenne", angry: "0.5*browDown + 0.5*noseSneer", sorrow: "browInnerUp*~browOuterUp*~smile",
-        fun: "smile - duchenne", surprised: "browOuterUp*eyeWide + 0.5*browOuterUp*jawOpen",
+        # The feelings that shape the mouth give way to speech (VRM 0.x has no override rules).
+        joy: "duchenne*~jawOpen", angry: "0.5*browDown + 0.5*noseSneer", sorrow: "browInnerUp*~browOuterUp*~smile",
+        fun: "smile*~jawOpen - duchenne*~jawOpen", surprised: "browOuterUp*eyeWide + 0.5*browOuterUp*jawOpen",
         blink: "blinkBoth", blink_l: _BLINK_L.format(both=blink), blink_r: _BLINK_R.format(both=blink),
         neutral: "0", look[0]: "lookUp", look[1]: "lookDown", look[2]: "lookLeft", look[3]: "lookRight",
     }
