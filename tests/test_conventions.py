@@ -68,7 +68,8 @@ def test_every_recipe_parses_and_names_known_channels():
 def test_a_wide_open_jaw_opens_the_open_shape_only(names, open_, closed):
     w = _weights(names, jawOpen=1.0)
     assert w[open_] > 0.5 and w[closed] < 0.05
-    assert sum(w.values()) <= 1.0 + 1e-6 or "h_teeth.t_AE_AA_h" in w  # the mouth opens once (teeth apart)
+    half = _weights(names, jawOpen=0.5)
+    assert half[open_] == 0.5 and sum(half.values()) <= 0.5 + 1e-6 or "h_teeth.t_AE_AA_h" in w  # opens once
     pressed = _weights(names, mouthPressLeft=1.0, mouthPressRight=1.0)
     assert all(v < 0.05 for k, v in pressed.items() if k == open_)
 
@@ -81,6 +82,7 @@ def test_lip_shapes_pick_their_viseme():
     assert spread["viseme_E"] > 0.4 and spread["viseme_aa"] < 0.1  # half open and spread: E
     scream = _weights(VISEMES, jawOpen=1.0, mouthSmileLeft=0.6, mouthSmileRight=0.6)
     assert scream["viseme_aa"] == 1.0 and scream["viseme_E"] == 0.0  # wide open: aa whatever the corners do
+    assert scream["viseme_O"] == 1.0  # and the round-open shape with it: the set's widest mouth
     assert _weights(VRM0, jawOpen=1.0, mouthSmileLeft=0.6, mouthSmileRight=0.6)["fun"] == 0.0  # speech wins
 
 

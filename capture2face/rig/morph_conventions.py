@@ -13,7 +13,8 @@ where a factor is an ARKit curve (``jawOpen``), a derived channel of :data:`DERI
 a morph the table knows by that name, else 0: a one-eye blink gives way to a
 both-eyes one). The mouth's opening is split between the visemes by the lips' shape
 (``aa`` open, ``O`` round and open, ``E`` spread and half open), so the mouth opens once,
-not once per viseme; a wide-open jaw is ``aa`` whatever the corners do. Sides are the character's own, as ARKit's (``Blink_L``: ``eyeBlinkLeft``;
+not once per viseme; a wide-open jaw is ``aa`` whatever the corners do, joined past half
+open by ``O`` (a viseme set's widest mouth is its open shapes together). Sides are the character's own, as ARKit's (``Blink_L``: ``eyeBlinkLeft``;
 Rocketbox's ``R...``: ``...Right``).
 
 A character with any ARKit-named morph is driven by those alone (its visemes stay 0, as
@@ -57,6 +58,11 @@ DERIVED = {
     # then back to the open shape (aa), so a wide-open scream with its corners pulled is aa.
     "spreadOpen": ("jawOpen * min(1, 2 (1 - jawOpen)) * spread",
                    lambda c: c["jawOpen"] * np.minimum(1.0, 2.0 * (1.0 - c["jawOpen"])) * c["spread"]),
+    # Past half open the round-open shape joins the open one: a viseme set's widest mouth is
+    # its open shapes together (Ready Player Me's viseme_aa alone drops the jaw 1.6 cm, with
+    # viseme_O 3.9 cm, as far as its jawOpen).
+    "wide": ("max(0, 2 jawOpen - 1) * (1 - round)",
+             lambda c: np.maximum(0.0, 2.0 * c["jawOpen"] - 1.0) * (1.0 - c["round"])),
     "blinkBoth": ("min of eyeBlinkLeft/Right", lambda c: np.minimum(c["eyeBlinkLeft"], c["eyeBlinkRight"])),
     "duchenne": ("smile * max(cheekSquint, eyeSquint), a smile that reaches the eyes",
                  lambda c: c["smile"] * np.maximum(c["cheekSquint"], c["eyeSquint"])),
@@ -70,6 +76,7 @@ DERIVED = {
 # Shared by the viseme-like sets: the jaw's opening split by the lips' shape.
 _OPEN = "jawOpen*~round - spreadOpen*~round"
 _ROUND_OPEN = "mouthFunnel*~mouthPucker"
+_ROUND_OR_WIDE = _ROUND_OPEN + " + wide"
 _SPREAD_OPEN = "spreadOpen*~round"
 _SPREAD_CLOSED = "stretch*~jawOpen"
 _BLINK_L = "eyeBlinkLeft - blinkBoth*has({both})"
@@ -79,7 +86,7 @@ _BLINK_R = "eyeBlinkRight - blinkBoth*has({both})"
 def _vrm(a, i, u, e, o, joy, angry, sorrow, fun, surprised, blink, blink_l, blink_r, neutral, look) -> dict:
     """A VRM preset set by its names (VRM 0.x and 1.0 name the same presets differently)."""
     return {
-        a: _OPEN, i: _SPREAD_CLOSED, u: "mouthPucker", e: _SPREAD_OPEN, o: _ROUND_OPEN,
+        a: _OPEN, i: _SPREAD_CLOSED, u: "mouthPucker", e: _SPREAD_OPEN, o: _ROUND_OR_WIDE,
         # The feelings that shape the mouth give way to speech (VRM 0.x has no override rules).
         joy: "duchenne*~jawOpen", angry: "0.5*browDown + 0.5*noseSneer", sorrow: "browInnerUp*~browOuterUp*~smile",
         fun: "smile*~jawOpen - duchenne*~jawOpen", surprised: "browOuterUp*eyeWide + 0.5*browOuterUp*jawOpen",
@@ -122,7 +129,7 @@ def _rocketbox() -> dict:
 #: {convention: {morph name: recipe}}; names match in any case, after any ``prefix.``.
 RECIPES: dict[str, dict[str, str]] = {
     "Oculus / Ready Player Me visemes": {
-        "viseme_sil": "0", "viseme_aa": _OPEN, "viseme_O": _ROUND_OPEN, "viseme_U": "mouthPucker",
+        "viseme_sil": "0", "viseme_aa": _OPEN, "viseme_O": _ROUND_OR_WIDE, "viseme_U": "mouthPucker",
         "viseme_E": _SPREAD_OPEN, "viseme_I": _SPREAD_CLOSED, "viseme_PP": "press*~jawOpen",
         "viseme_FF": "mouthRollLower*~jawOpen", "viseme_TH": "0", "viseme_DD": "0", "viseme_kk": "0",
         "viseme_CH": "0", "viseme_SS": "0", "viseme_nn": "0", "viseme_RR": "0",
