@@ -47,6 +47,7 @@ from capture2face.pipeline import RunOptions, options_json, outputs_complete, ru
 from capture2face.pipeline.options import input_files
 from capture2face.pipeline.preflight import check_gl, check_shared
 from capture2face.runtime.cores import free_cores
+from capture2face.runtime.log import warnings_to_stderr
 
 VIDEO_EXTENSIONS = (".mp4", ".mov", ".m4v", ".mkv", ".avi", ".webm", ".mpg", ".mpeg", ".wmv", ".flv")
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".webp", ".bmp", ".tif", ".tiff")
@@ -172,6 +173,7 @@ def _worker_init() -> None:
     """Pool worker start-up (outputs are staged, so a terminated worker leaves nothing
     half-written)."""
     install_process_defaults()
+    warnings_to_stderr()
 
 
 def _run_clip(path: str, out: str, name: str, options: Any) -> dict:

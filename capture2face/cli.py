@@ -15,7 +15,7 @@ from pathlib import Path
 from capture2face import batch, bench, pipeline
 from capture2face.character.load import load_character
 from capture2face.errors import CaptureError, exit_interrupted, install_process_defaults
-from capture2face.eval import shading
+from capture2face.eval import characters, shading
 from capture2face.eval.fidelity import evaluate_fidelity, table
 from capture2face.eval.synthetic import evaluate_synthetic, summary_line
 from capture2face.eval.synthetic_actor import actor_summary_line, evaluate_actor_synthetic
@@ -32,6 +32,7 @@ from capture2face.pipeline.preflight import check_neutral_frame
 from capture2face.render.renderer import WRINKLE_DRIVERS
 from capture2face.rig.avatar import default_avatar
 from capture2face.rig.maps import write_maps
+from capture2face.runtime.log import warnings_to_stderr
 from capture2face.runtime.moved_options import set_path
 from capture2face.synth import SynthOptions, synthesize
 from capture2face.synth.trajectories import STARTS
@@ -152,9 +153,6 @@ def _cmd_track(args: argparse.Namespace) -> int:
 
 def _cmd_run(args: argparse.Namespace) -> int:
     opts = options_from_args(args)
-    if args.name is not None and (not args.name.strip() or Path(args.name).name != args.name
-                                  or args.name in (".", "..") or args.name.startswith(".tmp-")):
-        raise CaptureError(f"--name {args.name!r}: must be a plain folder name (no '/', not '.' or '..')")
     report = pipeline.run(args.clip, args.output, opts, progress=not args.quiet, name=args.name)
     for warning in report["warnings"]:  # also in report.json
         print(f"capture2face: warning: {warning}", file=sys.stderr)
@@ -215,8 +213,19 @@ def _cmd_eval_shading(args: argparse.Namespace) -> int:
         write_text_atomic(args.json, json.dumps({"runs": results, "summary": summary}, indent=2) + "\n")
     for r in results:
         print(f"{r['run']}: skin darkening p95 " + ", ".join(f"{k} {v:.1%}" for k, v in r["darkening_p95"].items())
-              + f"; mouth opening r {r['mouth_open_r']:.2f}")
+              + f"; mouth opening r {r['mouth_open_r']:.2f} gain {r['mouth_open_gain']:.2f}, brows r "
+              f"{r['brows_r']:.2f} gain {r['brows_gain']:.2f}, eyes r {r['eyes_r']:.2f} gain {r['eyes_gain']:.2f}")
     print(summary)
+    return 0
+
+
+def _cmd_eval_characters(args: argparse.Namespace) -> int:
+    result = characters.evaluate_characters(args.characters, clip=args.clip, out_dir=args.output, size=args.size,
+                                            cell=args.cell, track_file=args.track, progress=not args.quiet)
+    if args.json:
+        write_text_atomic(args.json, json.dumps(result, indent=2) + "\n")
+    print(characters.table(result["characters"]))
+    print(result["summary"])
     return 0
 
 
@@ -378,6 +387,7 @@ def _add_eval_parser(sub, common: argparse.ArgumentParser) -> None:
     _add_eval_synthetic_parser(evals, common)
     _add_eval_fidelity_parser(evals, common)
     _add_eval_shading_parser(evals, common)
+    _add_eval_characters_parser(evals, common)
 
 
 def _add_eval_synthetic_parser(evals, common: argparse.ArgumentParser) -> None:
@@ -414,6 +424,25 @@ def _add_eval_shading_parser(evals, common: argparse.ArgumentParser) -> None:
     p.add_argument("runs", nargs="+", metavar="RUN_DIR", help="`run` output folders (avatar.mp4 and track.npz)")
     p.add_argument("--json", metavar="PATH", help="write every figure as JSON")
     p.set_defaults(func=_cmd_eval_shading)
+
+
+def _add_eval_characters_parser(evals, common: argparse.ArgumentParser) -> None:
+    p = evals.add_parser("characters", parents=[common],
+                         help="a gallery: each character performing a real clip, a contact sheet and its figures")
+    p.add_argument("characters", nargs="*", metavar="FILE",
+                   help="characters (.glb, FaceRig .npz, a built-in name; default: the default avatar)")
+    p.add_argument("--clip", default=None,
+                   help="the clip they perform (default: ../shared/clips/d12.mp4 beside the repository, "
+                        "else sample_videos/sample.mp4)")
+    p.add_argument("-o", "--output", default="gallery", metavar="DIR",
+                   help="writes DIR/<name>.png (the sheet) and DIR/<name>/ (avatar.mp4, animation.glb, ...); "
+                        "default: gallery")
+    p.add_argument("--size", type=int, default=256, help="render size in pixels (default: 256)")
+    p.add_argument("--cell", type=int, default=192, help="sheet cell size in pixels (default: 192)")
+    p.add_argument("--track", metavar="TRACK_NPZ", default=None,
+                   help="the clip's track.npz (e.g. a run's) instead of tracking the clip again")
+    p.add_argument("--json", metavar="PATH", help="write every figure as JSON")
+    p.set_defaults(func=_cmd_eval_characters)
 
 
 def _add_batch_parser(sub, common: argparse.ArgumentParser) -> None:
@@ -477,6 +506,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     install_process_defaults()
+    warnings_to_stderr()  # a warning no report carries: `capture2face: warning: ...`
     readable_streams()  # a file name that is not UTF-8 prints as \xNN, never fails a command
     if argv is None:  # the process is the command (not a caller's main(args))
         defer_pyplot()  # it imports MediaPipe, never matplotlib

@@ -17,6 +17,11 @@ class CaptureError(Exception):
     exit_code = 2
 
 
+class NoFaceError(CaptureError):
+    """A clip in which the tracker found no face at all (a caller that made the clip, such
+    as ``eval synthetic --actor``, names the cause: its actor)."""
+
+
 _interrupted = False
 
 

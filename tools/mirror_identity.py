@@ -16,10 +16,15 @@ the scene stay the first file's. Used for `eval synthetic --actor` on an unseen 
 from __future__ import annotations
 
 import argparse
+import math
+import os
+import sys
 from pathlib import Path
 
 import numpy as np
 import pygltflib
+
+from capture2face.io.atomic import atomic_path
 
 
 def _vec3(gltf: pygltflib.GLTF2, blob: bytes | bytearray, accessor: int) -> tuple[int, np.ndarray]:
@@ -55,9 +60,35 @@ def mirror_identity(neutral: Path, other: Path, out: Path, amount: float = 1.0) 
                     a.accessors[ia].min, a.accessors[ia].max = x.min(0).tolist(), x.max(0).tolist()
                 blob[offset:offset + x.nbytes] = x.astype(np.float32).tobytes()
     a.set_binary_blob(bytes(blob))
-    tmp = out.with_name(out.name + ".partial")
-    a.save_binary(str(tmp))
-    tmp.replace(out)
+    try:
+        with atomic_path(out) as tmp:  # a failure leaves no partial file beside it
+            a.save_binary(str(tmp))
+    except OSError as exc:  # the output named, not the temporary file beside it
+        raise ValueError(f"cannot write {out}: {exc.strerror or exc}") from None
+
+
+def check_args(neutral: Path, other: Path, out: Path, amount: float) -> None:
+    """Fail before reading anything: a missing head, an output that is a folder, not a .glb,
+    or one of the two heads (whatever the spelling: the same file is never overwritten)."""
+    for path in (neutral, other):
+        if path.is_dir():
+            raise ValueError(f"{path}: is a folder, not a .glb")
+        if not path.is_file():
+            raise ValueError(f"{path}: no such file")
+    if out.is_dir():
+        raise ValueError(f"{out}: is a folder; give the .glb file to write (e.g. {out / 'ict-c.glb'})")
+    if out.suffix.lower() != ".glb":
+        raise ValueError(f"{out}: the new head is written as binary glTF; name it {out.with_suffix('.glb').name}")
+    for path in (neutral, other):
+        if out.exists() and os.path.samefile(out, path) or out.resolve() == path.resolve():
+            raise ValueError(f"{out}: is the input {path}; choose another output file")
+    if not math.isfinite(amount):
+        raise ValueError(f"--amount {amount}: must be a finite number")
+
+
+def _fail(message: str) -> None:
+    print(f"mirror_identity.py: error: {' '.join(message.split())}", file=sys.stderr)
+    raise SystemExit(2)
 
 
 def main() -> None:
@@ -67,13 +98,16 @@ def main() -> None:
     parser.add_argument("out", type=Path, help="the new head (.glb)")
     parser.add_argument("--amount", type=float, default=1.0, help="how far past the neutral (default 1)")
     args = parser.parse_args()
-    for path in (args.neutral, args.other):
-        if not path.is_file():
-            raise SystemExit(f"{path}: no such file")
+    try:
+        check_args(args.neutral, args.other, args.out, args.amount)
+    except ValueError as exc:
+        _fail(str(exc))
     try:
         mirror_identity(args.neutral, args.other, args.out, args.amount)
-    except Exception as exc:  # an unreadable or unmatched pair: one line, not a traceback
-        raise SystemExit(f"cannot mirror {args.neutral} about {args.other}: {exc}") from None
+    except ValueError as exc:
+        _fail(str(exc))
+    except (Exception, SystemExit) as exc:  # an unreadable or unmatched pair: one line, not a traceback
+        _fail(f"cannot mirror {args.neutral} about {args.other}: {exc}")
     print(args.out)
 
 

@@ -70,7 +70,8 @@ def automatic_wrinkles(rig: FaceRig) -> FaceRig:
     reference poses, influence masks, regions and zone table (see the module docs).
 
     Raises:
-        CaptureError: no face found in its front view, or too few ARKit pose morphs.
+        CaptureError: no face found in its front view, too few ARKit pose morphs, or UVs
+            on which the wrinkle maps cannot be baked.
     """
     by_name = {a: m for m, a in arkit_morphs(rig.morph_names).items()}
     if not any(n in by_name for names in POSES.values() for n in names):
@@ -155,6 +156,8 @@ def _bake_maps(rig: FaceRig, avatar: FaceRig, nearest: np.ndarray, face: np.ndar
         face: (V,) bool, the character's face vertices.
     Returns:
         wrinkle maps (K, H, W, 3) in ``rig.wrinkle_map_names`` order, zone masks (H, W, 8).
+    Raises:
+        CaptureError: the face triangles cover no texel (nothing to bake into).
     """
     import cv2
 
@@ -173,12 +176,7 @@ def _bake_maps(rig: FaceRig, avatar: FaceRig, nearest: np.ndarray, face: np.ndar
     tris = tris[_uv_spread(avatar.uvs[nearest[tris]]) <= limit]
     if not len(tris) or not (todo or bake_zones):
         return maps, zones
-    # Rasterize the face triangles' ids in UV space (texel centres at +0.5; 4 fractional bits).
-    ids = np.full((H, W), -1, np.int32)
-    corners = np.rint((rig.uvs[tris] * [W, H] - 0.5) * 16).astype(np.int32)  # (T, 3, 2)
-    for t in range(len(tris)):  # per triangle: OpenCV fills one polygon a call
-        cv2.fillConvexPoly(ids, corners[t], int(t), lineType=cv2.LINE_8, shift=4)
-    ys, xs = np.nonzero(ids >= 0)
+    ys, xs, ids = _texels(rig, tris, H, W)
     tri = tris[ids[ys, xs]]  # (N, 3)
     p = np.stack([(xs + 0.5) / W, (ys + 0.5) / H], 1)
     a, b, c = (rig.uvs[tri[:, i]].astype(np.float64) for i in range(3))
@@ -226,6 +224,28 @@ def _bake_maps(rig: FaceRig, avatar: FaceRig, nearest: np.ndarray, face: np.ndar
         zones[ys, xs, :4] = sample(avatar.zone_masks[..., :4])
         zones[ys, xs, 4:8] = sample(avatar.zone_masks[..., 4:8])
     return maps, zones
+
+
+def _texels(rig: FaceRig, tris: np.ndarray, H: int, W: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The texels (rows, columns) the triangles ``tris`` cover in UV space and the (H, W)
+    triangle id of each texel (-1: none).
+
+    Raises:
+        CaptureError: they cover none (no UVs, all in one point, or outside 0-1): there is
+            nowhere to bake the maps, and a wrinkle without its map is nothing.
+    """
+    import cv2
+
+    # Texel centres at +0.5; 4 fractional bits.
+    ids = np.full((H, W), -1, np.int32)
+    corners = np.rint((rig.uvs[tris] * [W, H] - 0.5) * 16).astype(np.int32)  # (T, 3, 2)
+    for t in range(len(tris)):  # per triangle: OpenCV fills one polygon a call
+        cv2.fillConvexPoly(ids, corners[t], int(t), lineType=cv2.LINE_8, shift=4)
+    ys, xs = np.nonzero(ids >= 0)
+    if not len(ys):
+        raise CaptureError(f"character '{rig.name}': its face's UVs cover no texel of its texture "
+                           "(no TEXCOORD_0, or UVs outside 0-1): no wrinkle maps to bake")
+    return ys, xs, ids
 
 
 def _uv_spread(uv: np.ndarray) -> np.ndarray:

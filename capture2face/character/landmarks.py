@@ -224,7 +224,8 @@ def _cast_view(rig: FaceRig, view: _View, fov_y_degrees: float) -> SurfaceLandma
     hits = _candidates(px, depth, tris[skin], view.landmarks_px[rows_face])
     expect, tol = _expected_depth(rig, view, hits, rows_face, fov_y_degrees)
     for rows, h in ((rows_face, hits), (rows_iris, _candidates(px, depth, tris[eyes], view.landmarks_px[rows_iris]))):
-        pick = _choose(h, len(rows), expect[rows] if len(rows) and rows[0] < N_MESH else None, tol)
+        face_rows = expect is not None and len(rows) and rows[0] < N_MESH
+        pick = _choose(h, len(rows), expect[rows] if face_rows else None, tol)
         # None at the tracker's depth (a landmark on the silhouette): the nearest facing skin.
         pick = np.where(pick >= 0, pick, _choose(h, len(rows), None, tol))
         ok = pick >= 0
@@ -301,16 +302,19 @@ def _closest_on_triangle(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndar
 
 
 def _expected_depth(rig: FaceRig, view: _View, hits: _Hits, rows: np.ndarray,
-                    fov_y_degrees: float) -> tuple[np.ndarray, float]:
+                    fov_y_degrees: float) -> tuple[np.ndarray | None, float]:
     """(L,) the depth (cm) the tracker sees each landmark at, fitted affinely to the front-most
-    skin under the landmarks that lie inside a triangle, and the tolerance (cm) about it."""
+    skin under the landmarks that lie inside a triangle, and the tolerance (cm) about it;
+    (None, 0) where no landmark lies inside one (nothing to fit: the nearest skin is taken)."""
     inside = hits.dist <= 0.0
     front = np.full(len(rows), np.inf)
     np.minimum.at(front, hits.row[inside], hits.depth[inside])
     ok = np.isfinite(front)
+    if not ok.any():  # the median of no depth would be NaN (and a NumPy RuntimeWarning)
+        return None, 0.0
     src = view.depth_px[rows]
     lms = np.flatnonzero(ok)
-    fit = np.array([0.0, float(np.median(front[ok])) if ok.any() else 0.0])
+    fit = np.array([0.0, float(np.median(front[ok]))])
     for _ in range(3):  # least squares, then without the outliers (a ray through an eye's socket)
         if len(lms) < 8:
             break

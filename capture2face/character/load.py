@@ -96,7 +96,7 @@ def _imported_character(path: Path) -> FaceRig:
         log.info("character %s: prepared copy read from %s in %.2f s", path.name, prepared_dir(),
                  time.perf_counter() - t)
     else:
-        with collect_warnings() as said:
+        with collect_warnings(reported=False) as said:
             rig = with_automatic_wrinkles(import_glb(path, mapping if mapping.is_file() else None))
         said = list(said)
         store_prepared(content_key, rig, said)

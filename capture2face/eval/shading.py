@@ -12,7 +12,9 @@ out first. The figure is each disc's 95th percentile of what is left darkening,
 mean over the discs. The mouth opening measured in that tracked video
 (:func:`~capture2face.measures.source_measures`) is compared with the source clip's (the
 run's track.npz): a character whose mouth does not open on screen fails it whatever its
-animation says.
+animation says. The brows (the two brow heights' mean) and the eyes (the two lid
+openings' mean) are compared the same way (r, and gain: the character's standard
+deviation over the actor's), reported beside the mouth.
 """
 
 from __future__ import annotations
@@ -26,8 +28,7 @@ import numpy as np
 from capture2face.errors import CaptureError
 from capture2face.io.video_input import iter_frames
 from capture2face.maths.rotations import rotation_part
-from capture2face.maths.stats import pearson
-from capture2face.measures import MEASURES, source_measures
+from capture2face.measures import BROW_COLUMNS, EYE_MEASURES, MEASURES, compare, source_measures
 from capture2face.pipeline import RunOptions, track_stage
 from capture2face.topology import IOD_PAIR
 from capture2face.tracking.track import Track
@@ -37,6 +38,9 @@ PATCHES = {"cheek_right": 205, "cheek_left": 425, "chin": 199}
 PATCH_RADIUS_IOD = 0.08
 BRIGHTNESS_GOAL = 0.03  # p95 darkening from the disc's median frame, mean over the discs
 MOUTH_R_GOAL = 0.85
+#: What the tracked-back video is compared on: name -> the measure columns averaged.
+FEATURES = {"mouth_open": [list(MEASURES).index("mouth_open")], "brows": BROW_COLUMNS,
+            "eyes": [list(MEASURES).index(e) for e in EYE_MEASURES]}
 
 
 def _luminance(rgb: np.ndarray) -> np.ndarray:
@@ -108,16 +112,29 @@ def shading_of(run_dir: str | os.PathLike, progress: bool = False) -> dict:
     brightness = patch_brightness(video, seen)
     n = min(actor.n_frames, seen.n_frames)
     dark = darkening(brightness[:n], rotation_part(np.asarray(actor.head_pose)[:n]))
-    mouth = list(MEASURES).index("mouth_open")
-    r = pearson(source_measures(actor)[:n, mouth], source_measures(seen)[:n, mouth])
+    follows = feature_follow(source_measures(actor)[:n], source_measures(seen)[:n])
+    r = follows["mouth_open_r"]
     return {
         "run": folder.name,
         "frames_with_face": int(np.count_nonzero(seen.presence)),
         "darkening_p95": {name: float(d) for name, d in zip(PATCHES, dark)},
         "darkening_p95_mean": float(dark.mean()),
-        "mouth_open_r": float(r),
+        **follows,
         "met": bool(dark.mean() <= BRIGHTNESS_GOAL and r >= MOUTH_R_GOAL),
     }
+
+
+def feature_follow(actor: np.ndarray, seen: np.ndarray) -> dict[str, float]:
+    """``<feature>_r`` and ``<feature>_gain`` of each of :data:`FEATURES`: how the measures
+    tracked back from the video, ``seen`` (F, 6), follow the actor's, ``actor`` (F, 6)
+    (frames where either has no face are left out)."""
+    out = {}
+    for name, cols in FEATURES.items():
+        a, s = actor[:, cols].mean(1), seen[:, cols].mean(1)
+        ok = np.isfinite(a) & np.isfinite(s)
+        r, gain = compare(a[ok], s[ok]) if ok.sum() > 2 else (float("nan"), float("nan"))
+        out[f"{name}_r"], out[f"{name}_gain"] = float(r), float(gain)
+    return out
 
 
 def summary_line(results: list[dict]) -> str:

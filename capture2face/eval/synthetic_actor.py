@@ -26,13 +26,14 @@ target any character, of another topology too. What can be compared then:
 
 from __future__ import annotations
 
+import os
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from capture2face.character.load import load_character
-from capture2face.errors import CaptureError
+from capture2face.errors import CaptureError, NoFaceError
 from capture2face.eval.synthetic import (
     active_morph_figures,
     arkit_columns,
@@ -56,6 +57,7 @@ from capture2face.retarget import RetargetOptions
 from capture2face.retarget.gaze import eye_radius_iod
 from capture2face.rig.arkit_names import arkit_morphs
 from capture2face.rig.avatar import default_avatar
+from capture2face.rig.face_rig import FaceRig
 from capture2face.synth import SynthOptions, actor_rig, synthesize
 from capture2face.tracking import TrackOptions, track_clip
 
@@ -203,11 +205,23 @@ def evaluate_actor_synthetic(actor=None, target=None, frames: int = 300, seed: i
         folder = Path(workdir) if workdir else Path(tmp)
         clip = synthesize(folder / "synthetic.mp4", SynthOptions(frames=frames, seed=seed, size=size),
                           progress=progress, actor=rig)
-        track = track_clip(clip.video_path, TrackOptions(), progress=progress)
+        try:
+            track = track_clip(clip.video_path, TrackOptions(), progress=progress)
+        except NoFaceError:  # the clip is ours: the cause is the actor, not its temporary video
+            raise CaptureError(f"actor {_label(actor, rig)}: the tracker finds no face in the {frames} frames "
+                               "rendered of it; the actor must be a character with a human face and "
+                               "ARKit-named morphs") from None
     source = rig if rig is not None else default_avatar()
     result = evaluate_actor_track(track, clip.truth, source, target_rig, options)
     result.update({"seed": int(seed), "size": int(size)})
     return result
+
+
+def _label(actor, rig) -> str:
+    """The actor as the user gave it: its file, else the rig's name."""
+    if rig is None or actor is None or isinstance(actor, FaceRig):
+        return rig.name if rig is not None else "default"
+    return os.fspath(actor)
 
 
 def actor_summary_line(result: dict, label: str = "") -> str:

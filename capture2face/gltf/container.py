@@ -547,11 +547,23 @@ def uri_bytes(uri: str, base_dir: str, path: str = "") -> bytes:
         raise CaptureError(f"{path or base_dir}: '{uri}' is missing (it must lie beside {where})") from None
 
 
+def _image_bytes(uri: str, base_dir: str, path: str) -> bytes | None:
+    """An image's bytes, or None where they cannot be read (a file missing beside the
+    .gltf, a broken data URI): the import said so and drew the material's base colour; the
+    export stores one white texel there, which shows the same base colour factor."""
+    try:
+        return uri_bytes(uri, base_dir, path)
+    except (CaptureError, ValueError):
+        return None
+
+
 def embed_resources(gltf: dict, binary: bytes, base_dir: str, path: str = "") -> bytearray:
     """Make ``gltf`` self-contained: every buffer with a URI (a .gltf's .bin, data URIs)
     appended to the one GLB buffer (buffer views and meshopt streams re-pointed), every
-    image with a URI stored in a buffer view. Buffers with no data and no URI (meshopt
-    fallbacks) stay. Returns the new BIN chunk; ``gltf`` is changed in place."""
+    image with a URI stored in a buffer view (one white texel for an image whose file is
+    missing: its material shows its base colour factor, as the import drew it). Buffers
+    with no data and no URI (meshopt fallbacks) stay. Returns the new BIN chunk; ``gltf``
+    is changed in place."""
     out = bytearray(binary)
     buffers = gltf.get("buffers", [])
     glb_owner = 0 if binary and buffers and "uri" not in buffers[0] else None
@@ -574,9 +586,12 @@ def embed_resources(gltf: dict, binary: bytes, base_dir: str, path: str = "") ->
     for image in gltf.get("images", []):
         if "uri" in image:
             uri = image.pop("uri")
-            data = uri_bytes(uri, base_dir, path)
+            data = _image_bytes(uri, base_dir, path)
             mime = uri[5:].split(";", 1)[0] if uri.startswith("data:") else \
                 _MIME_BY_SUFFIX.get(os.path.splitext(urllib.parse.unquote(uri))[1].lower(), "image/png")
+            if data is None:
+                data, mime = encode_png(np.full((1, 1, 3), 255, np.uint8)), "image/png"
+                image["mimeType"] = mime
             out.extend(b"\0" * (-len(out) % 4))
             gltf.setdefault("bufferViews", []).append({"buffer": 0, "byteOffset": len(out), "byteLength": len(data)})
             out.extend(data)

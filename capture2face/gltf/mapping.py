@@ -10,6 +10,7 @@ ignored with a warning.
 
 from __future__ import annotations
 
+import difflib
 import json
 import math
 import os
@@ -209,6 +210,7 @@ class Mapping:
     relative to."""
 
     directory: Path
+    path: Path | None = None
     name: str | None = None
     scale: float | None = None
     head_bone: str | None = None
@@ -223,9 +225,10 @@ class Mapping:
     morphs: dict[str, str] = field(default_factory=dict)
 
     @classmethod
-    def from_json(cls, data: dict, directory: Path) -> Mapping:
-        """A Mapping of ``data`` (a parsed mapping JSON that passed :func:`check_mapping`)."""
-        return cls(directory=directory, **{k: data[k] for k in KEYS if k in data})
+    def from_json(cls, data: dict, directory: Path, path: Path | None = None) -> Mapping:
+        """A Mapping of ``data`` (a parsed mapping JSON that passed :func:`check_mapping`;
+        ``path``: its file, named in what it is told)."""
+        return cls(directory=directory, path=path, **{k: data[k] for k in KEYS if k in data})
 
     def arkit_renames(self) -> dict[str, str]:
         """Morph name -> the canonical ARKit name the mapping gives it."""
@@ -250,4 +253,28 @@ def load_mapping(glb: str | os.PathLike, mapping_json: str | os.PathLike | None 
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise CaptureError(f"{path}: not a readable mapping JSON ({exc})") from None
     check_mapping(data, path)
-    return Mapping.from_json(data, path.parent)
+    return Mapping.from_json(data, path.parent, path)
+
+
+def check_mapped_morphs(mapping: Mapping, names: list[str]) -> None:
+    """Every morph the mapping's ``morphs`` renames is one of the file's morph targets
+    (``names``): a name it lacks (a typo) would be ignored without a word, so it fails in
+    one line naming it and the file's closest names.
+
+    Raises:
+        CaptureError: the mapping names a morph the character file does not have.
+    """
+    have = list(dict.fromkeys(str(n) for n in names))
+    missing = [str(k) for k in mapping.morphs if str(k) not in have]
+    if not missing:
+        return
+    said = []
+    for name in missing:
+        close = difflib.get_close_matches(name, have, n=3, cutoff=0.6) or \
+            [n for n in have if name.lower() in n.lower()][:3]
+        said.append(f"'{name}'" + (f" (closest: {', '.join(map(repr, close))})" if close else ""))
+    where = os.fspath(mapping.path) if mapping.path is not None else "the mapping JSON"
+    shown = ", ".join(map(repr, have[:8])) + (", ..." if len(have) > 8 else "")
+    one = len(missing) == 1
+    raise CaptureError(f"{where}: 'morphs' renames {'; '.join(said)}, but the character file has no morph "
+                       f"of {'that name' if one else 'those names'} (its {len(have)} morphs: {shown or 'none'})")

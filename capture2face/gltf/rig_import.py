@@ -45,11 +45,11 @@ import numpy as np
 from capture2face.errors import CaptureError
 from capture2face.gltf.container import GlbReader
 from capture2face.gltf.mapped_rig import apply_mapping
-from capture2face.gltf.mapping import Mapping, load_mapping
+from capture2face.gltf.mapping import Mapping, check_mapped_morphs, load_mapping
 from capture2face.gltf.materials import ALPHA_MODES, MATERIAL_CODES, double_sided, overlay_vertices
 from capture2face.gltf.morphs import merge_morphs
 from capture2face.gltf.own_extras import apply_own_extras, own_extras
-from capture2face.gltf.scene import mesh_nodes, world_matrices
+from capture2face.gltf.scene import check_hierarchy, mesh_nodes, world_matrices
 from capture2face.gltf.skins import head_weights, read_skeleton, skin_weights
 from capture2face.gltf.surface import scene_surface
 from capture2face.gltf.textures import ATLAS_MAX, DEFAULT_TEXTURE_SIZE, read_textures
@@ -109,9 +109,11 @@ def _build(r: GlbReader, glb: Path, mapping: Mapping, ours: dict | None) -> Face
     g = r.gltf
     face_forward(g)  # a VRM 0.x faces -z
     scale = _scale(mapping, ours)
+    check_hierarchy(g.get("nodes", []), str(glb))
     picked = mesh_nodes(g, str(glb))
     skeleton = read_skeleton(r, picked, world_matrices(g.get("nodes", [])), mapping.head_bone)
     surface = scene_surface(r, picked, skeleton, mapping, scale)
+    check_mapped_morphs(mapping, [n for p in surface.parts for n in p.morph_names])
     skin_joints, weights = skin_weights(surface.n_vertices, [(p.rows, p.bones, p.weights) for p in surface.parts])
     morphs, rules = expression_morphs(g, picked, surface.parts, merge_morphs(surface, mapping.arkit_renames()))
     tex = read_textures(r, surface.uvs, surface.gltf_material, surface.largest_material, mapping, ours)

@@ -140,20 +140,87 @@ def _same_file(path: Path, others: Iterable[Path]) -> bool:
     return False
 
 
+# The longest file name most file systems take (ext4, APFS, NTFS: 255 bytes).
+NAME_MAX = 255
+
+
+def folder_name_problem(name: str) -> str | None:
+    """Why ``name`` cannot name an output folder (``OUT/<name>``), or None.
+
+    Beside the folder in ``OUT`` a run keeps its lock (``.capture2face-<name>.lock``) and
+    staging folders (``.tmp-<name>-*``, which a later run removes as a killed run's): a
+    folder named like them would be taken for them.
+    """
+    if not name.strip():
+        return "is empty"
+    if name in (".", ".."):
+        return f"'{name}' is not a folder name"
+    if "/" in name or (os.altsep and os.altsep in name):
+        return "contains a path separator; give a plain folder name (the folder it goes in is -o)"
+    if "\0" in name:
+        return "contains a NUL character"
+    for prefix in (STAGING_PREFIX, LOCK_PREFIX):
+        if name.startswith(prefix):
+            return f"starts with '{prefix}', the name of capture2face's own hidden files beside the outputs"
+    longest = len(os.fsencode(lock_path(name).name))
+    if longest > NAME_MAX:
+        return f"is too long ({len(os.fsencode(name))} bytes; at most {len(os.fsencode(name)) - longest + NAME_MAX})"
+    return None
+
+
+def _manifest_problem(final: Path) -> str | None:
+    """Why ``final``'s existing report.json cannot tell which files an earlier run wrote
+    (unreadable, not JSON, not a run's report), or None (none there, or a run's)."""
+    path = final / MANIFEST
+    if not os.path.lexists(path):
+        return None
+    try:
+        report = json.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        return f"cannot be read ({exc.strerror or exc})"
+    except UnicodeDecodeError:
+        return "cannot be read (not UTF-8 text)"
+    except ValueError as exc:
+        return f"cannot be read (not valid JSON: {exc})"
+    if not (isinstance(report, dict) and isinstance(report.get("outputs"), list)):
+        return "is not a capture2face run's report (it lists no \"outputs\")"
+    return None
+
+
+def _folder_not_writable(final: Path) -> str | None:
+    """Why the existing folder ``final`` cannot take files, or None."""
+    if os.access(final, os.W_OK | os.X_OK):
+        return None
+    with contextlib.suppress(OSError):
+        if os.statvfs(final).f_flag & os.ST_RDONLY:
+            return "it is on a read-only file system"
+    return "it is read-only (no permission to write there)"
+
+
 def check_output_folder(final: str | os.PathLike, names: Iterable[str], known: Collection[str],
                         protect: Iterable[str | os.PathLike] = ()) -> set[str]:
     """Fail early when a run could not move ``names`` into ``final`` without touching a
     file it does not own; returns the names an earlier run owns there.
 
     Raises:
-        CaptureError: ``final`` is a file; a name to write is a protected file (the source
-            clip), a folder, or a file no run owns.
+        CaptureError: ``final`` is a file or a folder this process cannot write; its
+            report.json cannot tell the earlier run's files; a name to write is a protected
+            file (the source clip), a folder, or a file no run owns.
     """
     final = Path(final)
     if final.exists() and not final.is_dir():
         raise CaptureError(f"cannot write outputs to {final}: it is a file, not a folder")
     if not final.is_dir():
         return set()
+    names = list(names)
+    why = _folder_not_writable(final)
+    if why:
+        raise CaptureError(f"cannot write to output folder {final}: {why}; make it writable or choose "
+                           "another output folder")
+    why = _manifest_problem(final) if MANIFEST in names else None
+    if why:
+        raise CaptureError(f"{final / MANIFEST}: {why}, so which files there an earlier run wrote is unknown; "
+                           f"move {final} aside or choose another output folder")
     protect = [Path(p) for p in protect]
     owned = owned_files(final, known)
     for name in names:
@@ -256,10 +323,7 @@ def _commit(tmp: Path, final: Path, known: Collection[str], protect: list[Path])
         owned = check_output_folder(final, names, known, protect)
         stale = sorted(n for n in owned - set(names)
                        if os.path.lexists(final / n) and not _same_file(final / n, protect))
-        write_text_atomic(final / JOURNAL, json.dumps({"files": sorted(owned | set(names))}) + "\n")
-        if MANIFEST in owned:
-            with contextlib.suppress(FileNotFoundError):
-                os.unlink(final / MANIFEST)
+        _start_commit(final, sorted(owned | set(names)), MANIFEST in owned)
     except BaseException:
         _remove_empty(created)
         raise
@@ -270,6 +334,21 @@ def _commit(tmp: Path, final: Path, known: Collection[str], protect: list[Path])
             os.unlink(final / n)
     with contextlib.suppress(FileNotFoundError):
         os.unlink(final / JOURNAL)
+
+
+def _start_commit(final: Path, files: list[str], drop_manifest: bool) -> None:
+    """Steps 1 and 2 of the commit (the journal, the old report.json gone); a folder that
+    became unwritable since the checks is named, not the journal's temporary file."""
+    try:
+        write_text_atomic(final / JOURNAL, json.dumps({"files": files}) + "\n")
+        if drop_manifest:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(final / MANIFEST)
+    except OSError as exc:
+        if exc.errno in _NO_ROOM:
+            exc.filename, exc.filename2 = str(final), None
+            raise
+        raise CaptureError(f"cannot write to output folder {final}: {exc.strerror or exc}") from None
 
 
 @contextlib.contextmanager

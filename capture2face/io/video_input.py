@@ -151,6 +151,49 @@ def _reason(exc: Exception) -> str:
     return text.strip().rstrip(".") or exc.__class__.__name__
 
 
+def _too_large(width: int, height: int) -> bool:
+    """FFmpeg's own limit on a frame's size (``av_image_check_size``: 8 bytes a pixel of the
+    frame padded by 128 on each axis must stay under 2 GiB); it refuses larger ones as
+    "invalid data"."""
+    return 8 * (width + 128) * (height + 128) >= 2**31 - 1
+
+
+def image_size(path: str | os.PathLike) -> tuple[int, int] | None:
+    """(width, height) from a PNG's or a JPEG's header, without decoding it; None for
+    another format or a header that does not say."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(1 << 16)
+    except OSError:
+        return None
+    if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+        return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+    if head[:2] == b"\xff\xd8":
+        return _jpeg_size(head)
+    return None
+
+
+def _jpeg_size(head: bytes) -> tuple[int, int] | None:
+    """A JPEG's size from its first start-of-frame segment within ``head``."""
+    i = 2
+    while i + 9 <= len(head) and head[i] == 0xFF:
+        marker, length = head[i + 1], int.from_bytes(head[i + 2:i + 4], "big")
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+            return int.from_bytes(head[i + 7:i + 9], "big"), int.from_bytes(head[i + 5:i + 7], "big")
+        i += 2 + length
+    return None
+
+
+def _undecodable(p: Path, exc: Exception) -> str:
+    """The one line for a file whose first frame does not decode: an image too large for
+    FFmpeg says so (its size and the limit); anything else is damaged."""
+    size = image_size(p)
+    if size is not None and _too_large(*size):
+        return (f"{p}: the image is {size[0]}x{size[1]} pixels, too large to decode (FFmpeg's limit is "
+                "about 268 million pixels, e.g. 16000x16000); scale it down")
+    return f"{p}: no video frame could be decoded ({_reason(exc)}); the file is truncated or corrupt"
+
+
 def _rotation_of(frame, stream) -> int:
     """Counter-clockwise display rotation in degrees, a multiple of 90."""
     deg = getattr(frame, "rotation", None)  # display-matrix side data (PyAV >= 14)
@@ -187,8 +230,7 @@ def open_video(path: str | os.PathLike) -> VideoInfo:
         try:
             first = next(iter(container.decode(stream)), None)
         except Exception as exc:  # av.FFmpegError and friends: damaged data
-            raise CaptureError(f"{p}: no video frame could be decoded ({_reason(exc)}); "
-                               "the file is truncated or corrupt") from None
+            raise CaptureError(_undecodable(p, exc)) from None
         if first is None:
             raise CaptureError(f"{p}: the video stream has no frames")
         fps = _fps_of(stream)
@@ -241,8 +283,7 @@ def iter_frames(path: str | os.PathLike, max_frames: int | None = None,
                 break
             except Exception as exc:  # damaged data past this point
                 if count == 0:
-                    raise CaptureError(f"{p}: no video frame could be decoded ({_reason(exc)}); "
-                                       "the file is truncated or corrupt") from None
+                    raise CaptureError(_undecodable(p, exc)) from None
                 _report_damage(ClipDamage(
                     str(p), count, int(stream.frames or 0) or None, "decode_error",
                     f"{p}: decoding stopped after {count} frames ({_reason(exc)}); the rest of the file "

@@ -18,15 +18,9 @@ def find_face_model(path: str | os.PathLike | None = None) -> Path:
     Raises:
         CaptureError: naming the three ways to provide one when none is found.
     """
-    if path:
-        if not Path(path).is_file():
-            raise CaptureError(f"face model {path} (from --face-model) does not exist")
-        return Path(path)
-    env = os.environ.get(ENV_VAR)
-    if env:
-        if not Path(env).is_file():
-            raise CaptureError(f"face model {env} (from ${ENV_VAR}) does not exist")
-        return Path(env)
+    for given, source in ((path, "--face-model"), (os.environ.get(ENV_VAR), f"${ENV_VAR}")):
+        if given:
+            return _model_file(Path(given), source)
     bundled = bundled_face_model()
     if bundled.is_file():
         return bundled
@@ -34,6 +28,15 @@ def find_face_model(path: str | os.PathLike | None = None) -> Path:
         f"no MediaPipe face model found: the bundled {bundled} is missing (a broken "
         f"install: reinstall capture2face), or pass --face-model PATH or set ${ENV_VAR}"
     )
+
+
+def _model_file(path: Path, source: str) -> Path:
+    if path.is_dir():
+        raise CaptureError(f"face model {path} (from {source}) is a folder; give the model file itself "
+                           "(face_landmarker.task)")
+    if not path.is_file():
+        raise CaptureError(f"face model {path} (from {source}) does not exist")
+    return path
 
 
 def bundled_face_model() -> Path:

@@ -3,8 +3,9 @@ landmarks fails in seconds, not after minutes of tracking.
 
 :func:`preflight` is what :func:`capture2face.pipeline.run` calls first (and
 :func:`capture2face.batch.run_batch` once per batch for what all clips share): the options
-and their limits, the clip (it decodes; the neutral frame lies inside it), the face model,
-the character (it loads and the retargeting can drive it), and the OpenGL context.
+and their limits, the clip (it decodes; the neutral frame lies inside it), the neutral
+image or clip (it decodes), the face model, the character (it loads and the retargeting
+can drive it), and the OpenGL context.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from capture2face.io.video_input import open_video
 from capture2face.models.face_model import find_face_model
 from capture2face.render.context import gl_context
 from capture2face.rig.arkit_names import drive_mode
+from capture2face.tracking.calibration import neutral_take
 
 # A frame count estimated from the duration (no count in the container) may be low by
 # a few percent on variable-frame-rate clips: only a neutral frame clearly past the end is
@@ -36,6 +38,19 @@ def check_neutral_frame(neutral_frame: int | None, info) -> None:
         about = "" if getattr(info, "n_frames_exact", True) else "about "
         raise CaptureError(f"--neutral-frame {neutral_frame} is outside the clip "
                            f"({info.path} has {about}{n} frames: 0..{n - 1})")
+
+
+def check_neutral_take(track_options) -> None:
+    """``--neutral-image`` / ``--neutral-clip`` decodes (an image too large for FFmpeg, a
+    damaged file), as the clip does: it is tracked first, before the clip."""
+    take = neutral_take(track_options)
+    if take is None:
+        return
+    kind, path = take
+    try:
+        open_video(path)
+    except CaptureError as exc:
+        raise CaptureError(f"--neutral-{kind}: {exc}") from None
 
 
 def check_character(character: Any = None, progress: bool = False):
@@ -83,6 +98,7 @@ def preflight(clip: str | os.PathLike, options, progress: bool = False) -> tuple
     options.validate()
     info = open_video(clip)
     check_neutral_frame(options.track.neutral_frame, info)
+    check_neutral_take(options.track)
     rig = check_shared(options, progress)
     check_gl()
     return info, rig

@@ -38,7 +38,7 @@ import numpy as np
 from capture2face.errors import CaptureError, raise_if_interrupted
 from capture2face.io.atomic import write_text_atomic
 from capture2face.io.fingerprint import fingerprint
-from capture2face.io.staging import check_output_folder, staged_folder
+from capture2face.io.staging import check_output_folder, folder_name_problem, staged_folder
 from capture2face.io.video_input import watch_damage
 from capture2face.measures import clip_fidelity
 from capture2face.pipeline.options import OUTPUT_FILES, RunOptions, input_files, options_json
@@ -113,6 +113,7 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
             Nothing is left in ``out_dir`` then (nor on KeyboardInterrupt).
     """
     options = options or RunOptions()
+    _check_folder_name(clip, name)
     bound_heap()  # memory flat whatever the clip's length (see capture2face.runtime.heap)
     t_start = time.perf_counter()
     workers = start_track_workers(clip, options)  # they start up while the checks run
@@ -121,6 +122,15 @@ def run(clip: str | os.PathLike, out_dir: str | os.PathLike, options: RunOptions
     finally:
         if workers is not None:
             workers.close()
+
+
+def _check_folder_name(clip, name: str | None) -> None:
+    """The output folder's name (``--name``, else the clip's stem) is one a run can own."""
+    folder = Path(clip).stem if name is None else name
+    why = folder_name_problem(folder)
+    if why:
+        raise CaptureError(f"--name {folder!r}: {why}" if name is not None else
+                           f"{clip}: the output folder's name {folder!r} {why}; give another with --name")
 
 
 def _timed(fn, *args, **kwargs) -> float:
@@ -133,7 +143,8 @@ def _timed(fn, *args, **kwargs) -> float:
 def _run(clip, out_dir, options: RunOptions, progress: bool, name: str | None, workers, t_start: float) -> dict:
     # Bad input fails here, before anything is written or tracked: options and limits, the
     # clip, the neutral frame, the face model, a drivable character, the GL context.
-    info, rig = preflight(clip, options, progress=progress)
+    with collect_warnings() as checked:  # the character's warnings (prepared or read back) are the run's too
+        info, rig = preflight(clip, options, progress=progress)
     # What the result is made from (report.json's "inputs"; batch --resume compares them).
     inputs = {role: fingerprint(path) for role, path in input_files(clip, options).items()}
     final = Path(out_dir) / (name or Path(clip).stem)
@@ -167,7 +178,8 @@ def _run(clip, out_dir, options: RunOptions, progress: bool, name: str | None, w
         seconds["fidelity"] = time.perf_counter() - t
 
         seconds["total"] = time.perf_counter() - t_start
-        report = _report(clip, final, rig, track, info, options, outputs, seconds, list(warnings), fidelity)
+        report = _report(clip, final, rig, track, info, options, outputs, seconds, checked + list(warnings),
+                         fidelity)
         report["inputs"] = inputs
         # report.html shows the seconds up to here; report.json adds its own and the total.
         t = time.perf_counter()

@@ -209,8 +209,10 @@ class FaceRig:
         return self.pose_names.index(name)
 
     def face_size(self) -> float:
-        """Diagonal of the skin's bounding box (cm): the yardstick for tolerances."""
+        """Diagonal of the skin's bounding box (cm): the yardstick for tolerances (of every
+        vertex where a mapping marks none as skin)."""
         skin = self.vertices[self.material == 0]
+        skin = skin if len(skin) else self.vertices
         return float(np.linalg.norm(skin.max(0) - skin.min(0)))
 
     def interocular(self) -> float:

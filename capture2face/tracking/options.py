@@ -71,7 +71,10 @@ class TrackOptions:
                                       ("--neutral-clip", self.neutral_clip)) if v is not None]
         if len(given) > 1:
             raise CaptureError(f"{' and '.join(given)}: give one rest (a frame, an image or a clip), not several")
-        for flag, path in (("--neutral-image", self.neutral_image), ("--neutral-clip", self.neutral_clip)):
+        for flag, path, kind in (("--neutral-image", self.neutral_image, "an image file (a photo or still)"),
+                                 ("--neutral-clip", self.neutral_clip, "a video file")):
+            if path is not None and os.path.isdir(path):
+                raise CaptureError(f"{flag} {os.fspath(path)}: is a folder; give {kind}")
             if path is not None and not os.path.isfile(path):
                 raise CaptureError(f"{flag} {os.fspath(path)}: no such file")
         self.landmarker.validate()

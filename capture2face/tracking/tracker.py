@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from capture2face.errors import CaptureError, raise_if_interrupted
+from capture2face.errors import CaptureError, NoFaceError, raise_if_interrupted
 from capture2face.io.framestore import FrameArray
 from capture2face.io.video_input import VideoInfo, iter_frames, open_video, prefetch
 from capture2face.topology import BLENDSHAPE_NAMES, N_LANDMARKS
@@ -159,7 +159,7 @@ class TrackBuilder:
             raise CaptureError(f"{self.info.path}: no frames to track")
         presence = np.concatenate(self._presence)
         if not presence.any():
-            raise CaptureError(f"{self.info.path}: no face found in {n} frames")
+            raise NoFaceError(f"{self.info.path}: no face found in {n} frames")
         options = self.options
         width, height = self.size  # set by the first add(); n > 0 here
         t = np.asarray(self._times, np.float64)
