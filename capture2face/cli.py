@@ -430,7 +430,7 @@ def _add_eval_characters_parser(evals, common: argparse.ArgumentParser) -> None:
     p = evals.add_parser("characters", parents=[common],
                          help="a gallery: each character performing a real clip, a contact sheet and its figures")
     p.add_argument("characters", nargs="*", metavar="FILE",
-                   help="characters (.glb, FaceRig .npz, a built-in name; default: the default avatar)")
+                   help="characters (.glb, .vrm, FaceRig .npz, a built-in name; default: the default avatar)")
     p.add_argument("--clip", default=None,
                    help="the clip they perform (default: ../shared/clips/d12.mp4 beside the repository, "
                         "else sample_videos/sample.mp4)")
