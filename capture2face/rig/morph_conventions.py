@@ -14,8 +14,9 @@ a morph the table knows by that name, else 0: a one-eye blink gives way to a
 both-eyes one). The mouth's opening is split between the visemes by the lips' shape
 (``aa`` open, ``O`` round and open, ``E`` spread and half open), so the mouth opens once,
 not once per viseme; a wide-open jaw is ``aa`` whatever the corners do, joined past half
-open by ``O`` (a viseme set's widest mouth is its open shapes together). Sides are the character's own, as ARKit's (``Blink_L``: ``eyeBlinkLeft``;
-Rocketbox's ``R...``: ``...Right``).
+open by ``O`` (a viseme set's widest mouth is its open shapes together). Sides are the
+character's own, as ARKit's (``Blink_L``: ``eyeBlinkLeft``; Rocketbox's ``R...``:
+``...Right``).
 
 A character with any ARKit-named morph is driven by those alone (its visemes stay 0, as
 before): the conventions drive characters that have no ARKit name.
