@@ -101,7 +101,7 @@ def _rocketbox() -> dict:
     recipe moves both (the teeth follow the jaw)."""
     head = {
         "AE_AA_h": _OPEN, "AO_a_h": "0", "Ax_E_h": _SPREAD_OPEN, "TD_I_h": _SPREAD_CLOSED,
-        "UH_OO_h": _ROUND_OPEN, "UW_U_h": "0", "H_EST_h": "0", "FV_h": "mouthRollLower*~jawOpen", "S_h": "0",
+        "UH_OO_h": _ROUND_OR_WIDE, "UW_U_h": "0", "H_EST_h": "0", "FV_h": "mouthRollLower*~jawOpen", "S_h": "0",
         "SH_CH_h": "0", "MPB_Up_h": "mouthRollUpper", "MPB_Down_h": "press*~jawOpen", "KG_h": "0",
         "JawCompress_h": "0", "JawFront_h": "jawForward", "Chew_h": "0", "MouthOpen_h": "0", "Shout_h": "0",
         "Kiss_h": "mouthPucker", "Chin_h": "mouthShrugLower", "Glotis_h": "0",
