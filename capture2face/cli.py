@@ -296,8 +296,9 @@ def _add_face_choice_options(p: argparse.ArgumentParser) -> None:
 def _add_run_options(p: argparse.ArgumentParser) -> None:
     """The options `run` and `batch` share (RunOptions)."""
     p.add_argument("--character", metavar="FILE", default=None,
-                   help="a FaceRig .npz or a .glb: ARKit-named morphs need nothing else; a mapping "
-                        ".json beside it for face bones or other morph names")
+                   help="a FaceRig .npz, a .glb or a .vrm: ARKit-named morphs, visemes, VRM presets and Rocketbox "
+                        "expressions need nothing else; a mapping .json beside it for face bones or other "
+                        "morph names")
     p.add_argument("--wrinkles", choices=WRINKLE_DRIVERS, default="auto",
                    help="wrinkle driver: auto (each bone's progress to the reference poses, "
                         "default), zones (masked face zones), dynamic (the mesh's area change "
@@ -429,7 +430,7 @@ def _add_eval_characters_parser(evals, common: argparse.ArgumentParser) -> None:
     p = evals.add_parser("characters", parents=[common],
                          help="a gallery: each character performing a real clip, a contact sheet and its figures")
     p.add_argument("characters", nargs="*", metavar="FILE",
-                   help="characters (.glb, FaceRig .npz, a built-in name; default: the default avatar)")
+                   help="characters (.glb, .vrm, FaceRig .npz, a built-in name; default: the default avatar)")
     p.add_argument("--clip", default=None,
                    help="the clip they perform (default: ../shared/clips/d12.mp4 beside the repository, "
                         "else sample_videos/sample.mp4)")

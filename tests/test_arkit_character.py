@@ -315,12 +315,14 @@ def _static_morph_glb(path, names, extensions=()):
 def test_undrivable_character_says_what_is_missing(tmp_path):
     from capture2face.pipeline.preflight import check_character
 
-    bad = _static_morph_glb(tmp_path / "visemes.glb", ["viseme_aa", "viseme_O"])
+    bad = _static_morph_glb(tmp_path / "shapes.glb", ["Key 1", "Key 2"])
     with pytest.raises(CaptureError, match="no ARKit names and no face bones") as err:
         check_character(bad)
     assert "\n" not in str(err.value)
     ok = _static_morph_glb(tmp_path / "jaw.glb", ["Jaw_Open"])
     assert drive_mode(check_character(ok)) == "arkit"
+    visemes = _static_morph_glb(tmp_path / "visemes.glb", ["viseme_aa", "viseme_O"])  # other conventions drive
+    assert drive_mode(check_character(visemes)) == "arkit"
 
 
 @pytest.mark.parametrize("ext", ["EXT_mesh_gpu_instancing", "KHR_gaussian_splatting"])
@@ -341,7 +343,7 @@ def test_meshopt_without_its_package_is_named(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("kind", ["undrivable", "instancing"])
 def test_cli_refuses_a_bad_character_before_tracking(tmp_path, sample_clip, kind):
-    path = _static_morph_glb(tmp_path / "c.glb", ["viseme_aa"] if kind == "undrivable" else ["jawOpen"],
+    path = _static_morph_glb(tmp_path / "c.glb", ["Key 1"] if kind == "undrivable" else ["jawOpen"],
                              extensions=["EXT_mesh_gpu_instancing"] if kind == "instancing" else ())
     t0 = time.perf_counter()
     proc = subprocess.run([sys.executable, "-m", "capture2face", "run", str(sample_clip), "-o", str(tmp_path / "out"),

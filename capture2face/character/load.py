@@ -15,6 +15,7 @@ from capture2face.character.auto_wrinkles import automatic_wrinkles
 from capture2face.character.lending import lend_from_avatar
 from capture2face.character.prepared import load_prepared, preparation_key, prepared_dir, store_prepared
 from capture2face.errors import CaptureError
+from capture2face.gltf.container import CHARACTER_SUFFIXES
 from capture2face.gltf.rig_import import read_glb
 from capture2face.measures import landmark_faults
 from capture2face.rig import avatar
@@ -47,7 +48,7 @@ def load_character(character: Any = None, progress: bool = False) -> FaceRig:
     try:
         if suffix == ".npz":
             return FaceRig.load(path)
-        if suffix in (".glb", ".gltf"):
+        if suffix in CHARACTER_SUFFIXES:
             return _imported_character(path)
     except CaptureError as exc:
         # The readers turn a malformed file into CaptureError; anything else is a bug of
@@ -55,7 +56,7 @@ def load_character(character: Any = None, progress: bool = False) -> FaceRig:
         msg = str(exc)
         raise CaptureError(msg if msg.startswith(("character", str(path))) else f"character {path}: {msg}") from None
     raise CaptureError(f"character {path}: unsupported format '{suffix}'; "
-                       "use a FaceRig .npz or a .glb with its mapping .json")
+                       "use a FaceRig .npz, a .glb (with its mapping .json) or a .vrm")
 
 
 # The last .glb / .gltf character imported in this process, by _file_key: a batch (its

@@ -7,7 +7,8 @@ One animation, sampled once per frame (LINEAR), all samplers sharing one time ac
 
 * a ``weights`` channel on every mesh node with morph targets: each target takes the
   animation's weight of the rig morph of its name (the import's matching: ARKit names in
-  any spelling, the mapping JSON's ``morphs``), other targets 0;
+  any spelling, the mapping JSON's ``morphs``), other targets 0; a .vrm's rig morphs are
+  its expressions, whose binds give its targets' weights (:func:`.vrm.target_weights`);
 * the head rotation: a ``rotation`` channel on the head joint (the import's choice,
   :func:`capture2face.gltf.skins.find_head`), its rest rotation turned by the
   tracked rotation in scene axes; without a head joint, ``rotation`` and
@@ -32,6 +33,7 @@ from capture2face.gltf.mapping import load_mapping
 from capture2face.gltf.morphs import morph_key
 from capture2face.gltf.scene import parents, world_matrices
 from capture2face.gltf.skins import find_head
+from capture2face.gltf.vrm import scene_turn, target_weights
 from capture2face.io.atomic import write_bytes_atomic
 from capture2face.maths.rotations import head_rotations, nearest_rotation, quaternion_matrix, rotation_part
 from capture2face.rig.face_rig import FaceRig
@@ -104,6 +106,9 @@ def export_character_animation(source: str | os.PathLike, rig: FaceRig, animatio
             continue
         names = (mesh.get("extras") or {}).get("targetNames") or []
         w = np.zeros((F, n_targets), np.float32)
+        if rig.morph_rules is not None:  # a .vrm's morphs are its expressions: their binds, expanded
+            names = []
+            w = target_weights(gltf, ni, n_targets, {n: weights[:, src[n]] for n in rig.morph_names if n in src})
         for t, name in enumerate(names[:n_targets]):
             m = rig_keys.get(morph_key(str(name), renames)[0])
             if m is not None and rig.morph_names[m] in src:
@@ -112,7 +117,8 @@ def export_character_animation(source: str | os.PathLike, rig: FaceRig, animatio
 
     # Head rotation: on the head joint (scene-axis rotation R: local' = P^-1 R P local),
     # else on a root over the scene, about the face centre.
-    rot = _rotations(animation.head_pose, F)
+    turn = scene_turn(gltf)  # the rig's axes -> the file's (a VRM 0.x faces -z)
+    rot = np.einsum("ji,fjk,kl->fil", turn, _rotations(animation.head_pose, F), turn)
     nodes = gltf.get("nodes", [])
     world, parent = world_matrices(nodes), parents(nodes)
     joints = sorted({j for s in gltf.get("skins", []) for j in s.get("joints", [])})
@@ -133,7 +139,7 @@ def export_character_animation(source: str | os.PathLike, rig: FaceRig, animatio
         root = len(nodes) - 1
         scene["nodes"] = [root]
         scale = float(mapping.scale if mapping.scale is not None else 100.0)
-        centre = face_centre_and_height(rig)[0] / scale  # rig cm -> file units
+        centre = turn.T @ face_centre_and_height(rig)[0] / scale  # rig cm -> file units
         shift = centre - np.einsum("fij,j->fi", rot, centre)
         channel(blob.accessor(_quats(rot), "VEC4"), root, "rotation")
         channel(blob.accessor(shift.astype(np.float32), "VEC3"), root, "translation")

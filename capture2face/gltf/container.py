@@ -38,6 +38,8 @@ EYE_JOINT_NAMES = ("eye_R", "eye_L")  # the subject's right eye first, as FaceRi
 SAMPLER_LINEAR_CLAMP = {"magFilter": 9729, "minFilter": 9987, "wrapS": 33071, "wrapT": 33071}
 
 GLB_MAGIC = 0x46546C67  # "glTF"
+#: Character files the glTF reader takes: a .vrm (VRM 0.x / 1.0) is a .glb with its own extensions.
+CHARACTER_SUFFIXES = (".glb", ".gltf", ".vrm")
 
 ARRAY_BUFFER = 34962
 ELEMENT_ARRAY_BUFFER = 34963

@@ -19,7 +19,9 @@ The passes, one module each (as Blender's ``io_scene_gltf2/blender/imp``):
    joint's and those under it: eyes, jaw) become ``FaceRig.head_weights``.
 6. :mod:`.morphs`: one FaceRig morph per name over every mesh that carries it, ARKit
    names matched in any spelling; NORMAL deltas carried like the rest normals, derived
-   where missing (welded smooth normals of the morphed shape minus the rest's).
+   where missing (welded smooth normals of the morphed shape minus the rest's); a .vrm's
+   expressions replace them (:mod:`.vrm`: one morph per expression, its binds summed; a
+   VRM 0.x is turned to face +z).
 7. :mod:`.textures` with :mod:`.materials`: albedo, alpha and normal map (one set, or an
    atlas of ``ATLAS_MAX`` px when the materials need textures of their own), alpha modes,
    wrinkle maps and zone masks.
@@ -51,6 +53,7 @@ from capture2face.gltf.scene import check_hierarchy, mesh_nodes, world_matrices
 from capture2face.gltf.skins import head_weights, read_skeleton, skin_weights
 from capture2face.gltf.surface import scene_surface
 from capture2face.gltf.textures import ATLAS_MAX, DEFAULT_TEXTURE_SIZE, read_textures
+from capture2face.gltf.vrm import expression_morphs, face_forward
 from capture2face.gltf.welding import weld_ids
 from capture2face.rig.face_rig import REGION_NAMES, ZONE_NAMES, FaceRig
 from capture2face.topology import N_LANDMARKS
@@ -104,6 +107,7 @@ def _scale(mapping: Mapping, ours: dict | None) -> float:
 def _build(r: GlbReader, glb: Path, mapping: Mapping, ours: dict | None) -> FaceRig:
     """The import's passes (the module docs); then what the mapping (or our own extras) adds."""
     g = r.gltf
+    face_forward(g)  # a VRM 0.x faces -z
     scale = _scale(mapping, ours)
     check_hierarchy(g.get("nodes", []), str(glb))
     picked = mesh_nodes(g, str(glb))
@@ -111,7 +115,7 @@ def _build(r: GlbReader, glb: Path, mapping: Mapping, ours: dict | None) -> Face
     surface = scene_surface(r, picked, skeleton, mapping, scale)
     check_mapped_morphs(mapping, [n for p in surface.parts for n in p.morph_names])
     skin_joints, weights = skin_weights(surface.n_vertices, [(p.rows, p.bones, p.weights) for p in surface.parts])
-    morphs = merge_morphs(surface, mapping.arkit_renames())
+    morphs, rules = expression_morphs(g, picked, surface.parts, merge_morphs(surface, mapping.arkit_renames()))
     tex = read_textures(r, surface.uvs, surface.gltf_material, surface.largest_material, mapping, ours)
     V, B, M = surface.n_vertices, len(skeleton.bone_names), len(morphs.names)
     rest = (skeleton.bone_rest * scale).astype(np.float32)
@@ -142,6 +146,7 @@ def _build(r: GlbReader, glb: Path, mapping: Mapping, ours: dict | None) -> Face
         alpha=tex.alpha, alpha_mode=tex.alpha_mode, alpha_cutoff=tex.alpha_cutoff,
         overlay_vertices=overlay_vertices(g, surface.gltf_material, surface.largest_material,
                                           [(ni, p.rows, p.tri_count) for ni, p in zip(picked, surface.parts)]),
+        morph_rules=rules,
     )
     if ours:
         return apply_own_extras(rig.replace(head_weights=None), ours, surface)

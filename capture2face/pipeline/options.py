@@ -10,6 +10,7 @@ from typing import Any
 
 from capture2face.character.prepared import referenced_files
 from capture2face.errors import CaptureError
+from capture2face.gltf.container import CHARACTER_SUFFIXES
 from capture2face.render import RenderOptions
 from capture2face.render.context import software_gl
 from capture2face.retarget import RetargetOptions
@@ -183,7 +184,7 @@ def input_files(clip: str | os.PathLike, options: RunOptions) -> dict[str, str |
     character = options.character
     if isinstance(character, (str, os.PathLike)) and Path(character).is_file():
         files["character"] = os.fspath(character)
-        if Path(character).suffix.lower() in (".glb", ".gltf"):
+        if Path(character).suffix.lower() in CHARACTER_SUFFIXES:
             mapping = Path(character).with_suffix(".json")
             files["mapping"] = os.fspath(mapping)
             # A .gltf's .bin and textures, the maps its mapping names: by role "<owner> file:<path>".

@@ -14,6 +14,7 @@ from capture2face.errors import CaptureError
 from capture2face.export.livelink import write_livelink_csv
 from capture2face.gltf import export_glb
 from capture2face.gltf.character import export_character_animation
+from capture2face.gltf.container import CHARACTER_SUFFIXES
 from capture2face.io.video_input import open_video
 from capture2face.pipeline.options import RunOptions
 from capture2face.retarget import RetargetOptions, retarget
@@ -75,11 +76,11 @@ def export_stage(rig: FaceRig, animation, folder: str | os.PathLike, track=None,
 
 
 def _character_file(character: Any) -> Path | None:
-    """The .glb / .gltf a character option names, or None (built-in, .npz, a FaceRig)."""
+    """The .glb / .gltf / .vrm a character option names, or None (built-in, .npz, a FaceRig)."""
     if character is None or isinstance(character, FaceRig):
         return None
     path = Path(os.fspath(character))
-    return path if path.suffix.lower() in (".glb", ".gltf") and path.is_file() else None
+    return path if path.suffix.lower() in CHARACTER_SUFFIXES and path.is_file() else None
 
 
 def avatar_head_poses(rig: FaceRig, head_pose: np.ndarray, fov_y_degrees: float) -> np.ndarray:

@@ -22,9 +22,10 @@ from capture2face.retarget.rbf import FeatureMap, fit_feature_map
 from capture2face.retarget.solve import LinearSolver, linear_rig_model
 from capture2face.retarget.windows import MappedPoints, SpilledMedian, frame_windows
 from capture2face.rig import influences as inf
-from capture2face.rig.arkit_names import arkit_weights, drive_mode
+from capture2face.rig.arkit_names import arkit_morphs, arkit_weights, drive_mode
 from capture2face.rig.avatar import close_lips
 from capture2face.rig.feature_points import feature_correspondence, feature_positions
+from capture2face.rig.morph_conventions import apply_rules
 from capture2face.tracking.rest import REGIONS, ActorRest, actor_rest, landmark_regions
 
 
@@ -352,12 +353,15 @@ def _retarget_arkit(track, rest: ActorRest, rig, options: RetargetOptions) -> An
     :func:`~capture2face.retarget.arkit.arkit_curves`) as the prior and as the weights of
     what the points cannot see (:mod:`capture2face.retarget.arkit_solve`); without
     landmark points on its skin (or ``solve_blend_weights`` off) its ARKit-named morphs
-    take the curves. Bones stay at rest (the head rotation is the animation's head pose)."""
+    take the curves. A character without ARKit names (visemes, VRM presets) takes its
+    morphs' recipes of the curves (:mod:`capture2face.rig.morph_conventions`), with its
+    VRM expression rules. Bones stay at rest (the head rotation is the animation's head pose)."""
     curves = arkit_curves(track, rest)
     weights = arkit_weights(list(track.blendshape_names), curves, rig.morph_names)
     landmarks = _skin_landmarks(rig)
-    if options.solve_blend_weights and landmarks is not None:
+    if options.solve_blend_weights and landmarks is not None and arkit_morphs(rig.morph_names):
         weights = _solve_arkit_weights(track, rest, rig, landmarks, weights, options)
+    weights = apply_rules(weights, rig.morph_rules)
     bones = np.repeat(rig.bone_rest[None].astype(np.float32), track.n_frames, 0)
     # Automatic feature points (character.auto_wrinkles) measure the influences where the
     # morphs carry them; as bones they stay at rest (the morphs deform the face).

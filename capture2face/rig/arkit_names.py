@@ -8,7 +8,8 @@ Ready Player Me), ``EyeBlinkLeft`` (Live Link), ``eyeBlink_L`` (Face Cap),
 
 :func:`drive_mode` says how the retargeting drives a rig: ``"bones"`` (Dutreve's
 feature-point path: landmark vertices or face bones tied to tracker landmarks) or
-``"arkit"`` (no face bones: the clip's ARKit curves drive every morph of that name).
+``"arkit"`` (no face bones: the clip's ARKit curves drive every morph of that name, or,
+without ARKit names, the visemes and presets of :mod:`capture2face.rig.morph_conventions`).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import numpy as np
 
 from capture2face.errors import CaptureError
 from capture2face.rig.feature_points import AUTO_PREFIX, feature_correspondence
+from capture2face.rig.morph_conventions import convention_morphs, convention_weights
 from capture2face.topology import ARKIT_NAMES  # Apple's 52 (re-exported: rig.arkit_names.ARKIT_NAMES)
 
 _BY_KEY = {n.lower(): n for n in ARKIT_NAMES}
@@ -75,6 +77,16 @@ def arkit_morphs(morph_names: list[str]) -> dict[int, str]:
     return out
 
 
+def driven_morphs(morph_names: list[str]) -> dict[int, str]:
+    """{morph index: name} of the morphs the ARKit curves drive: the ARKit-named ones, or,
+    where a character has none, those another convention names
+    (:mod:`capture2face.rig.morph_conventions`: visemes, VRM presets, Rocketbox)."""
+    named = arkit_morphs(morph_names)
+    if named:
+        return named
+    return {m: name for m, (_, name) in convention_morphs(morph_names).items()}
+
+
 def has_face_bones(rig) -> bool:
     """True when Dutreve's feature-point retargeting can drive ``rig`` (landmark vertices
     on its skin, or at least 4 bones tied to tracker landmarks)."""
@@ -99,11 +111,11 @@ def drive_mode(rig) -> str:
     Raises:
         CaptureError: neither; the message says what is missing.
     """
-    if is_automatic(rig) and arkit_morphs(rig.morph_names):
+    if is_automatic(rig) and driven_morphs(rig.morph_names):
         return "arkit"
     if has_face_bones(rig):
         return "bones"
-    if arkit_morphs(rig.morph_names):
+    if driven_morphs(rig.morph_names):
         return "arkit"
     names = ", ".join(rig.morph_names[:4]) + (", ..." if rig.n_morphs > 4 else "")
     have = (f"its {rig.n_morphs} morph targets ({names}) have no ARKit names" if rig.n_morphs
@@ -113,7 +125,9 @@ def drive_mode(rig) -> str:
 
 
 def arkit_weights(arkit_names: list[str], arkit_curves: np.ndarray, morph_names: list[str]) -> np.ndarray:
-    """(F, M) float32 morph weights: each ARKit-named morph takes its curve, others 0.
+    """(F, M) float32 morph weights: each ARKit-named morph takes its curve, others 0; a
+    character without ARKit names: its visemes, VRM presets, ... from the curves
+    (:func:`~capture2face.rig.morph_conventions.convention_weights`).
 
     Args:
         arkit_names: S curve names (``Animation.arkit_names``).
@@ -121,6 +135,8 @@ def arkit_weights(arkit_names: list[str], arkit_curves: np.ndarray, morph_names:
         morph_names: M morph names of the character (any spelling).
     """
     curves = np.asarray(arkit_curves, np.float32)
+    if not arkit_morphs(morph_names):
+        return convention_weights(arkit_names, curves, morph_names)
     index = {n: i for i, n in enumerate(arkit_names)}
     out = np.zeros((len(curves), len(morph_names)), np.float32)
     for m, name in arkit_morphs(morph_names).items():

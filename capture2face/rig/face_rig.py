@@ -115,6 +115,11 @@ class FaceRig:
             as glTF renders single-sided materials; the built-in avatar is closed and wound
             consistently (the back of its head never shows), and culling halves what a
             software renderer rasterizes.
+        morph_rules: (M, 5) int8 VRM expression rules per morph (a .vrm's expressions are
+            its morphs, :mod:`capture2face.gltf.vrm`): isBinary (0/1), overrideBlink,
+            overrideLookAt, overrideMouth (0 none, 1 block, 2 blend) and the override group
+            the morph is in (0 none, else the column of that override); None: no rules
+            (:func:`capture2face.rig.morph_conventions.apply_rules`).
         alpha: (H, W) uint8 base-colour alpha (glTF: the texture's alpha times the factor's),
             read where ``alpha_mode`` says MASK or BLEND; None: every vertex opaque.
         alpha_mode: (V,) uint8 glTF alpha mode of each vertex's material: 0 OPAQUE, 1 MASK
@@ -167,6 +172,7 @@ class FaceRig:
     landmark_faces: np.ndarray | None = None
     landmark_bary: np.ndarray | None = None
     overlay_vertices: np.ndarray | None = None
+    morph_rules: np.ndarray | None = None
 
     @property
     def has_eyes(self) -> bool:

@@ -1,0 +1,273 @@
+"""Characters without ARKit names: visemes, Ready Player Me's legacy morphs, VRM presets
+(0.x and 1.0, with their rules) and the Rocketbox set, driven from the ARKit curves
+(capture2face.rig.morph_conventions), .vrm files read (capture2face.gltf.vrm), and the
+shared files of each kind run end to end."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+
+import numpy as np
+import pytest
+
+from capture2face.errors import CaptureError
+from capture2face.gltf.container import ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER, GlbBuilder, GlbReader
+from capture2face.rig.arkit_names import arkit_weights, drive_mode, driven_morphs
+from capture2face.rig.morph_conventions import (
+    DERIVED,
+    RECIPES,
+    RULE_BINARY,
+    RULE_BLINK,
+    RULE_GROUP,
+    apply_rules,
+    convention_weights,
+    parse_recipe,
+)
+from capture2face.topology import ARKIT_NAMES
+from tests.helpers import REPO, problems, shared_character, shared_clip, validate
+
+SAMPLE = REPO / "sample_videos" / "sample.mp4"  # 120 frames
+
+VISEMES = [f"viseme_{v}" for v in ("sil", "PP", "FF", "TH", "DD", "kk", "CH", "SS", "nn", "RR", "aa", "E", "I", "O",
+                                   "U")]
+VRM0 = ["a", "i", "u", "e", "o", "blink", "blink_l", "blink_r", "joy", "angry", "sorrow", "fun", "lookup",
+        "lookdown", "lookleft", "lookright"]
+VRM1 = ["aa", "ih", "ou", "ee", "oh", "blink", "blinkLeft", "blinkRight", "happy", "angry", "sad", "relaxed",
+        "surprised", "lookUp", "lookDown", "lookLeft", "lookRight"]
+
+
+def _curves(**values) -> np.ndarray:
+    """(1, 52) ARKit curves, the named ones set."""
+    c = np.zeros((1, len(ARKIT_NAMES)), np.float32)
+    for name, v in values.items():
+        c[0, ARKIT_NAMES.index(name)] = v
+    return c
+
+
+def _weights(names, **values) -> dict[str, float]:
+    w = convention_weights(ARKIT_NAMES, _curves(**values), names)[0]
+    return dict(zip(names, w.tolist()))
+
+
+def test_every_recipe_parses_and_names_known_channels():
+    for table in RECIPES.values():
+        for recipe in table.values():
+            for term in parse_recipe(recipe):
+                assert all(f in DERIVED or f in ARKIT_NAMES for f, _ in term.factors)
+    with pytest.raises(ValueError, match="unknown channel"):
+        parse_recipe("jawOpen*mouthWide")
+
+
+@pytest.mark.parametrize("names,open_,closed", [(VISEMES, "viseme_aa", "viseme_PP"), (VRM0, "a", "i"),
+                                                 (VRM1, "aa", "ih"), (["mouthOpen", "mouthSmile"], "mouthOpen",
+                                                                      "mouthSmile"),
+                                                 (["h_expressions.AE_AA_h", "h_expressions.MPB_Down_h",
+                                                   "h_teeth.t_AE_AA_h"], "h_expressions.AE_AA_h",
+                                                  "h_expressions.MPB_Down_h")])
+def test_a_wide_open_jaw_opens_the_open_shape_only(names, open_, closed):
+    w = _weights(names, jawOpen=1.0)
+    assert w[open_] > 0.5 and w[closed] < 0.05
+    half = _weights(names, jawOpen=0.5)
+    assert half[open_] == 0.5 and sum(half.values()) <= 0.5 + 1e-6 or "h_teeth.t_AE_AA_h" in w  # opens once
+    pressed = _weights(names, mouthPressLeft=1.0, mouthPressRight=1.0)
+    assert all(v < 0.05 for k, v in pressed.items() if k == open_)
+
+
+def test_lip_shapes_pick_their_viseme():
+    assert _weights(VISEMES, jawOpen=0.8, mouthFunnel=0.9)["viseme_O"] > 0.5
+    assert _weights(VISEMES, mouthPucker=0.9)["viseme_U"] > 0.5
+    assert _weights(VISEMES, mouthPressLeft=0.8, mouthPressRight=0.8)["viseme_PP"] > 0.5
+    spread = _weights(VISEMES, jawOpen=0.45, mouthStretchLeft=1.0, mouthStretchRight=1.0)
+    assert spread["viseme_E"] > 0.4 and spread["viseme_aa"] < 0.1  # half open and spread: E
+    scream = _weights(VISEMES, jawOpen=1.0, mouthSmileLeft=0.6, mouthSmileRight=0.6)
+    assert scream["viseme_aa"] == 1.0 and scream["viseme_E"] == 0.0  # wide open: aa whatever the corners do
+    assert scream["viseme_O"] == 1.0  # and the round-open shape with it: the set's widest mouth
+    assert _weights(VRM0, jawOpen=1.0, mouthSmileLeft=0.6, mouthSmileRight=0.6)["fun"] == 0.0  # speech wins
+
+
+def test_blinks_keep_their_side_and_give_way_to_a_both_eyes_blink():
+    assert _weights(["blink_l", "blink_r"], eyeBlinkLeft=1.0) == {"blink_l": 1.0, "blink_r": 0.0}
+    both = _weights(VRM0, eyeBlinkLeft=1.0, eyeBlinkRight=1.0)
+    assert both["blink"] == 1.0 and both["blink_l"] == 0.0 and both["blink_r"] == 0.0
+    one = _weights(VRM1, eyeBlinkLeft=1.0)
+    assert one["blinkLeft"] == 1.0 and one["blinkRight"] == 0.0 and one["blink"] == 0.0
+    rb = _weights(["h_expressions.ReyeClose_h", "h_expressions.LeyeClose_h"], eyeBlinkLeft=0.9)
+    assert rb == {"h_expressions.ReyeClose_h": 0.0, "h_expressions.LeyeClose_h": pytest.approx(0.9)}
+
+
+def test_expressions_follow_the_face():
+    joy = _weights(VRM0, mouthSmileLeft=1, mouthSmileRight=1, cheekSquintLeft=0.8, cheekSquintRight=0.8)
+    assert joy["joy"] > 0.7 and joy["angry"] == 0 and joy["sorrow"] == 0
+    calm = _weights(VRM1, mouthSmileLeft=0.8, mouthSmileRight=0.8)
+    assert calm["relaxed"] > 0.7 and calm["happy"] == 0
+    assert _weights(VRM0, browDownLeft=1, browDownRight=1, noseSneerLeft=1, noseSneerRight=1)["angry"] == 1
+    assert _weights(VRM1, browInnerUp=1)["sad"] == 1
+    assert _weights(VRM1, browOuterUpLeft=1, browOuterUpRight=1, eyeWideLeft=1, eyeWideRight=1)["surprised"] == 1
+    look = _weights(VRM1, eyeLookOutLeft=1, eyeLookInRight=1)
+    assert look["lookLeft"] == 1 and look["lookRight"] == 0
+
+
+def test_arkit_names_win_over_other_conventions():
+    names = ["jawOpen", "eyeBlinkLeft", "viseme_aa", "viseme_O"]
+    w = arkit_weights(ARKIT_NAMES, _curves(jawOpen=1, mouthFunnel=1), names)[0]
+    assert w.tolist() == [1.0, 0.0, 0.0, 0.0]  # visemes stay 0 beside ARKit names, as before
+    assert driven_morphs(names) == {0: "jawOpen", 1: "eyeBlinkLeft"}
+    assert driven_morphs(["Key 1", "viseme_aa"]) == {1: "viseme_aa"}
+
+
+def test_vrm_rules_binary_and_overrides():
+    w = np.array([[0.4, 0.6, 0.9, 0.3], [0.6, 0.0, 0.9, 0.3]], np.float32)  # blinkLeft, happy, aa, blink
+    rules = np.zeros((4, 5), np.int8)
+    rules[0, RULE_BINARY] = 1
+    rules[0, RULE_GROUP] = rules[3, RULE_GROUP] = RULE_BLINK
+    rules[1, RULE_BLINK] = 1  # happy blocks blinks while on
+    out = apply_rules(w, rules)
+    np.testing.assert_allclose(out[:, 0], [0.0, 1.0])  # binary, then not blocked when happy is 0
+    np.testing.assert_allclose(out[:, 3], [0.0, 0.3])
+    rules[1, RULE_BLINK] = 2  # blend: scaled by 1 - happy
+    np.testing.assert_allclose(apply_rules(w, rules)[0, 3], 0.3 * 0.4, rtol=1e-5)
+    assert apply_rules(w, None) is w
+
+
+# ---- VRM files -----------------------------------------------------------------------------------------
+def _vrm1(path, names=("jaw", "blink_L", "blink_R"), expressions=None):
+    """A one-mesh VRM 1.0 character: a quad per target name, and the given expressions."""
+    bld = GlbBuilder()
+    pos = np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0], [0.1, 0.1, 0]], np.float32)
+    targets = []
+    for k in range(len(names)):
+        d = np.zeros_like(pos)
+        d[k % 4, 2] = 0.01 * (k + 1)
+        targets.append({"POSITION": bld.accessor(d, ARRAY_BUFFER, minmax=True)})
+    bld.add("meshes", {"primitives": [{"attributes": {"POSITION": bld.accessor(pos, ARRAY_BUFFER, minmax=True)},
+                                       "indices": bld.accessor(np.array([0, 1, 2, 2, 1, 3], np.uint16),
+                                                               ELEMENT_ARRAY_BUFFER),
+                                       "targets": targets}], "extras": {"targetNames": list(names)}})
+    bld.add("nodes", {"mesh": 0})
+    bld.gltf["scenes"] = [{"nodes": [0]}]
+    bld.gltf["extensionsUsed"] = ["VRMC_vrm"]
+    bld.gltf["extensions"] = {"VRMC_vrm": {"specVersion": "1.0", "expressions": expressions or {
+        "preset": {"aa": {"morphTargetBinds": [{"node": 0, "index": 0, "weight": 1.0}]},
+                   "blinkLeft": {"morphTargetBinds": [{"node": 0, "index": 1, "weight": 1.0}], "isBinary": True},
+                   "happy": {"morphTargetBinds": [{"node": 0, "index": 0, "weight": 0.5}],
+                             "overrideBlink": "block", "materialColorBinds": [{"material": 0}]}},
+        "custom": {"neither": {"morphTargetBinds": []}}}}}
+    path.write_bytes(bld.to_bytes())
+    return path
+
+
+def test_vrm1_expressions_become_the_rigs_morphs(tmp_path, caplog):
+    from capture2face.gltf.rig_import import import_glb
+
+    rig = import_glb(_vrm1(tmp_path / "c.vrm"))
+    assert rig.morph_names == ["aa", "blinkLeft", "happy"] and drive_mode(rig) == "arkit"
+    assert rig.morph_rules[:, RULE_BINARY].tolist() == [0, 1, 0]
+    assert rig.morph_rules[2, RULE_BLINK] == 1 and rig.morph_rules[1, RULE_GROUP] == RULE_BLINK
+    np.testing.assert_allclose(rig.morph_positions[2], 0.5 * rig.morph_positions[0])  # binds summed
+    assert "material binds" in caplog.text and "happy" in caplog.text
+
+
+def test_vrm_with_nothing_bound_keeps_the_refusal(tmp_path):
+    from capture2face.pipeline.preflight import check_character
+
+    path = _vrm1(tmp_path / "c.vrm", names=("Key 1",), expressions={"preset": {"aa": {"morphTargetBinds": []}}})
+    with pytest.raises(CaptureError, match="no ARKit names and no face bones"):
+        check_character(path)
+
+
+def test_vrm_animation_carries_the_expressions_on_the_files_targets(tmp_path):
+    from capture2face.gltf.character import export_character_animation
+    from capture2face.gltf.rig_import import import_glb
+    from tests.helpers import make_animation
+
+    src = _vrm1(tmp_path / "c.vrm")
+    rig = import_glb(src)
+    anim = make_animation(rig, frames=4)
+    anim.blend_weights[:] = np.array([[0.2, 1.0, 0.4]] * 4, np.float32)  # aa, blinkLeft, happy
+    out = tmp_path / "animation.glb"
+    export_character_animation(src, rig, anim, out)
+    r = GlbReader(out)
+    sampler = r.gltf["animations"][0]["samplers"][r.gltf["animations"][0]["channels"][0]["sampler"]]
+    w = r.accessor(sampler["output"]).reshape(4, -1)
+    np.testing.assert_allclose(w[0], [0.2 + 0.5 * 0.4, 1.0, 0.0], rtol=1e-6)  # jaw target: aa + happy's half
+    assert validate(out)["issues"]["numErrors"] == 0
+
+
+# ---- the shared files, end to end ----------------------------------------------------------------------
+SHARED = ["rpm_male_goatee_glasses_visemes_only.glb", "godette_vrm0_presets.vrm",
+          "valid_rocketbox_Black_M_2_Busi.glb"]
+MOUTH = {"rpm_male_goatee_glasses_visemes_only.glb": ["viseme_aa", "viseme_O", "viseme_E"],
+         "godette_vrm0_presets.vrm": ["a", "o", "e"],
+         "valid_rocketbox_Black_M_2_Busi.glb": ["h_expressions.AE_AA_h", "h_expressions.UH_OO_h",
+                                                "h_expressions.Ax_E_h"]}
+
+
+def test_godette_imports_facing_forward_with_its_presets():
+    from capture2face.character.load import load_character
+
+    rig = load_character(shared_character("godette_vrm0_presets.vrm"))
+    assert {"a", "i", "u", "e", "o", "blink", "blink_l", "blink_r", "joy"} <= set(rig.morph_names)
+    face = np.linalg.norm(rig.morph_positions, axis=2).max(0) > 0
+    assert rig.vertices[face, 2].mean() > rig.vertices[:, 2].mean()  # the face is in front (+z)
+    left = np.linalg.norm(rig.morph_positions[rig.morph_names.index("blink_l")], axis=1) > 0.5
+    assert rig.vertices[left, 0].mean() > 0  # Blink_L closes the character's left eye (+x)
+    assert rig.morph_rules[rig.morph_names.index("blink_l"), RULE_BINARY] == 1
+
+
+@pytest.mark.parametrize("name", SHARED)
+def test_shared_character_runs_and_its_animation_validates(tmp_path, name):
+    from capture2face.pipeline import RunOptions, run
+    from capture2face.render import RenderOptions
+    from capture2face.retarget.animation import Animation
+
+    report = run(SAMPLE, tmp_path, RunOptions(character=shared_character(name), render=RenderOptions(size=128)),
+                 progress=False)
+    out = tmp_path / SAMPLE.stem
+    assert (out / "avatar.mp4").stat().st_size > 0 and report
+    found = validate(out / "animation.glb")
+    assert found["issues"]["numErrors"] == 0, problems(found, 0)
+    anim = Animation.load(out / "animation.npz")
+    assert anim.blend_weights.max() > 0.1  # the face moves
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", SHARED)
+def test_shared_character_opens_its_mouth_on_a_real_clip(tmp_path, name):
+    from capture2face.pipeline import RunOptions, run
+    from capture2face.render import RenderOptions
+    from capture2face.retarget.animation import Animation
+
+    run(shared_clip("d18.mp4"), tmp_path, RunOptions(character=shared_character(name),
+                                                     render=RenderOptions(size=128)), progress=False)
+    anim = Animation.load(tmp_path / "d18" / "animation.npz")
+    mouth = [anim.blend_names.index(n) for n in MOUTH[name]]
+    assert np.percentile(anim.blend_weights[:, mouth].sum(1), 99) > 0.3
+
+
+def test_vrm_animation_plays_in_threejs(tmp_path):
+    """three.js's GLTFLoader loads Godette's animation.glb and plays the expressions on the
+    file's own targets (tools/threejs_check/load_node.mjs)."""
+    import shutil
+
+    three = REPO / "tools" / "threejs_check"
+    if shutil.which("node") is None or not (three / "node_modules" / "three" / "package.json").is_file():
+        pytest.skip("three.js for node not installed (tests/test_real_files.py installs it)")
+    from capture2face.character.load import load_character
+    from capture2face.gltf.character import export_character_animation
+    from capture2face.retarget import retarget
+    from tests.helpers import synthetic_track
+
+    src = shared_character("godette_vrm0_presets.vrm")
+    rig = load_character(src)
+    track, _ = synthetic_track()
+    frame = 45  # the jaw wide open
+    out = tmp_path / "animation.glb"
+    export_character_animation(src, rig, retarget(track, rig), out)
+    proc = subprocess.run(["node", str(three / "load_node.mjs"), str(out), str(frame / track.fps)],
+                          capture_output=True, text=True, timeout=120, check=False)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    found = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert found["clip"] == "performance"
+    ah = found["weights"][next(iter(found["weights"]))][5]  # FaceMesh's "ah" target, bound by preset A
+    assert ah > 0.3
