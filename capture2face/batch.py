@@ -273,7 +273,8 @@ def _option_key(name: str, value: Any) -> Any:
     default avatar also as None), numbers as numbers."""
     if name == "character" and value in (None, "default"):
         return "default"
-    if name in ("character", "face_model") and isinstance(value, str) and Path(value).exists():
+    if name in ("character", "face_model", "neutral_image", "neutral_clip") and isinstance(value, str) \
+            and Path(value).exists():
         return str(Path(value).resolve())
     if isinstance(value, float) and value.is_integer():
         return int(value)

@@ -10,6 +10,7 @@ import pytest
 
 from capture2face import cli
 from capture2face.batch import expand_inputs
+from capture2face.pipeline import RunOptions
 
 
 def _entries(out: Path) -> dict[str, dict]:
@@ -159,3 +160,21 @@ def test_resume_reruns_a_gltf_whose_bin_or_texture_changed(sample_clip, tmp_path
         fh.write(b"\0" * 16)
     entry = resume()
     assert entry["status"] == "ok" and f"character file {folder / 'character.bin'} changed" in entry["rerun"], entry
+
+
+def test_every_file_option_is_stored_by_absolute_path(tmp_path, monkeypatch):
+    """A rest take or face model given relative to the working folder is stored absolute,
+    like the character: a resume from another folder compares the same files."""
+    from capture2face.pipeline.options import options_json
+    from capture2face.tracking import LandmarkerOptions, TrackOptions
+
+    for name in ("rest.png", "rest.mp4", "model.task"):
+        (tmp_path / name).write_bytes(b"x")
+    monkeypatch.chdir(tmp_path)
+    track = TrackOptions(neutral_image="rest.png", landmarker=LandmarkerOptions(face_model="model.task"))
+    stored = options_json(RunOptions(track=track))
+    assert stored["neutral_image"] == str(tmp_path / "rest.png")
+    assert stored["face_model"] == str(tmp_path / "model.task")
+    stored = options_json(RunOptions(track=TrackOptions(neutral_clip="rest.mp4")))
+    assert stored["neutral_clip"] == str(tmp_path / "rest.mp4")
+    assert options_json(RunOptions(track=TrackOptions(neutral_clip="gone.mp4")))["neutral_clip"] == "gone.mp4"

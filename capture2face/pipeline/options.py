@@ -127,6 +127,8 @@ def run_render_options(options: RunOptions) -> RenderOptions:
 _JSON_FIELDS = ("character", "wrinkles", "size", "neutral_frame", "neutral_image", "neutral_clip", "face_model",
                 "compare", "samples", "crf", "preset", "queue_frames", "allow_truncated", "audio", "faces", "face",
                 "track_workers")
+#: The options that name a file: stored by absolute path.
+_FILE_FIELDS = ("character", "neutral_image", "neutral_clip", "face_model")
 #: What run sets in its RenderOptions itself (not the user's to change).
 _RUN_SETS = {"render": {"samples", "fxaa", "influence_output"}}
 
@@ -142,7 +144,7 @@ def options_json(options: RunOptions) -> dict:
             v = v.name
         elif isinstance(v, os.PathLike):
             v = os.fspath(v)
-        if name == "character" and isinstance(v, str) and Path(v).exists():
+        if name in _FILE_FIELDS and isinstance(v, str) and Path(v).exists():
             v = os.path.abspath(v)  # a file: found again from any folder (eval fidelity RUN_DIR, batch --resume)
         out[name] = v
     for part in ("track", "render", "retarget"):
