@@ -36,10 +36,11 @@ def test_a_head_whose_wrinkles_cannot_be_baked_keeps_its_landmarks(hero, tmp_pat
     so every measured landmark has a place (eval fidelity --character works)."""
     from capture2face.character.load import load_character
     from capture2face.measures import MEASURED
-    from capture2face.rig.arkit_names import is_automatic
+    from capture2face.rig.arkit_names import drive_mode, is_automatic
 
     rig = load_character(rewrite(hero, tmp_path / "nouvs.glb", _no_uvs))
     assert not is_automatic(rig)  # no wrinkle influences
+    assert drive_mode(rig) == "arkit"  # its landmarks measure; the ARKit curves still drive it
     assert rig.landmark_source == "tracker front view"
     assert rig.landmark_faces is not None and _placed(rig, MEASURED)
 
