@@ -40,7 +40,7 @@ import logging
 import numpy as np
 from scipy.spatial import cKDTree
 
-from capture2face.character.landmarks import with_surface_landmarks
+from capture2face.character.landmarks import pose_weights, with_surface_landmarks
 from capture2face.errors import CaptureError
 from capture2face.maths.rotations import similarity
 from capture2face.rig.arkit_names import arkit_morphs
@@ -73,11 +73,14 @@ def automatic_wrinkles(rig: FaceRig) -> FaceRig:
         CaptureError: no face found in its front view, too few ARKit pose morphs, or UVs
             on which the wrinkle maps cannot be baked.
     """
-    by_name = {a: m for m, a in arkit_morphs(rig.morph_names).items()}
-    if not any(n in by_name for names in POSES.values() for n in names):
-        raise CaptureError(f"character '{rig.name}': none of the brow / eye / nose ARKit morphs that make "
+    # The poses' morph mixes: its ARKit morphs, else the presets / Rocketbox morphs they drive.
+    pose_names = list(POSES)
+    pose_w = np.stack([pose_weights(rig, POSES[p]) for p in pose_names]).astype(np.float32)
+    if not pose_w.any():
+        raise CaptureError(f"character '{rig.name}': none of the brow / eye / nose morphs that make "
                            "its wrinkle reference poses")
-    rig = with_surface_landmarks(rig)
+    if rig.landmark_faces is None:  # cast here where the loader has not (a rig built in code)
+        rig = with_surface_landmarks(rig)
     lmv = rig.landmark_vertices
     points = landmark_points(rig, rig.vertices).astype(np.float64)  # (L, 3) on the surface
     avatar = default_avatar()
@@ -90,12 +93,6 @@ def automatic_wrinkles(rig: FaceRig) -> FaceRig:
     feature_lm = avatar.bone_landmarks[face_bones]
     rest = np.concatenate([rig.bone_rest, points[feature_lm]]).astype(np.float32)
     # Reference poses: every feature vertex under the pose's morph mix.
-    pose_names = list(POSES)
-    pose_w = np.zeros((len(pose_names), rig.n_morphs), np.float32)
-    for p, pname in enumerate(pose_names):
-        for n in POSES[pname]:
-            if n in by_name:
-                pose_w[p, by_name[n]] = 1.0
     pose_bones = np.repeat(rest[None], len(pose_names), 0)
     verts, bary, _ = landmark_support(rig, feature_lm)  # (n, 3) each: barycentric on the surface
     travel = np.einsum("pm,mnjc,nj->pnc", pose_w, rig.morph_positions[:, verts], bary)  # (P, n, 3)

@@ -35,11 +35,12 @@ from capture2face.camera import framing_pose, project
 from capture2face.errors import CaptureError
 from capture2face.measures import landmark_faults
 from capture2face.render import FrameState, Renderer, RenderOptions
-from capture2face.rig.arkit_names import arkit_morphs
+from capture2face.rig.arkit_names import arkit_weights
 from capture2face.rig.deform import deform
 from capture2face.rig.face_rig import FaceRig
 from capture2face.runtime.log import log
 from capture2face.topology import (
+    ARKIT_NAMES,
     IOD_PAIR,
     LID_LOWER_LEFT,
     LID_LOWER_RIGHT,
@@ -133,7 +134,6 @@ def find_surface_landmarks(rig: FaceRig) -> SurfaceLandmarks:
     opts = RenderOptions(size=RENDER_SIZE, wrinkles="off", samples=4)
     fov = opts.fov_y_degrees
     pose = framing_pose(rig, fov_y_degrees=fov)
-    by_name = {a: m for m, a in arkit_morphs(rig.morph_names).items()}
     with Renderer(rig, opts) as renderer, \
             FaceLandmarker.create_from_options(LandmarkerOptions(num_faces=1, still_images=True)) as landmarker:
         rest = _tracked_view(renderer, landmarker, rig, pose)
@@ -141,15 +141,15 @@ def find_surface_landmarks(rig: FaceRig) -> SurfaceLandmarks:
             raise CaptureError(f"character '{rig.name}': the tracker finds no face in its front view")
         out = _cast_view(rig, rest, fov)
         for names, groups, weights, always, what in OPENED_VIEWS:
-            morphs = [by_name[n] for n in names if n in by_name]
-            for k, weight in enumerate(weights if morphs else ()):
+            opens = pose_weights(rig, names)  # the ARKit morphs, else the visemes / presets they drive
+            for k, weight in enumerate(weights if opens.any() else ()):
                 todo = groups
                 if k or not always:  # a fallback: only for the measures the landmarks so far fail
                     faults = landmark_faults(rig.replace(landmark_faces=out.faces, landmark_bary=out.bary,
                                                          landmark_vertices=out.vertices))
                     todo = {m: rows for m, rows in groups.items() if m in faults}
                 if todo:
-                    _recast(rig, out, _tracked_view(renderer, landmarker, rig, pose, weight, morphs),
+                    _recast(rig, out, _tracked_view(renderer, landmarker, rig, pose, weight * opens),
                             fov, [r for rows in todo.values() for r in rows], what)
     return out
 
@@ -166,12 +166,20 @@ def _recast(rig: FaceRig, out: SurfaceLandmarks, view, fov_y_degrees: float, row
     out.faces[rows], out.bary[rows], out.vertices[rows] = cast.faces[rows], cast.bary[rows], cast.vertices[rows]
 
 
-def _tracked_view(renderer: Renderer, landmarker, rig: FaceRig, pose: np.ndarray, weight: float = 0.0,
-                  morphs=()):
-    """The :class:`_View` of the rig with ``morphs`` (indices) at ``weight``, the others at
-    0, or None where the tracker finds no face."""
-    weights = np.zeros(rig.n_morphs, np.float32)
-    weights[list(morphs)] = weight
+def pose_weights(rig: FaceRig, names, weight: float = 1.0) -> np.ndarray:
+    """(M,) float32 the rig's morph weights for the ARKit curves ``names`` at ``weight`` (the
+    rest 0): its ARKit morphs of those names, or, on a character without ARKit names, the
+    visemes / presets / Rocketbox morphs the curves drive
+    (:func:`~capture2face.rig.arkit_names.arkit_weights`)."""
+    curves = np.zeros((1, len(ARKIT_NAMES)), np.float32)
+    curves[0, [ARKIT_NAMES.index(n) for n in names]] = weight
+    return arkit_weights(ARKIT_NAMES, curves, rig.morph_names)[0]
+
+
+def _tracked_view(renderer: Renderer, landmarker, rig: FaceRig, pose: np.ndarray, weights=None):
+    """The :class:`_View` of the rig with morph ``weights`` (M,) (None: all 0), or None
+    where the tracker finds no face."""
+    weights = np.zeros(rig.n_morphs, np.float32) if weights is None else np.asarray(weights, np.float32)
     found = _steady_landmarks(landmarker, renderer.render(FrameState(rig.bone_rest.copy(), weights, pose)))
     if found is None:
         return None
@@ -347,3 +355,34 @@ def _choose(h: _Hits, n_rows: int, expect: np.ndarray | None, tol: float) -> np.
     good = np.isfinite(score[pick])
     out[h.row[pick[good]]] = pick[good]
     return out
+
+
+def cast_front(rig: FaceRig, points: np.ndarray) -> SurfaceLandmarks:
+    """Landmark points (L, 2), the head's x and y (cm; L = 478 rows, the face's 468 then the
+    irises), each cast straight along the head's forward axis (+z) onto the front-most skin
+    facing it (irises onto the eyes): a view from far in front, for landmarks placed without
+    the tracker (:mod:`capture2face.character.morph_landmarks`)."""
+    verts = np.asarray(rig.vertices, np.float64)
+    size = max(rig.face_size(), 1e-6)
+    px = verts[:, :2] * (RENDER_SIZE / size)  # image-like units: the search radii are in px
+    # Distance behind a far plane in front: the front-most is the least; far, so the
+    # barycentric weights' perspective correction is nil.
+    depth = verts[:, 2].max() - verts[:, 2] + 1e3
+    tris = np.asarray(rig.triangles, np.int64)
+    facing = np.asarray(rig.normals, np.float64)[tris].sum(1)[:, 2] > 0
+    overlay = np.zeros(rig.n_vertices, bool) if rig.overlay_vertices is None else np.asarray(rig.overlay_vertices)
+    mat = np.asarray(rig.material)
+    clean = facing & ~overlay[tris].any(1)
+    L = len(points)
+    faces = np.full((L, 3), -1, np.int32)
+    bary = np.zeros((L, 3), np.float32)
+    target = np.asarray(points, np.float64) * (RENDER_SIZE / size)
+    for rows, keep in ((np.arange(min(L, N_MESH)), clean & np.isin(mat[tris], SKIN_CODES).all(1)),
+                       (np.arange(N_MESH, L), clean & (mat[tris] == EYE_CODE).all(1))):
+        hits = _candidates(px, depth, tris[keep], target[rows])
+        pick = _choose(hits, len(rows), None, 1.0)
+        ok = pick >= 0
+        faces[rows[ok]] = hits.tris[pick[ok]]
+        bary[rows[ok]] = hits.bary[pick[ok]]
+    lmv = np.where((faces >= 0).all(1), faces[np.arange(L), np.argmax(bary, 1)], -1).astype(np.int32)
+    return SurfaceLandmarks(faces, bary, lmv)

@@ -12,6 +12,7 @@ from typing import Any
 from tqdm import tqdm
 
 from capture2face.character.auto_wrinkles import automatic_wrinkles
+from capture2face.character.landmark_sources import NONE, with_landmarks
 from capture2face.character.lending import lend_from_avatar
 from capture2face.character.prepared import load_prepared, preparation_key, prepared_dir, store_prepared
 from capture2face.errors import CaptureError
@@ -118,20 +119,24 @@ def import_glb(path: str | os.PathLike, mapping_json: str | os.PathLike | None =
 
 
 def with_automatic_wrinkles(rig: FaceRig) -> FaceRig:
-    """An ARKit morph character without face bones with its automatic wrinkle influences
-    (:mod:`capture2face.character.auto_wrinkles`: its front view tracked, feature points, poses
-    from its morphs); any other rig as it is. Where its face cannot be found, the rig
-    as it is, with a warning (it is still driven, without wrinkle influences)."""
+    """A morph character without face bones with its landmarks
+    (:func:`~capture2face.character.landmark_sources.with_landmarks`: its front view
+    tracked, else from its morphs) and then its automatic wrinkle influences
+    (:mod:`capture2face.character.auto_wrinkles`) where its morphs allow; any other rig as it
+    is. Each step that fails says so in one warning and leaves what the others found (a
+    head whose wrinkles cannot be baked keeps its landmarks)."""
     try:
         if is_automatic(rig) or drive_mode(rig) != "arkit":
             return rig
     except CaptureError:
         return rig  # undrivable: the check before tracking says why
+    rig = with_landmarks(rig)
+    if rig.landmark_source == NONE:
+        return rig
     try:
         rig = automatic_wrinkles(rig)
     except CaptureError as exc:
         log.warning("no automatic wrinkles: %s", exc)
-        return rig
     warn_landmark_faults(rig)
     return rig
 

@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from capture2face.character.landmark_sources import landmark_facts
 from capture2face.errors import CaptureError, raise_if_interrupted
 from capture2face.io.atomic import write_text_atomic
 from capture2face.io.fingerprint import fingerprint
@@ -249,6 +250,7 @@ def _report(clip, final: Path, rig: FaceRig, track, info, options: RunOptions, o
         "clip": os.fspath(clip),
         "output_dir": os.fspath(final),
         "character": rig.name,
+        "character_landmarks": landmark_facts(rig),
         "wrinkles": options.render.wrinkles,
         "size": int(options.render.size),
         "frames": n,

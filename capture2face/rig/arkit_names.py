@@ -106,12 +106,13 @@ def is_automatic(rig) -> bool:
 def drive_mode(rig) -> str:
     """``"bones"`` (face bones: the Dutreve path, morphs solved or scored with it) or
     ``"arkit"`` (ARKit-named morphs and no face bones of its own: the ARKit curves drive
-    them; automatic feature points, if any, only measure the wrinkle influences).
+    them; automatic feature points and landmarks, if any, only measure).
 
     Raises:
         CaptureError: neither; the message says what is missing.
     """
-    if is_automatic(rig) and driven_morphs(rig.morph_names):
+    # Landmarks found automatically (FaceRig.landmark_source) only measure: the curves drive.
+    if (is_automatic(rig) or getattr(rig, "landmark_source", "")) and driven_morphs(rig.morph_names):
         return "arkit"
     if has_face_bones(rig):
         return "bones"

@@ -128,6 +128,9 @@ class FaceRig:
             its last vertex's, as for ``material``. None with ``alpha``.
         alpha_cutoff: (V,) float32 MASK cutoff of each vertex's material (glTF's
             ``alphaCutoff``, default 0.5). None with ``alpha``.
+        landmark_source: how a user's character's landmarks were found
+            (:mod:`capture2face.character.landmark_sources`): "tracker front view",
+            "morphs", "none"; "" where they were given (built-in avatars, mappings).
     """
 
     name: str
@@ -173,6 +176,7 @@ class FaceRig:
     landmark_bary: np.ndarray | None = None
     overlay_vertices: np.ndarray | None = None
     morph_rules: np.ndarray | None = None
+    landmark_source: str = ""
 
     @property
     def has_eyes(self) -> bool:

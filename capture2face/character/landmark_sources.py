@@ -1,0 +1,46 @@
+"""A user's character's tracker landmarks, found whichever way its face allows, before and
+apart from its automatic wrinkles (a head whose wrinkle bake fails keeps them).
+
+In turn: its front view read by the clips' tracker (:mod:`.landmarks`: realistic heads);
+else what its own morphs move (:mod:`.morph_landmarks`: anime, stylised, low-poly faces the
+tracker cannot read); else none. ``FaceRig.landmark_source`` says which, and report.json
+repeats it (``character_landmarks``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from capture2face.character.landmarks import SurfaceLandmarks, find_surface_landmarks
+from capture2face.character.morph_landmarks import morph_landmarks
+from capture2face.errors import CaptureError
+from capture2face.rig.face_rig import FaceRig
+from capture2face.runtime.log import log
+
+TRACKER, MORPHS, NONE = "tracker front view", "morphs", "none"
+
+
+def with_landmarks(rig: FaceRig) -> FaceRig:
+    """``rig`` with its landmarks cast (``landmark_faces``, ``landmark_bary``,
+    ``landmark_vertices``) and ``landmark_source``; as it is, with source "none" and one
+    warning, where neither way finds them."""
+    reasons = []
+    for source, find in ((TRACKER, find_surface_landmarks), (MORPHS, morph_landmarks)):
+        try:
+            found: SurfaceLandmarks = find(rig)
+        except CaptureError as exc:
+            reasons.append(str(exc).removeprefix(f"character '{rig.name}': "))
+            continue
+        if source != TRACKER:
+            log.info("character '%s': %s; its landmarks are placed from what its morphs move", rig.name, reasons[0])
+        return rig.replace(landmark_faces=found.faces, landmark_bary=found.bary, landmark_vertices=found.vertices,
+                           landmark_source=source)
+    log.warning("character '%s': no landmarks found (%s): no landmark fidelity figures, wrinkles or eye centres "
+                "from them", rig.name, "; ".join(reasons))
+    return rig.replace(landmark_source=NONE)
+
+
+def landmark_facts(rig: FaceRig) -> dict:
+    """report.json's ``character_landmarks``: how the landmarks were found and how many
+    have a place on the character."""
+    return {"source": rig.landmark_source or "given", "found": int((np.asarray(rig.landmark_vertices) >= 0).sum())}
