@@ -22,6 +22,7 @@ from capture2face.rig.face_rig import FaceRig
 from capture2face.rig.maps import decode_normals, encode_normals
 
 GUTTER = 4  # texels each face UV island is extended by (bilinear and mip sampling at its border)
+WARP_SMOOTHING = 1e-3  # thin-plate smoothing of the landmark warp (inter-ocular units)
 _FLAT = np.array([128, 128, 255], np.uint8)
 
 
@@ -71,6 +72,19 @@ def bake_maps(rig: FaceRig, avatar: FaceRig, fitted: np.ndarray, rot: np.ndarray
         zones[ys, xs, 4:8] = sample(avatar.zone_masks[..., 4:8])
         zones = _with_gutter(zones, ys, xs, covered)
     return maps, zones
+
+
+def warp_to_landmarks(fitted: np.ndarray, source: np.ndarray, target: np.ndarray, iod: float) -> np.ndarray:
+    """(Va, 3) the fitted avatar's vertices moved by a smooth (thin-plate, smoothed) field
+    that carries its landmarks ``source`` (L, 3) onto the character's ``target`` (L, 3):
+    its folds then lie where the character's brows, lids and eye corners are, not where a
+    rigid fit puts the avatar's."""
+    from scipy.interpolate import RBFInterpolator
+
+    scale = max(iod, 1e-9)  # in inter-ocular distances: the smoothing means the same on any head
+    field = RBFInterpolator(source / scale, (target - source) / scale, kernel="thin_plate_spline",
+                            smoothing=WARP_SMOOTHING, degree=1)
+    return fitted + scale * field(fitted / scale)
 
 
 def _rasterize(uvs: np.ndarray, tris: np.ndarray, every: np.ndarray, H: int, W: int) -> tuple[np.ndarray, np.ndarray]:
