@@ -42,7 +42,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from capture2face.character.landmarks import with_surface_landmarks
-from capture2face.character.wrinkle_bake import bake_maps, warp_to_landmarks
+from capture2face.character.wrinkle_bake import bake_maps
 from capture2face.errors import CaptureError
 from capture2face.maths.rotations import similarity
 from capture2face.rig.arkit_names import arkit_morphs
@@ -133,8 +133,7 @@ def automatic_wrinkles(rig: FaceRig) -> FaceRig:
             table[m] = avatar.zone_table[amorph[a]]
     log.debug("automatic wrinkles: %d feature points, %d face vertices", len(face_bones), int(face.sum()))
     maps = list(rig.wrinkle_map_names)
-    warped = warp_to_landmarks(fitted, landmark_points(avatar, fitted)[both], points[both], iod)
-    wrinkle_maps, zone_masks = bake_maps(rig, avatar, warped, rot, face)
+    wrinkle_maps, zone_masks = bake_maps(rig, avatar, fitted, rot, face)
     return rig.replace(
         wrinkle_maps=wrinkle_maps, zone_masks=zone_masks,
         bone_names=names, bone_rest=rest,

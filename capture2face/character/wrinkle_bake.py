@@ -22,7 +22,8 @@ from capture2face.rig.face_rig import FaceRig
 from capture2face.rig.maps import decode_normals, encode_normals
 
 GUTTER = 4  # texels each face UV island is extended by (bilinear and mip sampling at its border)
-WARP_SMOOTHING = 1e-3  # thin-plate smoothing of the landmark warp (inter-ocular units)
+SUPERSAMPLE = 4  # samples a side over each character texel's footprint on the avatar's maps
+MAX_SPAN = 6.0  # a triangle whose texel spans this many times the face's median: across a seam
 _FLAT = np.array([128, 128, 255], np.uint8)
 
 
@@ -57,34 +58,21 @@ def bake_maps(rig: FaceRig, avatar: FaceRig, fitted: np.ndarray, rot: np.ndarray
     atri = askin[at]
     auv = np.einsum("nk,nkc->nc", abary, avatar.uvs[atri].astype(np.float64))
     ah, aw = avatar.wrinkle_maps.shape[1:3]
-    sigma = 0.5 * _texel_ratio(rig, tris, avatar, fitted, askin, (W, H), (aw, ah))
-    sample = _sampler(auv, aw, ah)
+    jac = _uv_jacobians(rig, tris, avatar, fitted, askin, (W, H), (aw, ah))[ids[ys, xs]]
+    sample = _sampler(auv * [aw, ah], jac)
     if todo:
         turn = _tangent_turn(rig, tri, bary, avatar, atri, abary, rot)
         for k in todo:
             src = avatar.wrinkle_maps[avatar.wrinkle_map_names.index(rig.wrinkle_map_names[k])]
-            if sigma > 0.5:  # the character's texel spans several of the avatar's: low-pass first
-                src = encode_normals(decode_normals(cv2.GaussianBlur(src.astype(np.float32), (0, 0), sigma)))
-            maps[k, ys, xs] = encode_normals(turn(decode_normals(sample(src))))
+            n = sample(decode_normals(src).astype(np.float32))  # the mean normal over the texel
+            n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-9)
+            maps[k, ys, xs] = encode_normals(turn(n))
             maps[k] = _with_gutter(maps[k], ys, xs, covered)
     if bake_zones:
-        zones[ys, xs, :4] = sample(avatar.zone_masks[..., :4])
-        zones[ys, xs, 4:8] = sample(avatar.zone_masks[..., 4:8])
+        zones[ys, xs, :4] = np.rint(sample(avatar.zone_masks[..., :4]))
+        zones[ys, xs, 4:8] = np.rint(sample(avatar.zone_masks[..., 4:8]))
         zones = _with_gutter(zones, ys, xs, covered)
     return maps, zones
-
-
-def warp_to_landmarks(fitted: np.ndarray, source: np.ndarray, target: np.ndarray, iod: float) -> np.ndarray:
-    """(Va, 3) the fitted avatar's vertices moved by a smooth (thin-plate, smoothed) field
-    that carries its landmarks ``source`` (L, 3) onto the character's ``target`` (L, 3):
-    its folds then lie where the character's brows, lids and eye corners are, not where a
-    rigid fit puts the avatar's."""
-    from scipy.interpolate import RBFInterpolator
-
-    scale = max(iod, 1e-9)  # in inter-ocular distances: the smoothing means the same on any head
-    field = RBFInterpolator(source / scale, (target - source) / scale, kernel="thin_plate_spline",
-                            smoothing=WARP_SMOOTHING, degree=1)
-    return fitted + scale * field(fitted / scale)
 
 
 def _rasterize(uvs: np.ndarray, tris: np.ndarray, every: np.ndarray, H: int, W: int) -> tuple[np.ndarray, np.ndarray]:
@@ -115,37 +103,50 @@ def _texel_bary(uvs: np.ndarray, tri: np.ndarray, xs: np.ndarray, ys: np.ndarray
     return np.stack([1 - (l1 + l2) / s, l1 / s, l2 / s], 1)
 
 
-def _texel_ratio(rig: FaceRig, tris: np.ndarray, avatar: FaceRig, fitted: np.ndarray, askin: np.ndarray,
-                 size: tuple[int, int], asize: tuple[int, int]) -> float:
-    """How many of the avatar's texels one character texel spans (median over the face):
-    the face triangles' areas in avatar texels (their vertices' nearest avatar UVs) over
-    their areas in the character's."""
+def _uv_jacobians(rig: FaceRig, tris: np.ndarray, avatar: FaceRig, fitted: np.ndarray, askin: np.ndarray,
+                  size: tuple[int, int], asize: tuple[int, int]) -> np.ndarray:
+    """(T, 2, 2) per face triangle, the avatar texels one character texel step spans
+    (columns: a step along u, along v), from its vertices' nearest avatar UVs; 0 where
+    that is not a smooth map (a triangle across one of the avatar's UV seams, lips and
+    lids, or degenerate in UV)."""
     at, abary, _ = closest_points(fitted, askin, rig.vertices.astype(np.float64))
     auv = np.einsum("nk,nkc->nc", abary, avatar.uvs[askin[at]].astype(np.float64)) * asize
     uv = rig.uvs.astype(np.float64) * size
+    own = np.stack([uv[tris[:, 1]] - uv[tris[:, 0]], uv[tris[:, 2]] - uv[tris[:, 0]]], 2)  # (T, 2, 2)
+    theirs = np.stack([auv[tris[:, 1]] - auv[tris[:, 0]], auv[tris[:, 2]] - auv[tris[:, 0]]], 2)
+    det = own[:, 0, 0] * own[:, 1, 1] - own[:, 0, 1] * own[:, 1, 0]
+    ok = np.abs(det) > 1e-6
+    jac = np.zeros((len(tris), 2, 2))
+    jac[ok] = theirs[ok] @ np.linalg.inv(own[ok])
+    scale = np.linalg.norm(jac, axis=(1, 2))
+    if ok.any():
+        jac[scale > MAX_SPAN * max(float(np.median(scale[ok])), 1e-9)] = 0.0
+    return jac
 
-    def area(x):  # (T, 3, 2) -> (T,)
-        e1, e2 = x[:, 1] - x[:, 0], x[:, 2] - x[:, 0]
-        return 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
 
-    own = area(uv[tris])
-    ok = own > 1e-9
-    if not ok.any():
-        return 1.0
-    return float(np.sqrt(np.median(area(auv[tris[ok]]) / own[ok])))
-
-
-def _sampler(auv: np.ndarray, aw: int, ah: int):
-    """A function: avatar image (h, w, C) -> (N, C), bilinear at the UVs ``auv`` (N, 2)."""
-    n_rows = -(-len(auv) // 1024)  # remap takes maps under 32767 px a side: rows of 1024
-    mx = np.zeros(n_rows * 1024, np.float32)
-    my = np.zeros(n_rows * 1024, np.float32)
-    mx[: len(auv)], my[: len(auv)] = auv[:, 0] * aw - 0.5, auv[:, 1] * ah - 0.5
-    mx, my = mx.reshape(n_rows, 1024), my.reshape(n_rows, 1024)
+def _sampler(auv_px: np.ndarray, jac: np.ndarray):
+    """A function: avatar image (h, w, C) -> (N, C), its mean over each character texel's
+    footprint (SUPERSAMPLE^2 bilinear samples about ``auv_px`` (N, 2), in avatar texels,
+    spread by ``jac`` (N, 2, 2)): a fold finer than the character's texels fades instead of
+    aliasing into steps."""
+    steps = (np.arange(SUPERSAMPLE) + 0.5) / SUPERSAMPLE - 0.5
+    n = len(auv_px)
+    n_rows = -(-n // 1024)  # remap takes maps under 32767 px a side: rows of 1024
+    grids = []
+    for du in steps:
+        for dv in steps:
+            at = auv_px + jac @ np.array([du, dv]) - 0.5
+            m = np.zeros((2, n_rows * 1024), np.float32)
+            m[:, :n] = at.T
+            grids.append(m.reshape(2, n_rows, 1024))
 
     def sample(image: np.ndarray) -> np.ndarray:
-        out = cv2.remap(np.ascontiguousarray(image), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        return out.reshape(n_rows * 1024, -1)[: len(auv)]
+        image = np.ascontiguousarray(image)
+        total = np.zeros((n_rows * 1024, image.shape[2]), np.float64)
+        for mx, my in grids:
+            out = cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            total += out.reshape(n_rows * 1024, -1)
+        return total[:n] / len(grids)
 
     return sample
 
