@@ -5,8 +5,9 @@ triangle's vertices, interpolated); the avatar fitted onto the character's landm
 searched for the surface point nearest it, and the texel takes the avatar's map at that
 point's UV. The baked pattern is so a function of the 3D surface: every UV island, seam and
 triangle of the character sees one continuous field, at the avatar's fold width scaled by
-the fit (the head's size). The avatar's maps are blurred to the character's texel size first
-(no aliasing where its texels are coarser), and each face island is extended by a
+the fit (the head's size). Each texel averages the avatar's map over its footprint there
+(no aliasing into steps where the character's texels are coarser than the folds: 1.5-5 of
+the avatar's on the shared heads), and each face island is extended by a
 :data:`GUTTER` of its border texels so that bilinear and mipmapped sampling at its edges
 read the fold, not the flat background.
 """
