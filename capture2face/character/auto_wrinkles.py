@@ -22,11 +22,12 @@ vertices play their part:
    bones), the region weights of its nearest avatar vertex, and the zone-table rows go by
    ARKit name.
 
-5. **Wrinkle maps and zone masks in the character's own UV space** (:func:`_bake_maps`):
-   each texel of a face triangle takes the avatar's map at the avatar UV of the
-   triangle's vertices (each vertex's nearest fitted avatar vertex, interpolated), its
-   tangent-space normal turned from the avatar's tangent to the character's in the
-   tangent plane (so a flat normal stays flat).
+5. **Wrinkle maps and zone masks in the character's own UV space**
+   (:func:`capture2face.character.wrinkle_bake.bake_maps`): each texel of a face triangle
+   takes the avatar's map at the fitted avatar's surface point nearest the texel's own
+   surface point (one continuous field across the character's triangles and UV islands,
+   the avatar's fold width scaled to the head), its tangent-space normal turned from the
+   avatar's tangent to the character's in the tangent plane (so a flat normal stays flat).
    Maps the character brings (a mapping JSON's) are kept.
 
 The influence view and ``region_influence`` then work as for the default avatar, and the
@@ -41,13 +42,13 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from capture2face.character.landmarks import pose_weights, with_surface_landmarks
+from capture2face.character.wrinkle_bake import bake_maps
 from capture2face.errors import CaptureError
 from capture2face.maths.rotations import similarity
 from capture2face.rig.arkit_names import arkit_morphs
 from capture2face.rig.avatar import default_avatar
 from capture2face.rig.face_rig import FaceRig, landmark_points, landmark_support
 from capture2face.rig.feature_points import AUTO_PREFIX
-from capture2face.rig.maps import decode_normals, encode_normals
 from capture2face.topology import IOD_PAIR, N_MESH
 
 log = logging.getLogger("capture2face")
@@ -130,7 +131,7 @@ def automatic_wrinkles(rig: FaceRig) -> FaceRig:
             table[m] = avatar.zone_table[amorph[a]]
     log.debug("automatic wrinkles: %d feature points, %d face vertices", len(face_bones), int(face.sum()))
     maps = list(rig.wrinkle_map_names)
-    wrinkle_maps, zone_masks = _bake_maps(rig, avatar, nearest, face)
+    wrinkle_maps, zone_masks = bake_maps(rig, avatar, fitted, rot, face)
     return rig.replace(
         wrinkle_maps=wrinkle_maps, zone_masks=zone_masks,
         bone_names=names, bone_rest=rest,
@@ -142,109 +143,3 @@ def automatic_wrinkles(rig: FaceRig) -> FaceRig:
         pose_maps=np.array([maps.index(p) if p in maps else 0 for p in pose_names], np.int32),
         region_names=list(avatar.region_names), region_weights=regions, zone_table=table,
     )
-
-
-def _bake_maps(rig: FaceRig, avatar: FaceRig, nearest: np.ndarray, face: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The avatar's "stretch" / "compress" wrinkle maps and zone masks baked into the
-    character's UV space over its face triangles (flat normals, zero zones elsewhere).
-
-    Args:
-        nearest: (V,) the nearest fitted avatar vertex of each character vertex.
-        face: (V,) bool, the character's face vertices.
-    Returns:
-        wrinkle maps (K, H, W, 3) in ``rig.wrinkle_map_names`` order, zone masks (H, W, 8).
-    Raises:
-        CaptureError: the face triangles cover no texel (nothing to bake into).
-    """
-    import cv2
-
-    H, W = rig.albedo.shape[:2]
-    flat = np.array([128, 128, 255], np.uint8)
-    maps = rig.wrinkle_maps.copy()
-    zones = rig.zone_masks.copy()
-    todo = [k for k, n in enumerate(rig.wrinkle_map_names)
-            if n in avatar.wrinkle_map_names and (maps[k] == flat).all()]  # keep maps the character brings
-    bake_zones = not zones.any()
-    tris = rig.triangles[face[rig.triangles].all(1)]
-    # A triangle whose vertices' avatar UVs lie far apart straddles one of the avatar's UV
-    # seams (lips, lids: vertices at one position with two UVs): left flat.
-    askin = avatar.triangles[(avatar.material[avatar.triangles] == 0).all(1)]
-    limit = 2.0 * np.percentile(_uv_spread(avatar.uvs[askin]), 99)
-    tris = tris[_uv_spread(avatar.uvs[nearest[tris]]) <= limit]
-    if not len(tris) or not (todo or bake_zones):
-        return maps, zones
-    ys, xs, ids = _texels(rig, tris, H, W)
-    tri = tris[ids[ys, xs]]  # (N, 3)
-    p = np.stack([(xs + 0.5) / W, (ys + 0.5) / H], 1)
-    a, b, c = (rig.uvs[tri[:, i]].astype(np.float64) for i in range(3))
-    v0, v1, v2 = b - a, c - a, p - a
-    den = v0[:, 0] * v1[:, 1] - v1[:, 0] * v0[:, 1]
-    den = np.where(np.abs(den) < 1e-12, 1e-12, den)
-    l1 = np.clip((v2[:, 0] * v1[:, 1] - v1[:, 0] * v2[:, 1]) / den, 0, 1)
-    l2 = np.clip((v0[:, 0] * v2[:, 1] - v2[:, 0] * v0[:, 1]) / den, 0, 1)
-    bary = np.stack([1 - l1 - l2, l1, l2], 1)  # (N, 3)
-    auv = np.einsum("nk,nkc->nc", bary, avatar.uvs[nearest[tri]].astype(np.float64))
-    ah, aw = avatar.wrinkle_maps.shape[1:3]
-    # remap takes maps under 32767 px a side: the N lookups as rows of 1024.
-    n_rows = -(-len(p) // 1024)
-    mx = np.zeros(n_rows * 1024, np.float32)
-    my = np.zeros(n_rows * 1024, np.float32)
-    mx[: len(p)], my[: len(p)] = auv[:, 0] * aw - 0.5, auv[:, 1] * ah - 0.5
-    mx, my = mx.reshape(n_rows, 1024), my.reshape(n_rows, 1024)
-
-    def sample(image: np.ndarray) -> np.ndarray:  # (N, C) bilinear at the avatar UVs
-        out = cv2.remap(np.ascontiguousarray(image), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        return out.reshape(n_rows * 1024, -1)[: len(p)]
-
-    if todo:
-        # Per vertex, the turn in the tangent plane from the avatar's tangent to the
-        # character's (and a mirror where their bitangents disagree), interpolated: flat
-        # stays flat wherever the two surfaces' normals differ.
-        tc, nc = rig.tangents[:, :3].astype(np.float64), rig.normals.astype(np.float64)
-        bc = rig.tangents[:, 3:4] * np.cross(nc, tc)
-        ta = avatar.tangents[nearest, :3].astype(np.float64)
-        ta = ta - np.einsum("vc,vc->v", ta, nc)[:, None] * nc
-        cos_sin = np.stack([np.einsum("vc,vc->v", ta, tc), np.einsum("vc,vc->v", ta, bc)], 1)
-        cos_sin /= np.maximum(np.linalg.norm(cos_sin, axis=1, keepdims=True), 1e-12)
-        mirror = np.where(avatar.tangents[nearest, 3] * rig.tangents[:, 3] < 0, -1.0, 1.0)
-        cs = np.einsum("nk,nkc->nc", bary, cos_sin[tri])
-        cs /= np.maximum(np.linalg.norm(cs, axis=1, keepdims=True), 1e-12)
-        m = np.einsum("nk,nk->n", bary, mirror[tri])
-        for k in todo:
-            src = avatar.wrinkle_maps[avatar.wrinkle_map_names.index(rig.wrinkle_map_names[k])]
-            n = decode_normals(sample(src))
-            x, y = n[:, 0], n[:, 1] * np.where(m < 0, -1.0, 1.0)
-            # A turn in the tangent plane: unit normals stay unit.
-            maps[k, ys, xs] = encode_normals(
-                np.stack([cs[:, 0] * x - cs[:, 1] * y, cs[:, 1] * x + cs[:, 0] * y, n[:, 2]], 1))
-    if bake_zones:
-        zones[ys, xs, :4] = sample(avatar.zone_masks[..., :4])
-        zones[ys, xs, 4:8] = sample(avatar.zone_masks[..., 4:8])
-    return maps, zones
-
-
-def _texels(rig: FaceRig, tris: np.ndarray, H: int, W: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The texels (rows, columns) the triangles ``tris`` cover in UV space and the (H, W)
-    triangle id of each texel (-1: none).
-
-    Raises:
-        CaptureError: they cover none (no UVs, all in one point, or outside 0-1): there is
-            nowhere to bake the maps, and a wrinkle without its map is nothing.
-    """
-    import cv2
-
-    # Texel centres at +0.5; 4 fractional bits.
-    ids = np.full((H, W), -1, np.int32)
-    corners = np.rint((rig.uvs[tris] * [W, H] - 0.5) * 16).astype(np.int32)  # (T, 3, 2)
-    for t in range(len(tris)):  # per triangle: OpenCV fills one polygon a call
-        cv2.fillConvexPoly(ids, corners[t], int(t), lineType=cv2.LINE_8, shift=4)
-    ys, xs = np.nonzero(ids >= 0)
-    if not len(ys):
-        raise CaptureError(f"character '{rig.name}': its face's UVs cover no texel of its texture "
-                           "(no TEXCOORD_0, or UVs outside 0-1): no wrinkle maps to bake")
-    return ys, xs, ids
-
-
-def _uv_spread(uv: np.ndarray) -> np.ndarray:
-    """(T, 3, 2) triangle UVs -> (T,) longest edge."""
-    return np.linalg.norm(uv - np.roll(uv, 1, axis=1), axis=2).max(1)
