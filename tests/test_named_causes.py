@@ -245,6 +245,8 @@ def test_an_actor_without_a_face_is_named_not_its_temporary_video(tmp_path, caps
     ("a/b", "contains a path separator"),
     ("/abs", "contains a path separator"),
     ("x" * 240, "is too long (240 bytes; at most 236)"),
+    ("x\ny", "contains a control character"),
+    ("take\t2", "contains a control character"),
 ])
 def test_a_name_a_run_cannot_own_is_refused(tmp_path, no_tracking, capsys, name, said):
     line = _main(capsys, "run", str(SAMPLE), "-o", str(tmp_path / "out"), "--name", name)
