@@ -112,6 +112,28 @@ def test_read_only_output_folder_for_real_without_root_s_override(tmp_path):
     assert _tree(out / "sample") == {"notes.txt": b"mine"}
 
 
+
+@pytest.mark.skipif(os.geteuid() != 0 or not shutil.which("setpriv"), reason="needs root and setpriv")
+@pytest.mark.parametrize("command", [["eval", "synthetic", "--frames", "60", "--size", "64"],
+                                     ["eval", "fidelity", str(SAMPLE)]])
+def test_a_json_into_a_read_only_folder_fails_first_naming_it(tmp_path, command):
+    """``--json`` into a read-only folder: refused before the evaluation, naming the folder,
+    never the temporary file beside the JSON."""
+    folder = tmp_path / "figures"
+    folder.mkdir()
+    folder.chmod(0o555)
+    env = dict(os.environ, PYTHONPATH=str(REPO), GLOG_minloglevel="2")
+    done = subprocess.run(["setpriv", "--bounding-set", "-dac_override,-dac_read_search", sys.executable,
+                           "-m", "capture2face", "-q", *command, "--json", str(folder / "f.json")],
+                          capture_output=True, text=True, timeout=300, env=env, check=False)
+    folder.chmod(0o755)
+    lines = [ln for ln in done.stderr.splitlines() if ln.strip()]
+    assert done.returncode == 2 and len(lines) == 1, done.stderr[-2000:]
+    assert lines[0].startswith(f"capture2face: error: --json {folder / 'f.json'}: cannot write to output folder "
+                               f"{folder}"), lines[0]
+    assert ".tmp-" not in lines[0] and not any(folder.iterdir())
+
+
 # ---- item 13: an unreadable report.json is named, not avatar.mp4 -----------------------------------
 @pytest.mark.parametrize("report, said", [
     (b"\xff\xfe\x00garbage", "cannot be read (not UTF-8 text)"),
