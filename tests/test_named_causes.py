@@ -155,6 +155,30 @@ def test_unreadable_report_is_named_not_avatar_mp4(tmp_path, no_tracking, capsys
     assert _tree(final) == before
 
 
+
+@pytest.mark.parametrize("report, said", [
+    (b"", "not valid JSON"),
+    (b"\xff\xfe\x00garbage", "not UTF-8 text"),
+    (b"[1, 2]", "not a capture2face run's report"),
+    (b'{"options": []}', "not a capture2face run's report"),
+    (None, "Is a directory"),
+])
+def test_eval_fidelity_of_a_run_whose_report_is_unreadable_names_it(tmp_path, capsys, report, said):
+    """The run's character comes from its report.json: one that cannot be read is named
+    (it was a traceback for a list, and the default avatar's figures without a word else)."""
+    run = tmp_path / "out" / "sample"
+    run.mkdir(parents=True)
+    for name in ("track.npz", "animation.npz"):
+        (run / name).write_bytes(b"")
+    if report is None:
+        (run / "report.json").mkdir()
+    else:
+        (run / "report.json").write_bytes(report)
+    line = _main(capsys, "eval", "fidelity", str(run))
+    assert line.startswith(f"capture2face: error: {run / 'report.json'}: cannot be read ({said}"), line
+    assert "the character the run used is unknown" in line
+
+
 # ---- item 13: a folder where a file is meant ---------------------------------------------------
 @pytest.mark.parametrize("flag, said", [
     ("--neutral-image", "--neutral-image {d}: is a folder; give an image file"),
