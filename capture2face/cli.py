@@ -511,6 +511,8 @@ def main(argv: list[str] | None = None) -> int:
     if argv is None:  # the process is the command (not a caller's main(args))
         defer_pyplot()  # it imports MediaPipe, never matplotlib
     try:
+        if getattr(args, "json", None):  # before the evaluation, not after it
+            check_output_file(args.json, "--json")
         return int(args.func(args) or 0)
     except CaptureError as exc:
         if args.debug:

@@ -57,6 +57,34 @@ def test_a_utf16_list_with_its_bom(tmp_path):
     assert got.path == str(tmp_path / "take#2.mp4")
 
 
+
+@pytest.mark.parametrize("command", [["batch", "--jobs", "2"], ["run"]])
+def test_ctrl_c_while_the_libraries_load_exits_130_in_one_line(sample_clip, tmp_path, command):
+    """Ctrl-C half a second after Enter, while OpenCV, SciPy and MediaPipe import (before
+    the command's own handler exists): exit 130, no KeyboardInterrupt traceback, nothing
+    written. (On a machine that imports faster the signal lands in the command: the same.)"""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    env = dict(os.environ, GLOG_minloglevel="2", TF_CPP_MIN_LOG_LEVEL="2")
+    proc = subprocess.Popen([sys.executable, "-m", "capture2face", "-q", command[0], str(sample_clip), "-o",
+                             str(tmp_path / "out"), *command[1:]], stderr=subprocess.PIPE, text=True, env=env,
+                            start_new_session=True)
+    try:
+        time.sleep(0.5)
+        os.killpg(proc.pid, signal.SIGINT)
+        err = proc.communicate(timeout=60)[1]
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130 and "Traceback" not in err, err[-2000:]
+    assert err.strip().splitlines() == ["capture2face: interrupted"], err[-2000:]
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
 # ---- Ctrl-C with clips queued (item 12) -----------------------------------------------------
 @pytest.mark.slow
 @pytest.mark.parametrize("to", ["group", "batch"])  # a terminal's Ctrl-C (every process), kill -INT PID

@@ -113,6 +113,20 @@ def test_mapping_morph_the_file_lacks_fails_before_tracking(hero, tmp_path, morp
     assert not (tmp_path / "out").exists()
 
 
+
+@pytest.mark.slow
+def test_a_mapping_warning_is_said_once(hero, tmp_path):
+    """A key the mapping schema lacks is warned about once, on screen and in report.json,
+    though the mapping is read at the checks and again at the export."""
+    glb = rewrite(hero, tmp_path / "hero.glb", lambda g, _: None)
+    (tmp_path / "hero.json").write_text(json.dumps({"morph": {"NoSuchMorph": "jawOpen"}}))
+    result = cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(glb), "--size", "64",
+                 timeout=300)
+    said = warnings_of(result)
+    assert sum("ignored keys" in w and "'morph'" in w for w in said) == 1, said
+    assert json.loads((tmp_path / "out" / "sample" / "report.json").read_text())["warnings"] == said
+
+
 # ---- item 7: a head that gets no automatic wrinkles ---------------------------------------
 def _no_pose_morphs(gltf, _):
     """The brow, eye and nose morphs renamed out of ARKit's names: the head is still
@@ -194,6 +208,24 @@ def test_unreadable_texture_runs_with_one_warning_per_image(hero, tmp_path, drop
     assert (folder / "animation.glb").stat().st_size > 0 and (folder / "avatar.mp4").stat().st_size > 0
 
 
+
+def _empty_images(gltf, binary):
+    """Every image an empty buffer view (zero bytes): OpenCV's decoder asserted on it."""
+    for image in gltf["images"]:
+        gltf["bufferViews"].append({"buffer": 0, "byteOffset": len(binary), "byteLength": 0})
+        image.update(bufferView=len(gltf["bufferViews"]) - 1, mimeType="image/png")
+
+
+@pytest.mark.slow
+def test_an_empty_image_runs_with_one_warning_per_image(hero, tmp_path):
+    glb = rewrite(hero, tmp_path / "empty.glb", _empty_images)
+    result = cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(glb), "--size", "64",
+                 timeout=300)
+    said = warnings_of(result)
+    for image in ("face_albedo", "face_normal"):
+        assert sum(f"(image '{image}')" in w and "no bytes" in w for w in said) == 1, said
+
+
 # ---- item 3: a .gltf folder with one PNG deleted ------------------------------------------
 @pytest.mark.slow
 def test_gltf_folder_missing_a_png_runs_with_its_base_colour(tmp_path):
@@ -219,6 +251,32 @@ def test_gltf_folder_missing_a_png_runs_with_its_base_colour(tmp_path):
     lost = GlbReader(out / "animation.glb").image(0)
     assert lost.shape[:2] == (1, 1) and (lost[..., :3] == 255).all()
     assert GlbReader(out / "animation.glb").image(1).shape[:2] != (1, 1)  # the others kept as they are
+
+
+
+def test_gltf_folder_with_a_short_bin_names_it(tmp_path):
+    """A .bin cut short (a copy that stopped): the line names the .bin and its size."""
+    folder = tmp_path / "character"
+    shutil.copytree(FOLDER, folder)
+    (folder / "character.bin").write_bytes((folder / "character.bin").read_bytes()[:1000])
+    result = cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(folder / "character.gltf"),
+                 timeout=120)
+    failed_in_one_line(result, "'character.bin'", "1000 bytes")
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.slow
+def test_gltf_folder_with_an_unreadable_png_names_it(tmp_path):
+    """A PNG beside the .gltf overwritten with text: the warning names that file."""
+    folder = tmp_path / "character"
+    shutil.copytree(FOLDER, folder)
+    gltf = json.loads((folder / "character.gltf").read_text())
+    (folder / "character.gltf").write_text(json.dumps(unique(gltf)))
+    (folder / "baseColor_2.png").write_text("not a picture")
+    result = cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(folder / "character.gltf"),
+                 "--size", "64", timeout=300)
+    said = warnings_of(result)
+    assert sum("('baseColor_2.png') is unreadable" in w for w in said) == 1, said
 
 
 @pytest.mark.slow

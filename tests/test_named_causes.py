@@ -112,6 +112,28 @@ def test_read_only_output_folder_for_real_without_root_s_override(tmp_path):
     assert _tree(out / "sample") == {"notes.txt": b"mine"}
 
 
+
+@pytest.mark.skipif(os.geteuid() != 0 or not shutil.which("setpriv"), reason="needs root and setpriv")
+@pytest.mark.parametrize("command", [["eval", "synthetic", "--frames", "60", "--size", "64"],
+                                     ["eval", "fidelity", str(SAMPLE)]])
+def test_a_json_into_a_read_only_folder_fails_first_naming_it(tmp_path, command):
+    """``--json`` into a read-only folder: refused before the evaluation, naming the folder,
+    never the temporary file beside the JSON."""
+    folder = tmp_path / "figures"
+    folder.mkdir()
+    folder.chmod(0o555)
+    env = dict(os.environ, PYTHONPATH=str(REPO), GLOG_minloglevel="2")
+    done = subprocess.run(["setpriv", "--bounding-set", "-dac_override,-dac_read_search", sys.executable,
+                           "-m", "capture2face", "-q", *command, "--json", str(folder / "f.json")],
+                          capture_output=True, text=True, timeout=300, env=env, check=False)
+    folder.chmod(0o755)
+    lines = [ln for ln in done.stderr.splitlines() if ln.strip()]
+    assert done.returncode == 2 and len(lines) == 1, done.stderr[-2000:]
+    assert lines[0].startswith(f"capture2face: error: --json {folder / 'f.json'}: cannot write to output folder "
+                               f"{folder}"), lines[0]
+    assert ".tmp-" not in lines[0] and not any(folder.iterdir())
+
+
 # ---- item 13: an unreadable report.json is named, not avatar.mp4 -----------------------------------
 @pytest.mark.parametrize("report, said", [
     (b"\xff\xfe\x00garbage", "cannot be read (not UTF-8 text)"),
@@ -131,6 +153,30 @@ def test_unreadable_report_is_named_not_avatar_mp4(tmp_path, no_tracking, capsys
     line = _main(capsys, "run", str(SAMPLE), "-o", str(tmp_path / "out"))
     assert f"{final / 'report.json'}: {said}" in line and "which files there an earlier run wrote" in line
     assert _tree(final) == before
+
+
+
+@pytest.mark.parametrize("report, said", [
+    (b"", "not valid JSON"),
+    (b"\xff\xfe\x00garbage", "not UTF-8 text"),
+    (b"[1, 2]", "not a capture2face run's report"),
+    (b'{"options": []}', "not a capture2face run's report"),
+    (None, "Is a directory"),
+])
+def test_eval_fidelity_of_a_run_whose_report_is_unreadable_names_it(tmp_path, capsys, report, said):
+    """The run's character comes from its report.json: one that cannot be read is named
+    (it was a traceback for a list, and the default avatar's figures without a word else)."""
+    run = tmp_path / "out" / "sample"
+    run.mkdir(parents=True)
+    for name in ("track.npz", "animation.npz"):
+        (run / name).write_bytes(b"")
+    if report is None:
+        (run / "report.json").mkdir()
+    else:
+        (run / "report.json").write_bytes(report)
+    line = _main(capsys, "eval", "fidelity", str(run))
+    assert line.startswith(f"capture2face: error: {run / 'report.json'}: cannot be read ({said}"), line
+    assert "the character the run used is unknown" in line
 
 
 # ---- item 13: a folder where a file is meant ---------------------------------------------------
@@ -245,6 +291,8 @@ def test_an_actor_without_a_face_is_named_not_its_temporary_video(tmp_path, caps
     ("a/b", "contains a path separator"),
     ("/abs", "contains a path separator"),
     ("x" * 240, "is too long (240 bytes; at most 236)"),
+    ("x\ny", "contains a control character"),
+    ("take\t2", "contains a control character"),
 ])
 def test_a_name_a_run_cannot_own_is_refused(tmp_path, no_tracking, capsys, name, said):
     line = _main(capsys, "run", str(SAMPLE), "-o", str(tmp_path / "out"), "--name", name)

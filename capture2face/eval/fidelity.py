@@ -36,14 +36,31 @@ def _load_run(folder: Path):
     missing = [f for f in ("track.npz", "animation.npz") if not (folder / f).is_file()]
     if missing:
         raise CaptureError(f"{folder}: not a run folder (no {', '.join(missing)})")
+    character = _run_character(folder / "report.json")
     track, animation = Track.load(folder / "track.npz"), Animation.load(folder / "animation.npz")
-    character = None
-    try:
-        report = json.loads((folder / "report.json").read_text(encoding="utf-8"))
-        character = report.get("options", {}).get("character")
-    except (OSError, ValueError):
-        pass
     return track, animation, load_character(character)
+
+
+def _run_character(path: Path) -> str | None:
+    """The character file a run's report.json names (None: the default avatar, or a report
+    from before characters were stored). One that cannot be read is refused: measuring
+    against another character than the run's would give wrong figures without a word."""
+    if not os.path.lexists(path):
+        return None
+    try:
+        report = json.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        why = "not UTF-8 text"
+    except ValueError as exc:
+        why = f"not valid JSON: {exc}"
+    except OSError as exc:
+        why = exc.strerror or str(exc)
+    else:
+        options = report.get("options", {}) if isinstance(report, dict) else None
+        if isinstance(options, dict) and isinstance(options.get("character"), (str, type(None))):
+            return options.get("character")
+        why = "not a capture2face run's report"
+    raise CaptureError(f"{path}: cannot be read ({why}), so the character the run used is unknown")
 
 
 def fidelity_of(path: str | os.PathLike, character=None, progress: bool = False) -> ClipFidelity:

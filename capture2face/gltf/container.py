@@ -77,9 +77,14 @@ def decode_image(data: bytes) -> np.ndarray:
     glTF-Transform ``etc1s``/``uastc`` write it) is transcoded with the ``alktx2``
     package (Basis Universal) when it is installed."""
     data = bytes(data)
+    if not data:
+        raise ValueError("no bytes")  # OpenCV asserts on an empty buffer
     if data[:12] == KTX2_MAGIC:
         data = _ktx2_png(data)
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    try:
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    except cv2.error:
+        image = None
     if image is None:
         raise ValueError("undecodable image")
     if image.dtype != np.uint8:  # 16-bit PNGs
@@ -345,16 +350,20 @@ class GlbReader:
         if name is not None:
             ext = exts[name]
             if index not in self._decoded:  # decompressed once per view
-                raw = self._slice(self._buffer(ext["buffer"]), ext.get("byteOffset", 0), ext["byteLength"], index)
+                raw = self._slice(self._buffer(ext["buffer"]), ext.get("byteOffset", 0), ext["byteLength"], index,
+                                  ext["buffer"])
                 self._decoded[index] = _meshopt_decode(self.path, ext, raw, name)
             return self._decoded[index], ext.get("byteStride")
         return self._slice(self._buffer(view.get("buffer", 0)), view.get("byteOffset", 0), view["byteLength"],
-                           index), view.get("byteStride")
+                           index, view.get("buffer", 0)), view.get("byteStride")
 
-    def _slice(self, buf: bytes, start: int, length: int, index: int) -> bytes:
+    def _slice(self, buf: bytes, start: int, length: int, index: int, buffer: int = 0) -> bytes:
         end = start + length
         if end > len(buf):
-            raise CaptureError(f"{self.path}: buffer view {index} runs past the end of its buffer")
+            uri = self.gltf["buffers"][buffer].get("uri", "")
+            named = f" ('{uri}', {len(buf)} bytes)" if uri and not uri.startswith("data:") else ""
+            raise CaptureError(f"{self.path}: buffer view {index} runs past the end of buffer {buffer}{named}, "
+                               f"at byte {end}: the buffer is cut short or not the one this file was written with")
         return buf[start:end]
 
     def _read_dense(self, view_index: int, offset: int, count: int, dtype: np.dtype, width: int) -> np.ndarray:
@@ -441,7 +450,10 @@ class GlbReader:
                 data = self._uri_bytes(img["uri"])
             return decode_image(data)
         except (OSError, ValueError, KeyError) as exc:
-            raise CaptureError(f"{self.path}: image {index} is unreadable ({exc.__class__.__name__}: {exc})") from None
+            uri = img.get("uri", "") if isinstance(img.get("uri"), str) else ""
+            named = f" ('{uri}')" if uri and not uri.startswith("data:") else ""  # the file to look at
+            raise CaptureError(f"{self.path}: image {index}{named} is unreadable "
+                               f"({exc.__class__.__name__}: {exc})") from None
 
     def texture_sources(self, texture_info: dict | None) -> list[int]:
         """The images a textureInfo may sample, best first: those ``EXT_texture_webp`` /

@@ -30,9 +30,13 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(
-        prefix=f".tmp-{path.stem}-", suffix=path.suffix if suffix is None else suffix, dir=path.parent
-    )
+    try:
+        fd, tmp = tempfile.mkstemp(
+            prefix=f".tmp-{path.stem}-", suffix=path.suffix if suffix is None else suffix, dir=path.parent
+        )
+    except OSError as exc:  # "out.json: Permission denied", not the temporary name beside it
+        exc.filename, exc.filename2 = str(path), None
+        raise
     os.close(fd)
     tmp_path = Path(tmp)
     try:

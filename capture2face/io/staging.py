@@ -159,6 +159,8 @@ def folder_name_problem(name: str) -> str | None:
         return "contains a path separator; give a plain folder name (the folder it goes in is -o)"
     if "\0" in name:
         return "contains a NUL character"
+    if any(ord(c) < 32 or ord(c) == 127 for c in name):  # a newline or tab splits the folder's name in lists
+        return "contains a control character (a newline, tab or escape); give a plain folder name"
     for prefix in (STAGING_PREFIX, LOCK_PREFIX):
         if name.startswith(prefix):
             return f"starts with '{prefix}', the name of capture2face's own hidden files beside the outputs"

@@ -262,7 +262,7 @@ def _report(clip, final: Path, rig: FaceRig, track, info, options: RunOptions, o
         "seconds": {k: round(v, 3) for k, v in seconds.items()},
         "fps_processing": n / seconds["total"],
         "track_fps": n / seconds["track"],
-        "warnings": track_warnings(track, options) + warnings,
+        "warnings": list(dict.fromkeys(track_warnings(track, options) + warnings)),  # a file read twice says it once
         "outputs": outputs,  # the run's manifest (capture2face.io.staging)
         "options": options_json(options),
         "video": {"codec": info.codec, "rotation": info.rotation},
