@@ -61,20 +61,17 @@ CURVE_ONLY = frozenset({
 
 
 #: ARKit morphs that move the same features in opposite directions (a brow raised or
-#: lowered, the mouth widened or puckered, the lips parted or closed): set together they
-#: cancel, so the landmarks cannot tell a still brow from both at once, and a morph basis
-#: shaped unlike a human's (a Ready Player Me head's ``browDown`` also pulls the brows
-#: in) trades them to fit what neither shows alone. Their co-activation is penalised.
-#: The lids are left out: an ICT head's ``eyeWide`` also lifts the brows, and penalising
-#: it against the blink cost the brows' range (docs/characters.md).
+#: lowered, the mouth or jaw sideways): set together they cancel, so the landmarks cannot
+#: tell a still brow from both at once, and a morph basis shaped unlike a human's (a Ready
+#: Player Me head's ``browDown`` also pulls the brows in) trades them to fit what neither
+#: shows alone. Their co-activation is penalised. Left out, because the solve then traded
+#: other morphs instead: the lids (an ICT head's ``eyeWide`` also lifts the brows, and the
+#: brows lost range), the pucker against the smile (the smile dropped), ``jawOpen`` against
+#: ``mouthClose`` (``mouthLowerDown`` opened the mouth instead of the jaw); figures in
+#: docs/characters.md.
 ANTAGONISTS = (
     ("browInnerUp", "browDownLeft"), ("browInnerUp", "browDownRight"),
     ("browOuterUpLeft", "browDownLeft"), ("browOuterUpRight", "browDownRight"),
-    ("jawOpen", "mouthClose"), ("mouthShrugLower", "mouthLowerDownLeft"),
-    ("mouthShrugLower", "mouthLowerDownRight"),
-    *((a, f"{b}{side}") for a in ("mouthPucker", "mouthFunnel") for b in ("mouthStretch", "mouthSmile")
-      for side in ("Left", "Right")),
-    ("mouthSmileLeft", "mouthFrownLeft"), ("mouthSmileRight", "mouthFrownRight"),
     ("mouthLeft", "mouthRight"), ("jawLeft", "jawRight"),
 )
 

@@ -44,11 +44,12 @@ REFERENCE_RANGE = np.array([
 
 #: Bounds of the range ratio (a character a quarter or four times a human's size).
 RATIO_BOUNDS = (0.25, 4.0)
-#: The mouth's width (row 9 of EXPRESSION_PAIRS) is not widened past the actor's, in
-#: proportion to the face: a smile morph that widens a mouth further than a human's (Ready
-#: Player Me's XR head) is the character's style, and passed through it took every wide
-#: smile past the actor's (docs/characters.md).
-WIDTH_PAIR, WIDTH_RATIO_MAX = 9, 1.0
+#: The mouth's width (row 9 of EXPRESSION_PAIRS) is widened at most this much past the
+#: actor's, in proportion to the face: a smile morph that widens a mouth much further than a
+#: human's (Ready Player Me's XR head) is the character's style, and passed through whole
+#: it took every wide smile past the actor's; capped at the actor's (1.0), the solve made the
+#: smile of other morphs (docs/characters.md).
+WIDTH_PAIR, WIDTH_RATIO_MAX = 9, 1.15
 
 
 @dataclass
