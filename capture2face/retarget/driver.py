@@ -118,7 +118,7 @@ class RetargetOptions:
     arkit_network_share: float = 0.5
     arkit_eye_share: float = 1.0
     arkit_own_range: bool = True
-    arkit_antagonist: float = 0.3
+    arkit_antagonist: float = 1.0
 
 
 def shared_blendshapes(morph_names: list[str], blendshape_names: list[str]) -> list[tuple[int, int]]:
