@@ -217,7 +217,10 @@ def test_arkit_character_performs_at_its_own_range(tmp_path, avatar, factor):
         expected = np.minimum(own, 1.0)
         assert np.abs(other - expected).max() < 0.2, (name, other.max(), own.max())
     assert w["scaled"][:, by["browInnerUp"]].max() > 0.8
-    # Left for later: browDown is still set against the raise here (0.16 at 0.5x, 0.55 at 2x).
+    # The raise is not cancelled by its antagonist: the actor never frowns (the solve set
+    # browDown against the raise before co-activation was penalised).
+    for name in ("browDownLeft", "browDownRight"):
+        assert w["scaled"][:, by[name]].max() < 0.1, (name, w["scaled"][:, by[name]].max())
 
 
 def test_head_joint_turns_the_head_and_not_the_body(tmp_path, avatar):

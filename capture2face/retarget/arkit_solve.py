@@ -60,6 +60,22 @@ CURVE_ONLY = frozenset({
 })
 
 
+#: ARKit morphs that move the same features in opposite directions (a brow raised or
+#: lowered, the mouth or jaw sideways): set together they cancel, so the landmarks cannot
+#: tell a still brow from both at once, and a morph basis shaped unlike a human's (a Ready
+#: Player Me head's ``browDown`` also pulls the brows in) trades them to fit what neither
+#: shows alone. Their co-activation is penalised. Left out, because the solve then traded
+#: other morphs instead: the lids (an ICT head's ``eyeWide`` also lifts the brows, and the
+#: brows lost range), the pucker against the smile (the smile dropped), ``jawOpen`` against
+#: ``mouthClose`` (``mouthLowerDown`` opened the mouth instead of the jaw); figures in
+#: docs/characters.md.
+ANTAGONISTS = (
+    ("browInnerUp", "browDownLeft"), ("browInnerUp", "browDownRight"),
+    ("browOuterUpLeft", "browDownLeft"), ("browOuterUpRight", "browDownRight"),
+    ("mouthLeft", "mouthRight"), ("jawLeft", "jawRight"),
+)
+
+
 #: MediaPipe's contours of the features (lips, eyes, brows, the nose's wings): the points an
 #: expression moves (the rest, the cheeks, forehead and silhouette, carry the tracker's
 #: noise as much).
@@ -93,6 +109,8 @@ class MorphSolve:
         pairs: (K, 2) slots (into the N landmarks) of the :data:`EXPRESSION_PAIRS` the rig
             has: the model's points are the N landmarks, then the K differences.
         pair_frames: (K, 3, 3) each difference's operator (:func:`pair_frames`), or None.
+        antagonists: (P, 2) unknowns (columns of ``model.matrix``) of the solved morphs'
+            :data:`ANTAGONISTS`.
     """
 
     model: LinearRigModel
@@ -100,6 +118,7 @@ class MorphSolve:
     fixed_deltas: np.ndarray
     pairs: np.ndarray
     pair_frames: np.ndarray | None = None
+    antagonists: np.ndarray | None = None
 
     def points(self, landmark_points: np.ndarray) -> np.ndarray:
         """(..., N + K, 3) the model's points of (..., N, 3) landmark points."""
@@ -173,7 +192,16 @@ def morph_solve(rig, landmarks: np.ndarray, min_motion: float, across: float = 1
     matrix = np.moveaxis(out.points(np.moveaxis(columns.reshape(n, 3, -1), -1, 0)), 0, -1).reshape(-1, columns.shape[1])
     out.model = LinearRigModel(rest=out.points(rest), matrix=matrix, free_bones=np.zeros(0, np.int64),
                                morphs=solved, n_rigid=6)
+    out.antagonists = antagonist_unknowns(named, solved, out.model.n_free_vars)
     return out
+
+
+def antagonist_unknowns(named: dict[int, str], solved: np.ndarray, offset: int) -> np.ndarray:
+    """(P, 2) unknowns (``offset`` plus the position in ``solved``) of the
+    :data:`ANTAGONISTS` pairs whose morphs are both solved; ``named``: {morph: ARKit name}."""
+    column = {named[int(m)]: offset + k for k, m in enumerate(solved) if int(m) in named}
+    return np.array([(column[a], column[b]) for a, b in ANTAGONISTS if a in column and b in column],
+                    np.int64).reshape(-1, 2)
 
 
 def rigid_columns(rest: np.ndarray) -> np.ndarray:

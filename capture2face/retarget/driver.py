@@ -83,6 +83,9 @@ class RetargetOptions:
         arkit_own_range: the lips' and brows' separations follow the actor's motion
             scaled onto the character's own range (:mod:`capture2face.retarget.ranges`);
             False: as the network maps them.
+        arkit_antagonist: weight of the co-activation penalty on antagonist morphs
+            (:data:`~capture2face.retarget.arkit_solve.ANTAGONISTS`), relative to the
+            product of the two morphs' weighted landmark motion (0: none).
     """
 
     kernel: str = "cubic"
@@ -116,6 +119,7 @@ class RetargetOptions:
     arkit_network_share: float = 0.5
     arkit_eye_share: float = 1.0
     arkit_own_range: bool = True
+    arkit_antagonist: float = 1.0
 
 
 def shared_blendshapes(morph_names: list[str], blendshape_names: list[str]) -> list[tuple[int, int]]:
@@ -184,15 +188,17 @@ def _fit_network(rest: ActorRest, rig, landmarks, target, options: RetargetOptio
 
 
 def _joint_solver(model, options: RetargetOptions, landmark_weights, morph_ridge: float, sparsity: float,
-                  prior_strength: np.ndarray | None = None) -> LinearSolver:
+                  prior_strength: np.ndarray | None = None, antagonists: np.ndarray | None = None) -> LinearSolver:
     return LinearSolver(model, ridge=options.ridge, temporal=options.temporal_smoothness,
                         morph_ridge=morph_ridge, sparsity=sparsity,
                         axis_weights=(1.0, 1.0, options.depth_weight), landmark_weights=landmark_weights,
-                        prior_strength=prior_strength)
+                        prior_strength=prior_strength, antagonists=antagonists,
+                        antagonist_strength=options.arkit_antagonist if antagonists is not None else 0.0)
 
 
 def solve_windows(mapped, model, point_weights: np.ndarray, options: RetargetOptions, neutral: int | None,
-                  prior: np.ndarray | None = None, prior_strength: np.ndarray | None = None):
+                  prior: np.ndarray | None = None, prior_strength: np.ndarray | None = None,
+                  antagonists: np.ndarray | None = None):
     """Yield (window, x (k, n)) for every window of ``mapped``: the joint solve of the
     :class:`~capture2face.retarget.solve.LinearRigModel`'s unknowns, after the reliability
     passes (which fit without the prior).
@@ -202,6 +208,8 @@ def solve_windows(mapped, model, point_weights: np.ndarray, options: RetargetOpt
         point_weights: (N,) a-priori weight of each feature point
             (:func:`landmark_prior_weights`).
         prior: (F, n) values the unknowns are pulled towards with ``prior_strength`` (n,).
+        antagonists: (P, 2) unknowns whose co-activation the final solve penalises
+            (``options.arkit_antagonist``).
     """
     prior_w = np.asarray(point_weights, np.float64)
     lw = prior_w
@@ -217,7 +225,7 @@ def solve_windows(mapped, model, point_weights: np.ndarray, options: RetargetOpt
                 pts = mapped.read(w)
                 r2.add(_residual2(model, solver.solve(pts, pin=w.pin(neutral))[w.own], pts[w.own]))
             lw = prior_w * _reliability(r2.median(), options.reweight_floor)
-    solver = _joint_solver(model, options, lw, options.morph_ridge, options.sparsity, prior_strength)
+    solver = _joint_solver(model, options, lw, options.morph_ridge, options.sparsity, prior_strength, antagonists)
     for w in mapped.windows:
         yield w, solver.solve(mapped.read(w), pin=w.pin(neutral),
                               prior=None if prior is None else prior[w.start:w.stop])
@@ -401,7 +409,8 @@ def _solve_arkit_weights(track, rest: ActorRest, rig, landmarks: np.ndarray, pri
     prior_x[:, nf:] = prior[:, solved]
     with MappedPoints(track.landmarks_head, network, landmarks, windows, 1 + options.reweight_iterations) as mapped:
         for w, x in solve_windows(CurveShifted(mapped, solve, prior, ranged), solve.model, point_weights, options,
-                                  rest.single_frame, prior=prior_x, prior_strength=strength):
+                                  rest.single_frame, prior=prior_x, prior_strength=strength,
+                                  antagonists=solve.antagonists):
             weights[w.start:w.stop, solved] += (w.fade[:, None] * x[:, nf:]).astype(np.float32)
     return weights
 

@@ -44,6 +44,12 @@ REFERENCE_RANGE = np.array([
 
 #: Bounds of the range ratio (a character a quarter or four times a human's size).
 RATIO_BOUNDS = (0.25, 4.0)
+#: The mouth's width (row 9 of EXPRESSION_PAIRS) is widened at most this much past the
+#: actor's, in proportion to the face: a smile morph that widens a mouth much further than a
+#: human's (Ready Player Me's XR head) is the character's style, and passed through whole
+#: it took every wide smile past the actor's; capped at the actor's (1.0), the solve made the
+#: smile of other morphs (docs/characters.md).
+WIDTH_PAIR, WIDTH_RATIO_MAX = 9, 1.15
 
 
 @dataclass
@@ -116,6 +122,8 @@ def range_targets(solve: MorphSolve, landmarks: np.ndarray, actor_neutral: np.nd
         return None
     reference = REFERENCE_RANGE[np.asarray(present)[keep]]
     gain = np.clip(ranges[keep] / reference, *RATIO_BOUNDS)
+    width = np.asarray(present)[keep] == WIDTH_PAIR
+    gain[width] = np.minimum(gain[width], WIDTH_RATIO_MAX)
     ends = solve.pairs[keep]
     return RangeTargets(
         rows=n + keep, components=components[keep], ends=ends,

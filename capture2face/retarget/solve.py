@@ -10,7 +10,10 @@ so the retargeted feature points are *linear* in the unknowns x = (t_1..t_{B-1},
     min_x |A x - b_f|^2_W + ridge |x|^2 + temporal |x_f - x_{f-1}|^2,   0 <= w <= 1
 
 optionally with a prior, ``sum_i s_i (x_i - p_fi)^2`` (per-unknown strengths s, per-frame
-values p: an ARKit character's morphs pulled towards the clip's ARKit curves),
+values p: an ARKit character's morphs pulled towards the clip's ARKit curves), and a
+co-activation penalty ``c sum_(i,j) |a_i| |a_j| x_i x_j`` on pairs of antagonist morphs
+(|a_i|: the weighted motion of unknown i's column; a raise and a lowering of the same brow
+cancel each other's motion, so the fit alone cannot tell a still brow from both at once),
 
 over all frames of a window at once (W: per-feature-point reliability weights; windows:
 :mod:`capture2face.retarget.windows`). Why jointly rather than "bone = its mapped landmark": a bone's
@@ -109,6 +112,9 @@ class LinearSolver:
     iterations: int = 200
     tolerance: float = 1e-3
     prior_strength: np.ndarray | None = None
+    antagonists: np.ndarray | None = None
+    antagonist_strength: float = 0.0
+    antagonist_iterations: int = 3
 
     def __post_init__(self) -> None:
         self._cache: dict = {}
@@ -128,13 +134,26 @@ class LinearSolver:
         ridge[self.bounded] = self.ridge if self.morph_ridge is None else self.morph_ridge
         if self.prior_strength is not None:  # s (x - p)^2 = (s / scale^2) (z - p scale)^2
             ridge = ridge + np.asarray(self.prior_strength, np.float64) / self.scale**2
-        gram = self.a.T @ self.a + np.diag(ridge)
+        gram = self.a.T @ self.a + np.diag(ridge) + self._coupling(n)
         # Unconstrained factorisation and the ADMM one (rho only on bounded unknowns).
         self.eig_free = np.linalg.eigh(gram)
         self.eig_admm = np.linalg.eigh(gram + self.rho * np.diag(self.bounded.astype(float)))
         # Bounds in scaled units: w = z / scale, 0 <= w <= 1.
         self.upper = np.where(self.bounded, self.scale, np.inf)
         self.lower = np.where(self.bounded, 0.0, -np.inf)
+
+    def _coupling(self, n: int) -> np.ndarray:
+        """(n, n) the convex part of the co-activation penalty in scaled units (columns of
+        unit norm): ``c z_i z_j = c/4 (z_i + z_j)^2 - c/4 (z_i - z_j)^2``; the concave
+        part is linearised at the previous solve (:meth:`solve`)."""
+        out = np.zeros((n, n))
+        if self.antagonist_strength <= 0 or self.antagonists is None or not len(self.antagonists):
+            return out
+        i, j = np.asarray(self.antagonists, np.int64).reshape(-1, 2).T
+        quarter = 0.25 * float(self.antagonist_strength)
+        for u, v in ((i, i), (j, j), (i, j), (j, i)):
+            np.add.at(out, (u, v), quarter)
+        return out
 
     def _solve(self, eig, rhs: np.ndarray, pin: int | None) -> np.ndarray:
         """Solve ``G Z + temporal * Z Lt = rhs`` for Z (n, F), G = U diag(s) U^T, with
@@ -182,11 +201,25 @@ class LinearSolver:
         rhs[self.bounded] -= self.sparsity
         if prior is not None and self.prior_strength is not None:
             rhs += (np.asarray(self.prior_strength, np.float64) / self.scale)[:, None] * np.asarray(prior, np.float64).T
+        z = self._bounded_solve(rhs, pin)
+        if self.antagonist_strength > 0 and self.antagonists is not None and len(self.antagonists):
+            # Convex-concave steps: the co-activation penalty's concave part, linearised at
+            # the last solve; each step lowers the penalised objective.
+            i, j = np.asarray(self.antagonists, np.int64).reshape(-1, 2).T
+            for _ in range(self.antagonist_iterations):
+                pull = 0.25 * float(self.antagonist_strength) * (z[i] - z[j])
+                linear = np.zeros_like(rhs)
+                np.add.at(linear, i, pull)
+                np.add.at(linear, j, -pull)
+                z = self._bounded_solve(rhs + linear, pin)
+        return (z / self.scale[:, None]).T
+
+    def _bounded_solve(self, rhs: np.ndarray, pin: int | None) -> np.ndarray:
+        """(n, F) scaled unknowns of ``rhs``, the morphs within their bounds."""
         z = self._solve(self.eig_free, rhs, pin)
         if self.bounded.any() and self._violates(z):
             z = self._admm(rhs, z, pin)
-        z = np.clip(z, self.lower[:, None], self.upper[:, None])
-        return (z / self.scale[:, None]).T
+        return np.clip(z, self.lower[:, None], self.upper[:, None])
 
     def _violates(self, z: np.ndarray) -> bool:
         zb = z[self.bounded]
