@@ -85,11 +85,12 @@ _FACE_MORPH_CM = 0.02
 def face_points(rig: FaceRig) -> np.ndarray:
     """(N, 3) the points the camera frames: the skin; for an ARKit character (morphs and
     no face bones of its own, maybe on a whole body with hair and clothes, all of it
-    "skin"), the face: its tracker landmarks once they are found (the morphs of a scanned
+    "skin"), the face: its landmarks once they are found (the morphs of a scanned
     head also move its neck, which framed the bust), else the vertices its morphs move."""
     skin = rig.material == 0
     face = np.asarray(rig.landmark_vertices)[:N_FACE_LANDMARKS]
-    if is_automatic(rig) and np.count_nonzero(face >= 0) >= 3:
+    found = is_automatic(rig) or rig.landmark_source not in ("", "none")  # cast on its skin at load
+    if found and np.count_nonzero(face >= 0) >= 3:
         return rig.vertices[face[face >= 0]]
     if rig.n_morphs and (is_automatic(rig) or not (face >= 0).any()):
         moved = np.zeros(rig.n_vertices, bool)

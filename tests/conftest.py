@@ -43,3 +43,14 @@ def synthetic_clip(tmp_path_factory):
 
     path = tmp_path_factory.mktemp("synthetic") / "clip.mp4"
     return synthesize(path, SynthOptions(frames=60, size=512, seed=0), progress=False)
+
+
+@pytest.fixture(scope="session")
+def hero(tmp_path_factory) -> Path:
+    """An ARKit character: the default avatar exported with ARKit morph names."""
+    from capture2face.gltf.arkit_export import export_arkit_character
+    from capture2face.rig.avatar import default_avatar
+
+    path = tmp_path_factory.mktemp("hero") / "hero.glb"
+    export_arkit_character(default_avatar(), path)
+    return path

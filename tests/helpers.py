@@ -5,8 +5,11 @@ video files, and the Khronos glTF validator. Imported as ``from tests.helpers im
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
+import sys
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -236,3 +239,30 @@ def problems(report: dict, max_severity: int = 1) -> list[str]:
     """Messages at or above a severity (0 error, 1 warning, 2 info, 3 hint), one line each."""
     return [f"{m['code']} {m.get('pointer', '')}: {m['message']}"
             for m in report["issues"]["messages"] if m["severity"] <= max_severity]
+
+
+# ---- the command line in a subprocess, and character files rewritten (character tests) ----
+CLI_ENV = dict(os.environ, GLOG_minloglevel="2", TF_CPP_MIN_LOG_LEVEL="2", PYTHONUNBUFFERED="1")
+SAMPLE = REPO / "sample_videos" / "sample.mp4"
+
+
+def run_cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "capture2face", "-q", *args], capture_output=True, text=True,
+                          timeout=timeout, env=CLI_ENV)
+
+
+def unique(gltf: dict) -> dict:
+    """A file no earlier test run prepared (the prepared-character cache is keyed on content)."""
+    gltf.setdefault("asset", {})["generator"] = f"capture2face test {uuid.uuid4().hex}"
+    return gltf
+
+
+def rewrite(src: Path, dst: Path, change) -> Path:
+    """``src`` with ``change(gltf, binary)`` applied (its JSON as the file has it)."""
+    from capture2face.gltf.container import read_gltf_document, write_glb
+
+    gltf, binary = read_gltf_document(src)
+    binary = bytearray(binary)
+    change(gltf, binary)
+    dst.write_bytes(write_glb(unique(gltf), binary))
+    return dst

@@ -10,23 +10,13 @@ import json
 import os
 import shutil
 import subprocess
-import sys
-import uuid
-from pathlib import Path
 
 import pytest
 
-from tests.helpers import REPO
+from tests.helpers import REPO, SAMPLE, rewrite, run_cli, unique
 
-ENV = dict(os.environ, GLOG_minloglevel="2", TF_CPP_MIN_LOG_LEVEL="2", PYTHONUNBUFFERED="1")
-SAMPLE = REPO / "sample_videos" / "sample.mp4"
 FOLDER = REPO / "tests" / "data" / "real_files" / "folder"
 KTX2_MAGIC = b"\xabKTX 20\xbb\r\n\x1a\n"
-
-
-def cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "capture2face", "-q", *args], capture_output=True, text=True,
-                          timeout=timeout, env=ENV)
 
 
 def failed_in_one_line(result: subprocess.CompletedProcess, *mentions: str) -> str:
@@ -49,34 +39,6 @@ def warnings_of(result: subprocess.CompletedProcess) -> list[str]:
     return [ln[len("capture2face: warning: "):] for ln in lines]
 
 
-def unique(gltf: dict) -> dict:
-    """A file no earlier test run prepared (the prepared-character cache is keyed on content)."""
-    gltf.setdefault("asset", {})["generator"] = f"capture2face test {uuid.uuid4().hex}"
-    return gltf
-
-
-@pytest.fixture(scope="module")
-def hero(tmp_path_factory) -> Path:
-    """An ARKit character: the default avatar exported with ARKit morph names."""
-    from capture2face.gltf.arkit_export import export_arkit_character
-    from capture2face.rig.avatar import default_avatar
-
-    path = tmp_path_factory.mktemp("hero") / "hero.glb"
-    export_arkit_character(default_avatar(), path)
-    return path
-
-
-def rewrite(src: Path, dst: Path, change) -> Path:
-    """``src`` with ``change(gltf, binary)`` applied (its JSON as the file has it)."""
-    from capture2face.gltf.container import read_gltf_document, write_glb
-
-    gltf, binary = read_gltf_document(src)
-    binary = bytearray(binary)
-    change(gltf, binary)
-    dst.write_bytes(write_glb(unique(gltf), binary))
-    return dst
-
-
 # ---- item 1: a node that is its own child ------------------------------------------------
 @pytest.mark.parametrize("children", [[[0]], [[1], [0]]], ids=["own-child", "two-node-loop"])
 def test_node_cycle_fails_in_one_line_before_tracking(hero, tmp_path, children):
@@ -85,7 +47,7 @@ def test_node_cycle_fails_in_one_line_before_tracking(hero, tmp_path, children):
             gltf["nodes"][i]["children"] = c
 
     glb = rewrite(hero, tmp_path / "loop.glb", loop)
-    result = cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(glb), timeout=120)
+    result = run_cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(glb), timeout=120)
     line = failed_in_one_line(result, str(glb), "node 0", "cycle")
     assert "Recursion" not in line
     assert not (tmp_path / "out").exists()
@@ -93,7 +55,7 @@ def test_node_cycle_fails_in_one_line_before_tracking(hero, tmp_path, children):
 
 def test_node_with_a_child_out_of_range_fails_in_one_line(hero, tmp_path):
     glb = rewrite(hero, tmp_path / "far.glb", lambda g, _: g["nodes"][0].update(children=[99]))
-    result = cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(glb), timeout=120)
+    result = run_cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(glb), timeout=120)
     failed_in_one_line(result, str(glb), "node 0", "99")
 
 
@@ -106,7 +68,7 @@ def test_node_with_a_child_out_of_range_fails_in_one_line(hero, tmp_path):
 def test_mapping_morph_the_file_lacks_fails_before_tracking(hero, tmp_path, morphs, named, closest):
     glb = rewrite(hero, tmp_path / "hero.glb", lambda g, _: None)
     (tmp_path / "hero.json").write_text(json.dumps({"morphs": morphs}))
-    result = cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(glb), timeout=120)
+    result = run_cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(glb), timeout=120)
     line = failed_in_one_line(result, str(tmp_path / "hero.json"), f"'{named}'", "no morph")
     if closest:
         assert f"'{closest}'" in line.split("closest")[1], line
@@ -120,7 +82,7 @@ def test_a_mapping_warning_is_said_once(hero, tmp_path):
     though the mapping is read at the checks and again at the export."""
     glb = rewrite(hero, tmp_path / "hero.glb", lambda g, _: None)
     (tmp_path / "hero.json").write_text(json.dumps({"morph": {"NoSuchMorph": "jawOpen"}}))
-    result = cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(glb), "--size", "64",
+    result = run_cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(glb), "--size", "64",
                  timeout=300)
     said = warnings_of(result)
     assert sum("ignored keys" in w and "'morph'" in w for w in said) == 1, said
@@ -146,7 +108,7 @@ def test_no_automatic_wrinkles_is_said_on_every_run(hero, tmp_path):
     warning, with the prefix, on screen and in report.json."""
     glb = rewrite(hero, tmp_path / "plain.glb", _no_pose_morphs)
     for name in ("first", "cached"):
-        result = cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--name", name, "--character", str(glb),
+        result = run_cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--name", name, "--character", str(glb),
                      "--size", "64", timeout=300)
         said = warnings_of(result)
         assert sum(NO_WRINKLES in w for w in said) == 1, (name, said)
@@ -162,7 +124,7 @@ def test_no_automatic_wrinkles_in_a_batch(hero, tmp_path):
     clips.mkdir()
     for name in ("a.mp4", "b.mp4"):
         shutil.copy(SAMPLE, clips / name)
-    result = cli("batch", str(clips), "-o", str(tmp_path / "out"), "--jobs", "2", "--character", str(glb),
+    result = run_cli("batch", str(clips), "-o", str(tmp_path / "out"), "--jobs", "2", "--character", str(glb),
                  "--size", "64", timeout=600)
     assert result.returncode == 0, result.stderr[-3000:]
     lines = [ln for ln in result.stderr.splitlines() if NO_WRINKLES in ln]
@@ -197,7 +159,7 @@ def _ktx2_undeclared(drop_uvs: bool):
 @pytest.mark.parametrize("drop_uvs", [True, False], ids=["no-uvs", "uvs"])
 def test_unreadable_texture_runs_with_one_warning_per_image(hero, tmp_path, drop_uvs):
     glb = rewrite(hero, tmp_path / "facecap.glb", _ktx2_undeclared(drop_uvs))
-    result = cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(glb), "--size", "64",
+    result = run_cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(glb), "--size", "64",
                  timeout=300)
     said = warnings_of(result)
     for image in ("face_albedo", "face_normal"):
@@ -219,7 +181,7 @@ def _empty_images(gltf, binary):
 @pytest.mark.slow
 def test_an_empty_image_runs_with_one_warning_per_image(hero, tmp_path):
     glb = rewrite(hero, tmp_path / "empty.glb", _empty_images)
-    result = cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(glb), "--size", "64",
+    result = run_cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(glb), "--size", "64",
                  timeout=300)
     said = warnings_of(result)
     for image in ("face_albedo", "face_normal"):
@@ -239,7 +201,7 @@ def test_gltf_folder_missing_a_png_runs_with_its_base_colour(tmp_path):
     gltf = json.loads((folder / "character.gltf").read_text())
     (folder / "character.gltf").write_text(json.dumps(unique(gltf)))
     (folder / "baseColor_1.png").unlink()
-    result = cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(folder / "character.gltf"),
+    result = run_cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(folder / "character.gltf"),
                  "--size", "64", timeout=300)
     said = warnings_of(result)
     missing = [w for w in said if "baseColor_1.png" in w]
@@ -259,7 +221,7 @@ def test_gltf_folder_with_a_short_bin_names_it(tmp_path):
     folder = tmp_path / "character"
     shutil.copytree(FOLDER, folder)
     (folder / "character.bin").write_bytes((folder / "character.bin").read_bytes()[:1000])
-    result = cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(folder / "character.gltf"),
+    result = run_cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(folder / "character.gltf"),
                  timeout=120)
     failed_in_one_line(result, "'character.bin'", "1000 bytes")
     assert not (tmp_path / "out").exists()
@@ -273,7 +235,7 @@ def test_gltf_folder_with_an_unreadable_png_names_it(tmp_path):
     gltf = json.loads((folder / "character.gltf").read_text())
     (folder / "character.gltf").write_text(json.dumps(unique(gltf)))
     (folder / "baseColor_2.png").write_text("not a picture")
-    result = cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(folder / "character.gltf"),
+    result = run_cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(folder / "character.gltf"),
                  "--size", "64", timeout=300)
     said = warnings_of(result)
     assert sum("('baseColor_2.png') is unreadable" in w for w in said) == 1, said
@@ -286,7 +248,7 @@ def test_no_skin_under_the_landmarks_gets_no_wrinkles_without_numpy_warnings(her
     still driven, with one warning."""
     glb = rewrite(hero, tmp_path / "eyeface.glb", lambda g, _: None)
     (tmp_path / "eyeface.json").write_text(json.dumps({"materials": {"Face": "eye"}}))
-    result = cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(glb), "--size", "64",
+    result = run_cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(glb), "--size", "64",
                  timeout=300)
     said = warnings_of(result)  # every line a prefixed warning: no RuntimeWarning
     assert sum("no automatic wrinkles: character 'eyeface'" in w for w in said) == 1, said

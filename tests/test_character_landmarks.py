@@ -12,8 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.helpers import REPO
-from tests.test_character_files import SAMPLE, cli, hero, rewrite  # noqa: F401 (hero: a fixture)
+from tests.helpers import REPO, SAMPLE, rewrite, run_cli
 
 SHARED = Path(os.environ.get("CAPTURE2FACE_SHARED_CHARACTERS", REPO.parent / "shared" / "characters"))
 GODETTE = SHARED / "godette_vrm0_presets.vrm"
@@ -31,7 +30,7 @@ def _no_uvs(gltf, _binary):
 
 
 @pytest.mark.slow
-def test_a_head_whose_wrinkles_cannot_be_baked_keeps_its_landmarks(hero, tmp_path):  # noqa: F811
+def test_a_head_whose_wrinkles_cannot_be_baked_keeps_its_landmarks(hero, tmp_path):
     """No UVs: the face covers no texel, so no wrinkle maps; the tracker's landmarks stay,
     so every measured landmark has a place (eval fidelity --character works)."""
     from capture2face.character.load import load_character
@@ -78,9 +77,25 @@ def test_an_anime_face_gets_its_landmarks_from_its_morphs():
 @pytest.mark.slow
 @pytest.mark.skipif(not GODETTE.is_file(), reason="the shared characters are not here")
 def test_report_names_how_the_landmarks_were_found(tmp_path):
-    result = cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(GODETTE), "--size", "64",
+    result = run_cli("run", str(SAMPLE), "-o", str(tmp_path / "out"), "--character", str(GODETTE), "--size", "64",
                  timeout=300)
     assert result.returncode == 0, result.stderr[-3000:]
     report = json.loads((tmp_path / "out" / "sample" / "report.json").read_text())
     assert report["character_landmarks"]["source"] == "morphs"
     assert report["character_landmarks"]["found"] >= 468
+
+
+def test_a_character_with_found_landmarks_is_framed_on_its_face():
+    """The visemes-only Ready Player Me (a whole body, its landmarks read by the tracker, no
+    automatic wrinkles): the camera frames its face, not the body (avatar.mp4 showed the
+    whole figure, and the tracked-back figures found no face)."""
+    from capture2face.camera import face_centre_and_height
+    from capture2face.character.load import load_character
+
+    path = SHARED / "rpm_male_goatee_glasses_visemes_only.glb"
+    if not path.is_file():
+        pytest.skip(f"{path} not present")
+    rig = load_character(path)
+    assert rig.landmark_source == "tracker front view"
+    _, height = face_centre_and_height(rig)
+    assert height < 2.5 * rig.interocular()  # a face (about 1.7 IOD), not a body (about 20)
