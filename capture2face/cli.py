@@ -27,7 +27,7 @@ from capture2face.io.staging import check_output_file
 from capture2face.io.video_input import open_video
 from capture2face.models.face_model import find_face_model
 from capture2face.pipeline import RunOptions
-from capture2face.pipeline.options import MAX_SIZE, MIN_SIZE
+from capture2face.pipeline.options import MAX_SIZE, MIN_SIZE, MOVED_TO_STAGES
 from capture2face.pipeline.preflight import check_neutral_frame
 from capture2face.render.renderer import WRINKLE_DRIVERS
 from capture2face.rig.avatar import default_avatar
@@ -96,20 +96,9 @@ def _cmd_synth(args: argparse.Namespace) -> int:
     return 0
 
 
-#: Each option flag's place in RunOptions (``--no-audio`` apart: ``audio`` is its negation).
-FLAG_OPTIONS = {
-    "character": ("character",),
-    "wrinkles": ("render", "wrinkles"),
-    "size": ("render", "size"),
-    "neutral_frame": ("track", "neutral_frame"),
-    "neutral_image": ("track", "neutral_image"),
-    "neutral_clip": ("track", "neutral_clip"),
-    "face_model": ("track", "landmarker", "face_model"),
-    "faces": ("track", "landmarker", "faces"),
-    "face": ("track", "landmarker", "face"),
-    "track_workers": ("track", "workers"),
-    "allow_truncated": ("allow_truncated",),
-}
+#: Each option flag's place in RunOptions (``--no-audio`` apart: ``audio`` is its negation): the
+#: flags named as RunOptions' flat keywords of before, each where it moved.
+FLAG_OPTIONS = {"character": ("character",), **MOVED_TO_STAGES, "allow_truncated": ("allow_truncated",)}
 
 
 def options_from_args(args: argparse.Namespace) -> RunOptions:
