@@ -191,12 +191,8 @@ def convention_key(name: str) -> tuple[str, str] | None:
 
 def convention_morphs(morph_names: list[str]) -> dict[int, tuple[str, str]]:
     """{morph index: (convention, table name)} of every morph the table knows."""
-    out = {}
-    for i, n in enumerate(morph_names):
-        key = convention_key(n)
-        if key is not None:
-            out[i] = key
-    return out
+    keys = {i: convention_key(n) for i, n in enumerate(morph_names)}
+    return {i: k for i, k in keys.items() if k is not None}
 
 
 def _channels(arkit_names: list[str], curves: np.ndarray) -> dict[str, np.ndarray]:
