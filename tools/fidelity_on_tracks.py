@@ -16,7 +16,7 @@ import argparse
 import json
 from pathlib import Path
 
-from track_clips import cached_track, chosen_clips, clip_arguments
+from track_clips import cached_track, character_arguments, chosen_clips, clip_arguments
 
 
 def fidelity_on_tracks(clips: list[Path], cache: Path, character=None, progress: bool = False) -> dict:
@@ -39,9 +39,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     clip_arguments(parser)
-    parser.add_argument("--character", metavar="FILE", default=None,
-                        help="character for the clips, as eval fidelity's --character (default avatar)")
-    parser.add_argument("--json", type=Path, metavar="PATH", help="write every figure as JSON (eval fidelity's)")
+    character_arguments(parser, "write every figure as JSON (eval fidelity's)")
     args = parser.parse_args(argv)
     clips, cache = chosen_clips(args)
     from capture2face.eval.fidelity import table

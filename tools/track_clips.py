@@ -69,6 +69,13 @@ def clip_arguments(parser: argparse.ArgumentParser) -> None:
                              "~/.cache/capture2face/tracks)")
 
 
+def character_arguments(parser: argparse.ArgumentParser, json_help: str) -> None:
+    """The measurement tools' ``--character`` (as eval fidelity's) and ``--json``."""
+    parser.add_argument("--character", metavar="FILE", default=None,
+                        help="character for the clips, as eval fidelity's --character (default avatar)")
+    parser.add_argument("--json", type=Path, metavar="PATH", help=json_help)
+
+
 def chosen_clips(args: argparse.Namespace) -> tuple[list[Path], Path]:
     """(clips, cache folder) from :func:`clip_arguments`' arguments; exits when there is no clip."""
     clips = list(args.clips) or default_clips()

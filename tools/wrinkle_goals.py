@@ -27,7 +27,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
-from track_clips import cached_track, chosen_clips, clip_arguments
+from track_clips import cached_track, character_arguments, chosen_clips, clip_arguments
 
 NEVER_LOWER, AT_REST_P99 = 0.1, 0.15  # browDown's maximum; compress's 99th percentile goal
 MOVES_BY, R_GOAL = 0.3, 0.8  # a score's range from which r is judged; the r goal
@@ -90,9 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     clip_arguments(parser)
-    parser.add_argument("--character", metavar="FILE", default=None,
-                        help="character for the clips, as eval fidelity's --character (default avatar)")
-    parser.add_argument("--json", type=Path, metavar="PATH", help="write the goals as JSON")
+    character_arguments(parser, "write the goals as JSON")
     args = parser.parse_args(argv)
     clips, cache = chosen_clips(args)
     goals = wrinkle_goals(clips, cache, args.character, progress=True)
