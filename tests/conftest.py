@@ -54,3 +54,19 @@ def hero(tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("hero") / "hero.glb"
     export_arkit_character(default_avatar(), path)
     return path
+
+
+@pytest.fixture
+def no_tracking(monkeypatch):
+    """Any call into the tracker (or past it) fails the test: the checks must come first."""
+    import capture2face.eval.fidelity as eval_fidelity
+    from capture2face import batch
+    from capture2face.pipeline import runner, stages
+
+    def tracked(*args, **kwargs):
+        raise AssertionError("the clip was tracked before the failing check")
+
+    monkeypatch.setattr(runner, "track_stage", tracked)
+    monkeypatch.setattr(eval_fidelity, "track_stage", tracked)
+    monkeypatch.setattr(stages, "track_clip", tracked)
+    monkeypatch.setattr(batch, "_run_clip", tracked)

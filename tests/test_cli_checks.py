@@ -34,22 +34,6 @@ from capture2face.tracking.landmarker import LandmarkerOptions
 SAMPLE = Path(__file__).resolve().parents[1] / "sample_videos" / "sample.mp4"  # 120 frames
 
 
-@pytest.fixture
-def no_tracking(monkeypatch):
-    """Any call into the tracker (or past it) fails the test: the checks must come first."""
-    import capture2face.eval.fidelity as eval_fidelity
-    from capture2face import batch
-    from capture2face.pipeline import runner, stages
-
-    def tracked(*args, **kwargs):
-        raise AssertionError("the clip was tracked before the failing check")
-
-    monkeypatch.setattr(runner, "track_stage", tracked)
-    monkeypatch.setattr(eval_fidelity, "track_stage", tracked)
-    monkeypatch.setattr(stages, "track_clip", tracked)
-    monkeypatch.setattr(batch, "_run_clip", tracked)
-
-
 @pytest.fixture(scope="module")
 def undrivable_character(tmp_path_factory) -> Path:
     """A FaceRig .npz that loads but has no tracked feature points to retarget onto and no

@@ -35,18 +35,6 @@ SAMPLE = REPO / "sample_videos" / "sample.mp4"
 MIRROR = REPO / "tools" / "mirror_identity.py"
 
 
-@pytest.fixture
-def no_tracking(monkeypatch):
-    """Any call into the tracker fails the test: the checks must come first."""
-    from capture2face.pipeline import runner, stages
-
-    def tracked(*args, **kwargs):
-        raise AssertionError("the clip was tracked before the failing check")
-
-    monkeypatch.setattr(runner, "track_stage", tracked)
-    monkeypatch.setattr(stages, "track_clip", tracked)
-
-
 def _main(capsys, *argv: str) -> str:
     """``capture2face -q ARGV`` in this process: exit 2 and one error line, the last on stderr
     (after any ``capture2face: warning:`` lines the run's own checks print)."""
