@@ -44,8 +44,10 @@ def raise_if_interrupted() -> None:
 
 
 def _unraisable(info) -> None:
-    """An interrupt swallowed by a finalizer is not an error to print: the flag keeps it."""
-    if isinstance(info.exc_value, KeyboardInterrupt):
+    """An interrupt swallowed by a finalizer is not an error to print: the flag keeps it.
+    Nor, once interrupted, is a finalizer's error: the interrupt may have cut its object's
+    construction short (MediaPipe's ``Image.__del__`` then misses ``_image_ptr``)."""
+    if isinstance(info.exc_value, KeyboardInterrupt) or _interrupted:
         return
     sys.__unraisablehook__(info)
 

@@ -273,6 +273,35 @@ def test_an_interrupt_swallowed_by_a_finalizer_is_not_lost(monkeypatch):
         errors.raise_if_interrupted()
 
 
+def test_a_finalizer_broken_by_the_interrupt_prints_nothing(monkeypatch):
+    """An interrupt that cuts an object's construction short leaves a finalizer that fails
+    (MediaPipe's ``Image.__del__``: no ``_image_ptr``); after the interrupt that is not printed,
+    before it a finalizer's error still is."""
+    import gc
+    import sys
+    import weakref
+
+    from capture2face import errors
+
+    def broken():
+        raise AttributeError("'Image' object has no attribute '_image_ptr'")
+
+    seen = []
+    monkeypatch.setattr(sys, "unraisablehook", errors._unraisable)
+    monkeypatch.setattr(sys, "__unraisablehook__", lambda info: seen.append(info))
+    for interrupted in (False, True):
+        monkeypatch.setattr(errors, "_interrupted", interrupted)
+
+        class Half:
+            pass
+
+        half = Half()
+        weakref.finalize(half, broken)
+        del half
+        gc.collect()
+    assert len(seen) == 1 and isinstance(seen[0].exc_value, AttributeError)
+
+
 # ---- a mapping JSON beside the character ------------------------------------------------
 JUNK_MAPPINGS = [
     ('{"scale": "big"}', "scale must be a number > 0, not 'big'"),
