@@ -88,7 +88,7 @@ def _cmd_synth(args: argparse.Namespace) -> int:
     opts = SynthOptions(
         frames=args.frames, seed=args.seed, size=args.size, fps=args.fps,
         head_motion=not args.no_head_motion, expression=not args.no_expression,
-        face_exit=args.face_exit, variant=args.variant, start=args.start,
+        face_exit=args.face_exit, variant=args.variant, start=args.start, rom=args.rom,
     )
     actor = None if args.actor in (None, "default") else load_character(args.actor)
     synthesize(args.output, opts, progress=not args.quiet, actor=actor)
@@ -336,6 +336,9 @@ def _add_synth_parser(sub, common: argparse.ArgumentParser) -> None:
     p.add_argument("--actor", metavar="CHARACTER", default=None,
                    help="render this ARKit character (.glb/.gltf/.npz) through a random ARKit performance "
                         "instead of the default avatar ('default': the default avatar's own performance)")
+    p.add_argument("--rom", action="store_true",
+                   help="with --actor: perform the range-of-motion protocol (docs/calibration.md) instead "
+                        "(--frames: the protocol's length)")
     _add_start_option(p)
     p.set_defaults(func=_cmd_synth)
 

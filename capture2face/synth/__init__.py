@@ -18,7 +18,7 @@ from capture2face.io.video_output import VideoWriter
 from capture2face.render import FrameState, Renderer, RenderOptions
 from capture2face.rig.avatar import default_avatar
 from capture2face.rig.face_rig import FaceRig
-from capture2face.synth.actor import random_arkit_performance, with_turning_eyes
+from capture2face.synth.actor import random_arkit_performance, rom_performance, with_turning_eyes
 from capture2face.synth.trajectories import (
     DEFAULT_FOV_Y,
     Performance,
@@ -58,6 +58,9 @@ class SynthOptions:
         start: "rest" (the clip starts on the neutral hold), "held" (one expression held
             for the first seconds) or "raised" (the brows raised on most frames, from frame
             0); the neutral hold is mid-clip for the last two (``random_performance``).
+        rom: an ``actor`` performs the range-of-motion protocol instead of a random
+            performance (:func:`~capture2face.synth.actor.rom_performance`; ``frames`` is
+            the protocol's length).
     """
 
     frames: int = 150
@@ -71,6 +74,7 @@ class SynthOptions:
     wrinkles: str = "auto"
     fov_y: float = DEFAULT_FOV_Y
     start: str = "rest"
+    rom: bool = False
 
 
 @dataclass
@@ -129,6 +133,8 @@ def synthesize(path: str | os.PathLike, options: SynthOptions | None = None, pro
     options = options or SynthOptions()
     if options.size < 64 or options.size % 2:
         raise CaptureError(f"--size must be an even number of pixels >= 64 (got {options.size})")
+    if options.rom and actor is None:
+        raise CaptureError("--rom needs an ARKit character as the --actor")
     if actor is None:
         rig = default_avatar(variant=options.variant)
         perf = make_performance(rig, options)
@@ -136,8 +142,11 @@ def synthesize(path: str | os.PathLike, options: SynthOptions | None = None, pro
     else:
         _check_actor_options(options)
         rig = actor_rig(actor)
-        perf = random_arkit_performance(rig, options.frames, options.seed, options.fps, options.head_motion,
-                                        options.fov_y)
+        if options.rom:
+            perf = rom_performance(rig, options.seed, options.fps, options.head_motion, options.fov_y)
+        else:
+            perf = random_arkit_performance(rig, options.frames, options.seed, options.fps, options.head_motion,
+                                            options.fov_y)
         truth = compute_truth(rig, perf, options.size, options.size, None, options.wrinkles, actor=rig.name)
     video_path, tpath = os.fspath(path), truth_path(path)
     render_opts = RenderOptions(size=options.size, wrinkles=options.wrinkles, fov_y_degrees=options.fov_y)

@@ -28,6 +28,7 @@ import numpy as np
 from scipy.interpolate import interp1d
 from scipy.ndimage import uniform_filter1d
 
+from capture2face.calibration.protocol import step_amounts, target_matrix
 from capture2face.errors import CaptureError
 from capture2face.rig.arkit_names import GAZE_SCORES, arkit_morphs
 from capture2face.rig.face_rig import FaceRig, landmark_points
@@ -266,6 +267,64 @@ def random_arkit_performance(rig: FaceRig, frames: int, seed: int = 0, fps: floa
     weights = np.zeros((frames, rig.n_morphs))
     for m, name in columns.items():
         weights[:, m] = arkit[:, _COL[name]]
+    return Performance(
+        times=f / fps, fps=float(fps), fov_y=float(fov_y),
+        bone_positions=np.repeat(rig.bone_rest[None], frames, 0).astype(np.float32),
+        blend_weights=weights.astype(np.float32),
+        head_angles=c.angles.astype(np.float32),
+        head_offset=c.offset.astype(np.float32),
+        head_pose=head_poses(rig, c.angles, c.offset, fov_y),
+        light_direction=c.light.astype(np.float32),
+        key_pose=key_pose,
+        exiting=np.zeros(frames, bool),
+        eye_rotation=None if eyes is None else eyes.astype(np.float32),
+    )
+
+
+def _gaze_of_looks(w: np.ndarray) -> np.ndarray:
+    """(F, 2, 2) eye yaw, pitch (degrees) of (F, 52) ARKit weights' eyeLook columns: the
+    inverse of :func:`_eye_looks`."""
+    out = np.zeros((len(w), 2, 2))
+    for (eye, angle), (plus, minus) in GAZE_SCORES.items():
+        out[:, eye, angle] = EYE_LOOK_FULL_DEG * (w[:, _COL[plus]] - w[:, _COL[minus]])
+    return out
+
+
+def rom_performance(rig: FaceRig, seed: int = 0, fps: float = 30.0, head_motion: bool = True,
+                    fov_y: float = DEFAULT_FOV_Y) -> Performance:
+    """``rig`` performing the range-of-motion protocol
+    (:data:`~capture2face.calibration.protocol.PROTOCOL`) on its timing, each step at its
+    targets' weights, with the seed's head motion and light (as :func:`random_arkit_performance`'s,
+    drawn from another stream, so a ROM take and a performance of one seed differ); the eyes
+    turn with the eyeLook steps. The neutral holds the first frames.
+
+    Raises:
+        CaptureError: the rig has no ARKit-named morphs.
+    """
+    columns = arkit_morphs(rig.morph_names)
+    if not columns:
+        raise CaptureError(f"actor '{rig.name}' has no ARKit-named morph targets to perform")
+    arkit = step_amounts(fps) @ target_matrix().T  # (F, 52)
+    frames = len(arkit)
+    hold = max(2, round(HOLD_SECONDS * fps))
+    rng = np.random.default_rng([seed, 32])
+    keys = key_frames(frames, fps, rng, hold, 1)
+    K = len(keys)
+    angles, offset = random_head(rig, rng, K)
+    settle_head(angles, offset, head_motion)
+    label = np.full(K, KEY_FREE)
+    label[0] = KEY_NEUTRAL
+    bones = np.repeat(rig.bone_rest[None].astype(np.float64), K, 0)
+    k = Keys(keys, Values(bones, np.zeros((K, len(ARKIT_NAMES))), angles, offset, random_lights(rng, K),
+                          np.zeros((K, 2, 2))), label)
+    k = hold_labelled_keys(k, hold, frames)
+    f = np.arange(frames, dtype=np.float64)
+    c = interpolate(k, f)
+    key_pose = exact_holds(k, c, frames)
+    weights = np.zeros((frames, rig.n_morphs))
+    for m, name in columns.items():
+        weights[:, m] = arkit[:, _COL[name]]
+    eyes = _gaze_of_looks(arkit) if rig.has_eyes else None
     return Performance(
         times=f / fps, fps=float(fps), fov_y=float(fov_y),
         bone_positions=np.repeat(rig.bone_rest[None], frames, 0).astype(np.float32),

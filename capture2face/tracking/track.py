@@ -51,7 +51,10 @@ class Track:
         rest_scores: (S,) float32 the scores at rest.
         rest_frames: (4, K) int32 the frames each region's rest took (rows: brows, eyes,
             mouth, face; -1 padded; all -1 for a rest from outside the clip).
-        rest_source: where the rest came from ("clip", "frame N", "image PATH", "clip PATH").
+        rest_source: where the rest came from ("clip", "frame N", "image PATH", "clip PATH",
+            "calibration PATH").
+        calibration: the actor's calibration from a range-of-motion take, as its JSON text
+            (:mod:`capture2face.calibration`), or "" for none.
     """
 
     times: np.ndarray
@@ -78,6 +81,7 @@ class Track:
     rest_scores: np.ndarray | None = None
     rest_frames: np.ndarray | None = None
     rest_source: str = ""
+    calibration: str = ""
 
     @property
     def n_frames(self) -> int:

@@ -1,0 +1,200 @@
+"""Learning an actor's calibration from a tracked ROM take (:func:`calibrate`) and applying
+it to a clip of the same actor (:func:`calibrated_curves`).
+
+The actor's basis: for each protocol step found in the take, the change of the frame
+features (:mod:`~capture2face.calibration.features`) from the actor's rest at the step's
+hold: how *this* face, as *this* tracker reads it, shows the expression. A frame of any
+clip is then the bounded least-squares mix of those steps
+(:func:`~capture2face.calibration.solve.step_weights`), and each ARKit curve the mix of
+the steps' weights of it. Lids lowered by a look down are the look-down step's, not a
+blink; a frown MediaPipe scores as nothing still moves this actor's brows somewhere.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from capture2face.calibration.features import frame_features, group_motion, pose_terms
+from capture2face.calibration.model import ActorCalibration, StepFit
+from capture2face.calibration.protocol import PROTOCOL, STEP_NAMES, Step, target_matrix
+from capture2face.calibration.segment import MATCH_WARN, activity, align, find_runs, idle_frames
+from capture2face.calibration.solve import step_weights
+from capture2face.tracking.rest import ActorRest, actor_rest, aligned_rest
+
+GAIN_BOUNDS, OFFSET_BOUNDS = (0.5, 2.0), (-0.3, 0.3)
+POSE_ROUNDS = 4  # fits of the pose model, each on the idle frames of the one before
+
+
+def _score_columns(names: list[str]) -> np.ndarray:
+    return np.array([i for i, n in enumerate(names) if n != "_neutral"])
+
+
+def _reading(scores: np.ndarray, rest_scores: np.ndarray, names: list[str]) -> np.ndarray:
+    """(F, S) the tracker's scores calibrated to rest, as the uncalibrated curves read them."""
+    rest = np.clip(rest_scores, 0.0, 0.99)
+    return np.clip((np.nan_to_num(scores) - rest) / (1.0 - rest), 0.0, 1.0)
+
+
+def calibrate(track, steps: tuple[Step, ...] = PROTOCOL, base_curves: np.ndarray | None = None) -> ActorCalibration:
+    """Learn ``track`` (a tracked ROM take, :class:`~capture2face.tracking.track.Track`) as
+    the protocol ``steps`` in order. A step the take does not show, or shows unlike itself,
+    is named in ``warnings``; a take of the neutral alone learns the rest and no curve.
+
+    Args:
+        base_curves: (F, S) the take's uncalibrated curves (``retarget.arkit.arkit_curves``),
+            for each step's before/after in the report; None: the scores calibrated to rest.
+    """
+    names = list(track.blendshape_names)
+    rest = actor_rest(track)
+    cols = _score_columns(names)
+    raw = frame_features(track.landmarks_head, track.blendshapes, rest.landmarks, rest.scores, cols)
+    fps = float(track.fps) if track.fps and np.isfinite(track.fps) else 30.0
+    valid = np.asarray(track.presence, bool)
+    terms = pose_terms(track.head_pose)
+    pose_model, idle = _pose_model(raw, terms, valid)
+    feats = raw - terms @ pose_model
+    act = activity(group_motion(feats), idle, fps)
+    runs = find_runs(act, fps, valid)
+    rest_frames = idle
+
+    reading = _reading(np.asarray(track.blendshapes, np.float64), rest.scores, names)
+    targets = target_matrix(names, steps)  # (S, K)
+    sim = np.zeros((len(runs), len(steps)))
+    for i, run in enumerate(runs):
+        v = reading[run.hold_start:run.hold_stop].mean(0)
+        sim[i] = (targets.T @ v) / (np.linalg.norm(targets, axis=0) * max(np.linalg.norm(v), 1e-9))
+    pairs = dict((k, i) for i, k in align(sim)) if len(runs) else {}
+
+    fits, rows, row_steps, warnings = [], [], [], []
+    for k, step in enumerate(steps):
+        if k not in pairs:
+            fits.append(StepFit(step.name, False))
+            warnings.append(f"calibration: the take shows no '{step.name}' ({step.instruction.lower()}): "
+                            "its curves keep the tracker's reading")
+            continue
+        run = runs[pairs[k]]
+        match = float(sim[pairs[k], k])
+        if match < MATCH_WARN:
+            warnings.append(f"calibration: '{step.name}' (frames {run.start}-{run.stop - 1}) reads unlike it "
+                            f"(match {match:.2f}); check the take, or edit actor.json")
+        fits.append(StepFit(step.name, True, (run.start, run.stop - 1), (run.hold_start, run.hold_stop - 1),
+                            round(match, 3)))
+        rows.append(feats[run.hold_start:run.hold_stop].mean(0))
+        row_steps.append(step.name)
+    basis = np.asarray(rows, np.float32).reshape(len(rows), feats.shape[1])
+    calibration = ActorCalibration(
+        source=str(track.source), fps=fps, steps=fits, rest_face=rest.face, rest_landmarks=rest.landmarks,
+        rest_scores=rest.scores, score_names=names, pose_model=pose_model.astype(np.float32),
+        basis=basis, basis_steps=row_steps,
+        curves=_curves(names, steps, row_steps), warnings=warnings)
+    _fit_gains(calibration, feats, fits, rest_frames, steps)
+    _report_steps(calibration, track, base_curves if base_curves is not None else reading)
+    return calibration
+
+
+def _pose_model(raw: np.ndarray, terms: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(P, D) how the features of a still face follow the head's pose terms (F, P), fitted on
+    the take's idle frames (found again from each fit's residuals), and those frames."""
+    idle = np.flatnonzero(valid)
+    model = np.zeros((terms.shape[1], raw.shape[1]))
+    for _ in range(POSE_ROUNDS):
+        model, *_ = np.linalg.lstsq(terms[idle], raw[idle], rcond=None)
+        idle = idle_frames(group_motion(raw - terms @ model), valid)
+    return model, idle
+
+
+def _curves(names: list[str], steps: tuple[Step, ...], found: list[str]) -> dict[str, dict]:
+    """ARKit name -> {"gain": 1, "offset": 0, "steps": the found steps that show it}."""
+    out = {}
+    for name in names:
+        shown = [s.name for s in steps if s.name in found and s.targets.get(name, 0.0) > 0.0]
+        if shown:
+            out[name] = {"gain": 1.0, "offset": 0.0, "steps": shown}
+    return out
+
+
+def _mix(calibration: ActorCalibration, weights: np.ndarray) -> np.ndarray:
+    """(F, S) each score column's curve from (F, K) step weights, before gain and offset."""
+    steps = {s.name: s for s in PROTOCOL}
+    targets = np.zeros((len(calibration.score_names), len(calibration.basis_steps)))
+    col = {n: i for i, n in enumerate(calibration.score_names)}
+    for k, name in enumerate(calibration.basis_steps):
+        for curve, w in steps[name].targets.items():
+            if curve in col:
+                targets[col[curve], k] = w
+    return weights @ targets.T
+
+
+def _fit_gains(calibration: ActorCalibration, feats: np.ndarray, fits: list[StepFit],
+               rest_frames: np.ndarray, steps: tuple[Step, ...]) -> None:
+    """Each curve's gain and offset: its mix over the take's holds (each step's target) and
+    rest frames (0) fitted by least squares, within :data:`GAIN_BOUNDS` and :data:`OFFSET_BOUNDS`."""
+    if not len(calibration.basis):
+        return
+    holds = [(f, s) for f, s in zip(fits, steps) if f.found]
+    frames = np.concatenate([np.arange(f.hold[0], f.hold[1] + 1) for f, _ in holds] + [rest_frames])
+    goal = np.zeros((len(frames), len(calibration.score_names)))
+    col = {n: i for i, n in enumerate(calibration.score_names)}
+    at = 0
+    for f, s in holds:
+        n = f.hold[1] - f.hold[0] + 1
+        for curve, w in s.targets.items():
+            if curve in col:
+                goal[at:at + n, col[curve]] = w
+        at += n
+    mix = _mix(calibration, step_weights(feats[frames], calibration.basis))
+    for name, c in calibration.curves.items():
+        x, y = mix[:, col[name]], goal[:, col[name]]
+        design = np.stack([x, np.ones_like(x)], 1)
+        (gain, offset), *_ = np.linalg.lstsq(design, y, rcond=None)
+        c["gain"] = round(float(np.clip(gain, *GAIN_BOUNDS)), 4)
+        c["offset"] = round(float(np.clip(offset, *OFFSET_BOUNDS)), 4)
+
+
+def _report_steps(calibration: ActorCalibration, track, before: np.ndarray) -> None:
+    """Each found step's before/after: its curves' mean over the hold, uncalibrated and calibrated."""
+    after = calibrated_curves(track, calibration, before, aligned=False)
+    col = {n: i for i, n in enumerate(calibration.score_names)}
+    by_name = {s.name: s for s in PROTOCOL}
+    for fit in calibration.steps:
+        if not fit.found:
+            continue
+        span = slice(fit.hold[0], fit.hold[1] + 1)
+        shown = [c for c in by_name[fit.name].targets if c in col]
+        fit.before = {c: round(float(before[span, col[c]].mean()), 3) for c in shown}
+        fit.after = {c: round(float(after[span, col[c]].mean()), 3) for c in shown}
+
+
+def calibration_rest(calibration: ActorCalibration, track=None) -> ActorRest:
+    """The calibration's rest as an :class:`ActorRest`; with ``track``, laid onto its head
+    coordinates (:func:`~capture2face.tracking.rest.aligned_rest`)."""
+    rest = ActorRest(face=calibration.rest_face, landmarks=calibration.rest_landmarks,
+                     scores=calibration.rest_scores, frames={}, source=f"calibration {calibration.source}")
+    return rest if track is None else aligned_rest(rest, track.landmarks_head, track.presence)
+
+
+def calibrated_curves(track, calibration: ActorCalibration, base: np.ndarray, aligned: bool = True) -> np.ndarray:
+    """(F, S) float32: ``base`` (F, S) curves with each calibrated column replaced by the
+    calibration's (before the caller's filter). ``aligned``: lay the calibration's rest onto
+    the track's head coordinates first (False: the track is the take itself)."""
+    out = np.array(base, np.float32, copy=True)
+    if not calibration.curves or not len(calibration.basis):
+        return out
+    names = list(track.blendshape_names)
+    if names != calibration.score_names:
+        return out
+    rest = calibration_rest(calibration, track if aligned else None)
+    cols = _score_columns(names)
+    col = {n: i for i, n in enumerate(names)}
+    chunk = 4096
+    for s in range(0, track.n_frames, chunk):
+        span = slice(s, min(s + chunk, track.n_frames))
+        feats = frame_features(track.landmarks_head, track.blendshapes, rest.landmarks, rest.scores, cols, span)
+        feats -= pose_terms(np.asarray(track.head_pose[span])) @ calibration.pose_model
+        mix = _mix(calibration, step_weights(feats, calibration.basis))
+        for name, c in calibration.curves.items():
+            out[span, col[name]] = np.clip(c["gain"] * mix[:, col[name]] + c["offset"], 0.0, 1.0)
+    return out
+
+
+__all__ = ["STEP_NAMES", "calibrate", "calibrated_curves", "calibration_rest"]

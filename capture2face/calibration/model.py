@@ -1,0 +1,140 @@
+"""``ActorCalibration``: what a range-of-motion take taught about one actor, and its JSON
+(``actor.json``: readable and editable; the per-curve ``gain`` and ``offset`` are what a
+user tunes)."""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from capture2face.errors import CaptureError
+from capture2face.io.atomic import write_text_atomic
+
+FORMAT = "capture2face.ActorCalibration/1"
+
+
+@dataclass
+class StepFit:
+    """One protocol step as found in the take.
+
+    Attributes:
+        name: the step (:data:`~capture2face.calibration.protocol.PROTOCOL`).
+        found: whether the take shows it (False: missing, named in a warning).
+        frames: (first, last) frame of its motion in the take, or None.
+        hold: (first, last) frame of the hold it was learned from, or None.
+        match: how like the step the tracker's own reading of the hold is (cosine of its
+            scores' change against the step's ARKit weights, -1..1), or None.
+        before: ARKit name -> the uncalibrated curve at the hold (its mean), for the report.
+        after: the same, calibrated.
+    """
+
+    name: str
+    found: bool
+    frames: tuple[int, int] | None = None
+    hold: tuple[int, int] | None = None
+    match: float | None = None
+    before: dict[str, float] = field(default_factory=dict)
+    after: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class ActorCalibration:
+    """One actor's calibration. K = steps found, D = features per frame
+    (:func:`~capture2face.calibration.features.frame_features`), S = scores.
+
+    Attributes:
+        source: the ROM take it was learned from.
+        fps: the take's frame rate.
+        steps: every protocol step, found or not.
+        rest_face, rest_landmarks: (478, 3) float32 the actor's rest in the take's head
+            coordinates (:class:`~capture2face.tracking.rest.ActorRest`'s face and landmarks).
+        rest_scores: (S,) float32 the scores at rest.
+        score_names: S names of the tracker's scores.
+        pose_model: (P, D) float32 how this actor's features shift with the head's pose
+            (:func:`~capture2face.calibration.features.pose_terms`), taken off every frame.
+        basis: (K, D) float32 each found step's feature change at its hold.
+        basis_steps: K names of the steps the basis rows belong to.
+        curves: ARKit name -> {"gain", "offset", "steps"}: the calibrated curve is
+            ``clip(gain * sum_k w_k target_k + offset, 0, 1)`` over the steps that show it.
+        warnings: what the take lacked or showed badly.
+    """
+
+    source: str
+    fps: float
+    steps: list[StepFit]
+    rest_face: np.ndarray
+    rest_landmarks: np.ndarray
+    rest_scores: np.ndarray
+    score_names: list[str]
+    pose_model: np.ndarray
+    basis: np.ndarray
+    basis_steps: list[str]
+    curves: dict[str, dict]
+    warnings: list[str] = field(default_factory=list)
+
+    def to_json(self) -> dict:
+        r = lambda a, d=4: np.round(np.asarray(a, np.float64), d).tolist()  # noqa: E731
+        return {
+            "format": FORMAT,
+            "source": self.source,
+            "fps": self.fps,
+            "curves": self.curves,
+            "steps": [{"name": s.name, "found": s.found, "frames": s.frames, "hold": s.hold, "match": s.match,
+                       "before": s.before, "after": s.after} for s in self.steps],
+            "warnings": self.warnings,
+            "rest": {"scores": dict(zip(self.score_names, r(self.rest_scores), strict=True)),
+                     "landmarks": r(self.rest_landmarks), "face": r(self.rest_face)},
+            "pose_model": r(self.pose_model, 5),
+            "basis": {name: r(row, 5) for name, row in zip(self.basis_steps, self.basis, strict=True)},
+        }
+
+    def save(self, path: str | os.PathLike) -> None:
+        write_text_atomic(path, json.dumps(self.to_json(), indent=1) + "\n")
+
+    @classmethod
+    def from_json(cls, data: dict, where: str = "calibration") -> ActorCalibration:
+        if not isinstance(data, dict) or data.get("format") != FORMAT:
+            raise CaptureError(f"{where}: not an actor calibration (no \"format\": \"{FORMAT}\")")
+        try:
+            names = list(data["rest"]["scores"])
+            basis_steps = list(data["basis"])
+            basis = np.asarray([data["basis"][n] for n in basis_steps], np.float32)
+            steps = [StepFit(s["name"], bool(s["found"]), _pair(s.get("frames")), _pair(s.get("hold")),
+                             s.get("match"), dict(s.get("before", {})), dict(s.get("after", {})))
+                     for s in data["steps"]]
+            curves = {str(k): {"gain": float(v["gain"]), "offset": float(v["offset"]), "steps": list(v["steps"])}
+                      for k, v in data["curves"].items()}
+            out = cls(source=str(data.get("source", "")), fps=float(data.get("fps", 30.0)), steps=steps,
+                      rest_face=np.asarray(data["rest"]["face"], np.float32),
+                      rest_landmarks=np.asarray(data["rest"]["landmarks"], np.float32),
+                      rest_scores=np.asarray(list(data["rest"]["scores"].values()), np.float32),
+                      score_names=names, pose_model=np.asarray(data["pose_model"], np.float32),
+                      basis=basis.reshape(len(basis_steps), -1), basis_steps=basis_steps,
+                      curves=curves, warnings=list(data.get("warnings", [])))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise CaptureError(f"{where}: a damaged actor calibration ({type(exc).__name__}: {exc})") from None
+        if out.rest_landmarks.shape != (478, 3) or out.rest_face.shape != (478, 3):
+            raise CaptureError(f"{where}: a damaged actor calibration (its rest is not 478 landmarks)")
+        for name, c in out.curves.items():
+            unknown = [s for s in c["steps"] if s not in out.basis_steps]
+            if unknown:
+                raise CaptureError(f"{where}: curve {name} names steps the calibration lacks: {', '.join(unknown)}")
+        return out
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> ActorCalibration:
+        try:
+            with open(path, encoding="utf-8") as f:
+                data = json.load(f)
+        except OSError as exc:
+            raise CaptureError(f"--calibration {path}: cannot read it ({exc.strerror or exc})") from None
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise CaptureError(f"--calibration {path}: not JSON ({exc})") from None
+        return cls.from_json(data, f"--calibration {path}")
+
+
+def _pair(value) -> tuple[int, int] | None:
+    return None if value is None else (int(value[0]), int(value[1]))
