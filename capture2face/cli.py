@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 from capture2face import batch, bench, pipeline
+from capture2face.calibration.attach import attach
 from capture2face.character.load import load_character
 from capture2face.errors import CaptureError, exit_interrupted, install_process_defaults
 from capture2face.eval import characters, shading
@@ -27,6 +28,12 @@ from capture2face.io.staging import check_output_file
 from capture2face.io.video_input import open_video
 from capture2face.models.face_model import find_face_model
 from capture2face.pipeline import RunOptions
+from capture2face.pipeline.calibration import (
+    calibration_summary,
+    check_calibration,
+    learn_calibration,
+    resolve_calibration,
+)
 from capture2face.pipeline.options import MAX_SIZE, MIN_SIZE, MOVED_TO_STAGES
 from capture2face.pipeline.preflight import check_neutral_frame
 from capture2face.render.renderer import WRINKLE_DRIVERS
@@ -98,7 +105,8 @@ def _cmd_synth(args: argparse.Namespace) -> int:
 
 #: Each option flag's place in RunOptions (``--no-audio`` apart: ``audio`` is its negation): the
 #: flags named as RunOptions' flat keywords of before, each where it moved.
-FLAG_OPTIONS = {"character": ("character",), **MOVED_TO_STAGES, "allow_truncated": ("allow_truncated",)}
+FLAG_OPTIONS = {"character": ("character",), **MOVED_TO_STAGES, "calibration": ("track", "calibration"),
+                "allow_truncated": ("allow_truncated",)}
 
 
 def options_from_args(args: argparse.Namespace) -> RunOptions:
@@ -125,11 +133,15 @@ def _cmd_track(args: argparse.Namespace) -> int:
     # the model exists.
     options = _track_options(args)
     check_neutral_frame(args.neutral_frame, open_video(args.clip))
+    check_calibration(options)
     check_output_file(args.output, "-o", protect=[args.clip])
     if args.overlay:
         check_output_file(args.overlay, "--overlay", (".mp4",), protect=[args.clip, args.output])
     find_face_model(args.face_model)
+    calibration = resolve_calibration(options, progress=not args.quiet)
     track = track_clip(args.clip, options, progress=not args.quiet)
+    if calibration is not None:  # the track rests on it and carries it (track.npz keeps it)
+        track = attach(track, calibration)
     track.save(args.output)
     if args.overlay:
         write_overlay(args.clip, track, args.overlay, progress=not args.quiet)
@@ -137,6 +149,20 @@ def _cmd_track(args: argparse.Namespace) -> int:
         f"{args.output}: {track.n_frames} frames, {track.tracked_frames} with a face, "
         f"neutral frame {track.neutral_frame}, rest: {track.rest_source}"
     )
+    return 0
+
+
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    # Before tracking: the options, the take decodes, the output can be written, the model exists.
+    options = _track_options(args)
+    open_video(args.take)
+    check_output_file(args.output, "-o", (".json",), protect=[args.take])
+    find_face_model(args.face_model)
+    calibration = learn_calibration(args.take, options, progress=not args.quiet)
+    calibration.save(args.output)
+    for warning in calibration.warnings:
+        print(f"capture2face: warning: {warning}", file=sys.stderr)
+    print(f"wrote {args.output}: {calibration_summary(calibration)}")
     return 0
 
 
@@ -249,6 +275,15 @@ def _add_neutral_options(p: argparse.ArgumentParser) -> None:
                    help="a photo or still of the same actor at rest, instead (as Live Link Face's calibration)")
     p.add_argument("--neutral-clip", metavar="VIDEO", default=None,
                    help="a short take of the same actor at rest, instead")
+    _add_calibration_option(p)
+
+
+def _add_calibration_option(p: argparse.ArgumentParser, batch: bool = False) -> None:
+    p.add_argument("--calibration", metavar="ROM_OR_JSON", default=None,
+                   help=("the actor's calibration" + (" for every clip (else CLIP.rom.mp4 or CLIP.rom.json beside "
+                                                      "a clip, for that clip)" if batch else ", instead") +
+                         ": a range-of-motion take (docs/calibration.md), learned first, or the actor.json "
+                         "`capture2face calibrate` wrote; it brings the rest too"))
 
 
 def _common_options() -> argparse.ArgumentParser:
@@ -360,6 +395,17 @@ def _add_track_parser(sub, common: argparse.ArgumentParser) -> None:
     p.set_defaults(func=_cmd_track)
 
 
+def _add_calibrate_parser(sub, common: argparse.ArgumentParser) -> None:
+    p = sub.add_parser("calibrate", parents=[common],
+                       help="learn an actor's calibration from a range-of-motion take into actor.json")
+    p.add_argument("take", help="the range-of-motion take (docs/calibration.md)")
+    p.add_argument("-o", "--output", required=True, metavar="JSON",
+                   help="the calibration to write (readable and editable; give it to --calibration)")
+    _add_face_model_option(p)
+    _add_face_choice_options(p)
+    p.set_defaults(func=_cmd_calibrate)
+
+
 def _add_run_parser(sub, common: argparse.ArgumentParser) -> None:
     p = sub.add_parser("run", parents=[common], help="clip -> animated, wrinkled character (video + exports)")
     p.add_argument("clip", help="the video of a face")
@@ -451,6 +497,7 @@ def _add_batch_parser(sub, common: argparse.ArgumentParser) -> None:
     p.add_argument("--ray", metavar="ADDRESS", default=None,
                    help="distribute over a Ray cluster: local, auto (this machine's cluster), "
                         "HOST:PORT or ray://HOST:PORT")
+    _add_calibration_option(p, batch=True)
     _add_run_options(p)
     p.set_defaults(func=_cmd_batch)
 
@@ -479,6 +526,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_avatar_parser(sub, common)
     _add_synth_parser(sub, common)
     _add_track_parser(sub, common)
+    _add_calibrate_parser(sub, common)
     _add_run_parser(sub, common)
     _add_eval_parser(sub, common)
     _add_batch_parser(sub, common)

@@ -21,7 +21,9 @@ from capture2face.tracking import TrackOptions
 MIN_SIZE = 64
 MAX_SIZE = 4096  # 4096^2 renders at ~0.1 fps on a software GL; 8K textures break drivers
 OUTPUT_FILES = ("avatar.mp4", "compare.mp4", "track.npz", "animation.npz", "animation.glb",
-                "livelink.csv", "report.html", "report.json")
+                "livelink.csv", "report.html", "report.json", "calibration.json")
+#: Written only by a run given a calibration (``--calibration``): what it learned or loaded.
+CALIBRATION_FILE = "calibration.json"
 
 
 def check_size(size: Any) -> None:
@@ -128,7 +130,9 @@ _JSON_FIELDS = ("character", "wrinkles", "size", "neutral_frame", "neutral_image
                 "compare", "samples", "crf", "preset", "queue_frames", "allow_truncated", "audio", "faces", "face",
                 "track_workers")
 #: The options that name a file: stored by absolute path.
-_FILE_FIELDS = ("character", "neutral_image", "neutral_clip", "face_model")
+_FILE_FIELDS = ("character", "neutral_image", "neutral_clip", "face_model", "calibration")
+#: Where each flat name of report.json's "options" lives (``calibration``: stored only when given).
+_JSON_PATHS = {**MOVED_TO_STAGES, "calibration": ("track", "calibration")}
 #: What run sets in its RenderOptions itself (not the user's to change).
 _RUN_SETS = {"render": {"samples", "fxaa", "influence_output"}}
 
@@ -138,8 +142,10 @@ def options_json(options: RunOptions) -> dict:
     ``track``, ``render`` and ``retarget`` each with the settings that differ from their
     defaults (only those not already among the flat names; none by default)."""
     out = {}
-    for name in _JSON_FIELDS:
-        v = get_path(options, MOVED_TO_STAGES.get(name, (name,)))
+    for name in _JSON_FIELDS + (("calibration",) if options.track.calibration is not None else ()):
+        v = get_path(options, _JSON_PATHS.get(name, (name,)))
+        if name == "calibration":
+            v = calibration_file(v)
         if isinstance(v, FaceRig):
             v = v.name
         elif isinstance(v, os.PathLike):
@@ -148,7 +154,7 @@ def options_json(options: RunOptions) -> dict:
             v = os.path.abspath(v)  # a file: found again from any folder (eval fidelity RUN_DIR, batch --resume)
         out[name] = v
     for part in ("track", "render", "retarget"):
-        skip = {path[1:] for path in MOVED_TO_STAGES.values() if path[0] == part}
+        skip = {path[1:] for path in _JSON_PATHS.values() if path[0] == part}
         skip |= {(name,) for name in _RUN_SETS.get(part, ())}
         changed = _changed_settings(getattr(options, part), skip)
         if changed:
@@ -173,8 +179,18 @@ def _changed_settings(options: Any, skip: set[tuple[str, ...]], prefix: tuple[st
     return out
 
 
+def calibration_file(calibration: Any) -> str | None:
+    """The file a calibration option names: its path, or for an ``ActorCalibration`` (a
+    batch's take, learned once) the take it was learned from; None for none."""
+    if calibration is None:
+        return None
+    if isinstance(calibration, (str, os.PathLike)):
+        return os.fspath(calibration)
+    return str(getattr(calibration, "source", "")) or None
+
+
 def input_files(clip: str | os.PathLike, options: RunOptions) -> dict[str, str | None]:
-    """The files a run's result depends on, by role: ``clip``, a neutral take, and for a character file
+    """The files a run's result depends on, by role: ``clip``, a neutral take or calibration, and for a character file
     ``character`` and (.glb / .gltf) ``mapping``, the JSON beside it, which need not exist, and
     the files they reference (``character file:<name>``: a .gltf's buffers and images;
     ``mapping file:<name>``: wrinkle maps, zone masks). A built-in avatar or a FaceRig object
@@ -183,6 +199,9 @@ def input_files(clip: str | os.PathLike, options: RunOptions) -> dict[str, str |
     for role in ("neutral_image", "neutral_clip"):
         if getattr(options.track, role) is not None:
             files[role] = os.fspath(getattr(options.track, role))
+    calibration = calibration_file(options.track.calibration)
+    if calibration is not None:
+        files["calibration"] = calibration
     character = options.character
     if isinstance(character, (str, os.PathLike)) and Path(character).is_file():
         files["character"] = os.fspath(character)

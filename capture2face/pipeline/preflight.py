@@ -4,8 +4,9 @@ landmarks fails in seconds, not after minutes of tracking.
 :func:`preflight` is what :func:`capture2face.pipeline.run` calls first (and
 :func:`capture2face.batch.run_batch` once per batch for what all clips share): the options
 and their limits, the clip (it decodes; the neutral frame lies inside it), the neutral
-image or clip (it decodes), the face model, the character (it loads and the retargeting
-can drive it), and the OpenGL context.
+image or clip (it decodes), the calibration (an actor.json loads, a take decodes), the
+face model, the character (it loads and the retargeting can drive it), and the OpenGL
+context.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from capture2face.character.load import load_character
 from capture2face.errors import CaptureError
 from capture2face.io.video_input import open_video
 from capture2face.models.face_model import find_face_model
+from capture2face.pipeline.calibration import check_calibration
 from capture2face.render.context import gl_context
 from capture2face.rig.arkit_names import drive_mode
 from capture2face.tracking.calibration import neutral_take
@@ -99,6 +101,7 @@ def preflight(clip: str | os.PathLike, options, progress: bool = False) -> tuple
     info = open_video(clip)
     check_neutral_frame(options.track.neutral_frame, info)
     check_neutral_take(options.track)
+    check_calibration(options.track)
     rig = check_shared(options, progress)
     check_gl()
     return info, rig

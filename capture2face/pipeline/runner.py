@@ -42,7 +42,8 @@ from capture2face.io.fingerprint import fingerprint
 from capture2face.io.staging import check_output_folder, folder_name_problem, staged_folder
 from capture2face.io.video_input import watch_damage
 from capture2face.measures import clip_fidelity
-from capture2face.pipeline.options import OUTPUT_FILES, RunOptions, input_files, options_json
+from capture2face.pipeline.calibration import calibration_report, resolve_calibration
+from capture2face.pipeline.options import CALIBRATION_FILE, OUTPUT_FILES, RunOptions, input_files, options_json
 from capture2face.pipeline.preflight import preflight
 from capture2face.pipeline.render_pass import render_stage
 from capture2face.pipeline.report.html import write_report_html
@@ -152,12 +153,14 @@ def _run(clip, out_dir, options: RunOptions, progress: bool, name: str | None, w
     check_same_clip(final, inputs["clip"])  # day1/take.mp4 never silently replaces day2/take.mp4's
     seconds: dict[str, float] = {"checks": time.perf_counter() - t_start}  # the default avatar's first build too
     # Only the run's own files in ``final`` are replaced; the clip itself is never touched.
-    outputs = [f for f in OUTPUT_FILES if f != "compare.mp4" or options.compare]
+    outputs = [f for f in OUTPUT_FILES if (f != "compare.mp4" or options.compare)
+               and (f != CALIBRATION_FILE or options.track.calibration is not None)]
     check_output_folder(final, outputs, OUTPUT_FILES, protect=[clip])
     with collect_warnings() as warnings, \
             staged_folder(final, OUTPUT_FILES, protect=[clip]) as tmp, _work_folder(tmp) as work:
+        calibration = _calibration(options, progress, tmp, seconds)
         t = time.perf_counter()
-        track = _track(clip, options, progress, work, workers, info)
+        track = _track(clip, options, progress, work, workers, info, calibration)
         track.save(tmp / "track.npz")
         release_free_memory()
         seconds["track"] = time.perf_counter() - t
@@ -180,7 +183,7 @@ def _run(clip, out_dir, options: RunOptions, progress: bool, name: str | None, w
 
         seconds["total"] = time.perf_counter() - t_start
         report = _report(clip, final, rig, track, info, options, outputs, seconds, checked + list(warnings),
-                         fidelity)
+                         fidelity, calibration)
         report["inputs"] = inputs
         # report.html shows the seconds up to here; report.json adds its own and the total.
         t = time.perf_counter()
@@ -195,11 +198,24 @@ def _run(clip, out_dir, options: RunOptions, progress: bool, name: str | None, w
     return report
 
 
-def _track(clip, options: RunOptions, progress: bool, work: Path, workers, info):
+def _calibration(options: RunOptions, progress: bool, tmp: Path, seconds: dict[str, float]):
+    """The run's calibration (``--calibration``: loaded, or learned from its take), written
+    as calibration.json among the outputs; None without one."""
+    if options.track.calibration is None:
+        return None
+    t = time.perf_counter()
+    calibration = resolve_calibration(options.track, progress)
+    calibration.save(tmp / CALIBRATION_FILE)
+    seconds["calibration"] = time.perf_counter() - t
+    return calibration
+
+
+def _track(clip, options: RunOptions, progress: bool, work: Path, workers, info, calibration=None):
     """Pass 1, refusing a damaged clip unless ``options.allow_truncated``."""
     with watch_damage(clip) as damage:
         try:
-            return track_stage(clip, options, progress, workdir=work, workers=workers, info=info)
+            return track_stage(clip, options, progress, workdir=work, workers=workers, info=info,
+                               calibration=calibration)
         finally:
             if workers is not None:
                 workers.close()
@@ -243,10 +259,13 @@ def _render_and_export(clip, track, animation, rig: FaceRig, tmp: Path, options:
 
 
 def _report(clip, final: Path, rig: FaceRig, track, info, options: RunOptions, outputs: list[str],
-            seconds: dict[str, float], warnings: list[str], fidelity) -> dict:
-    """report.json's content (its seconds are updated once report.html is written)."""
+            seconds: dict[str, float], warnings: list[str], fidelity, calibration=None) -> dict:
+    """report.json's content (its seconds are updated once report.html is written); the
+    ``calibration`` section only with one."""
     n = track.n_frames
-    return {
+    if calibration is not None:
+        warnings = warnings + list(calibration.warnings)
+    report = {
         "clip": os.fspath(clip),
         "output_dir": os.fspath(final),
         "character": rig.name,
@@ -268,3 +287,8 @@ def _report(clip, final: Path, rig: FaceRig, track, info, options: RunOptions, o
         "video": {"codec": info.codec, "rotation": info.rotation},
         "fidelity": fidelity.figures() if fidelity is not None else None,
     }
+    if calibration is None:
+        return report
+    at = list(report).index("rest") + 1  # beside the rest it brings
+    items = list(report.items())
+    return dict(items[:at] + [("calibration", calibration_report(calibration))] + items[at:])

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from capture2face.calibration.attach import attach
 from capture2face.camera import face_centre_and_height, framing_pose
 from capture2face.errors import CaptureError
 from capture2face.export.livelink import write_livelink_csv
@@ -16,6 +17,7 @@ from capture2face.gltf import export_glb
 from capture2face.gltf.character import export_character_animation
 from capture2face.gltf.container import CHARACTER_SUFFIXES
 from capture2face.io.video_input import open_video
+from capture2face.pipeline.calibration import resolve_calibration
 from capture2face.pipeline.options import RunOptions
 from capture2face.retarget import RetargetOptions, retarget
 from capture2face.rig.arkit_names import drive_mode
@@ -26,13 +28,18 @@ from capture2face.tracking.segments import MIN_SEGMENT_FRAMES, SegmentWorkers
 
 
 def track_stage(clip: str | os.PathLike, options: RunOptions, progress: bool = True,
-                workdir: str | os.PathLike | None = None, workers=None, info=None):
+                workdir: str | os.PathLike | None = None, workers=None, info=None, calibration=None):
     """Pass 1: the clip's :class:`~capture2face.tracking.track.Track` (with ``workdir``,
     its landmarks stay in files there: memory does not grow with the clip's length;
     ``workers``: :func:`start_track_workers`' processes; ``info``: the clip's
-    :func:`~capture2face.io.video_input.open_video` probe, if already made)."""
-    return track_clip(clip, options.track, progress=progress, workdir=workdir, workers=workers,
-                      info=info)
+    :func:`~capture2face.io.video_input.open_video` probe, if already made). With a
+    calibration (``calibration``, else ``options.track.calibration`` resolved now) the
+    track rests on it and carries it (:func:`~capture2face.calibration.attach.attach`)."""
+    if calibration is None and options.track.calibration is not None:
+        calibration = resolve_calibration(options.track, progress)
+    track = track_clip(clip, options.track, progress=progress, workdir=workdir, workers=workers,
+                       info=info)
+    return track if calibration is None else attach(track, calibration)
 
 
 def start_track_workers(clip: str | os.PathLike, options: RunOptions):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import warnings
 from dataclasses import dataclass, field
+from typing import Any
 
 from capture2face.errors import CaptureError
 from capture2face.runtime.cores import free_cores
@@ -34,6 +35,10 @@ class TrackOptions:
             clip, :mod:`.rest`).
         neutral_image: instead, a photo or still of the same actor at rest.
         neutral_clip: instead, a short take of the same actor at rest.
+        calibration: instead, the actor's calibration (:mod:`capture2face.calibration`): a
+            range-of-motion take (a video), its ``actor.json``, or an ``ActorCalibration``;
+            it brings the rest too. Tracking itself ignores it: ``pipeline`` learns or
+            loads it and lays it onto the clip's track.
         max_gap_seconds: gaps up to this long are interpolated; longer ones hold.
         min_cutoff, beta, d_cutoff: One Euro filter of the head-coordinate landmarks
             (Hz, 1/cm, Hz); see :mod:`.filtering`.
@@ -50,6 +55,7 @@ class TrackOptions:
     neutral_frame: int | None = None
     neutral_image: str | os.PathLike | None = None
     neutral_clip: str | os.PathLike | None = None
+    calibration: Any = None
     max_gap_seconds: float = 0.25
     min_cutoff: float = 1.5
     beta: float = 1.0
@@ -71,6 +77,10 @@ class TrackOptions:
                                       ("--neutral-clip", self.neutral_clip)) if v is not None]
         if len(given) > 1:
             raise CaptureError(f"{' and '.join(given)}: give one rest (a frame, an image or a clip), not several")
+        if given and self.calibration is not None:
+            raise CaptureError(f"--calibration and {given[0]}: the calibration brings the actor's rest; give one")
+        if isinstance(self.calibration, (str, os.PathLike)):
+            _check_calibration_file(self.calibration)
         for flag, path, kind in (("--neutral-image", self.neutral_image, "an image file (a photo or still)"),
                                  ("--neutral-clip", self.neutral_clip, "a video file")):
             if path is not None and os.path.isdir(path):
@@ -96,3 +106,12 @@ class TrackOptions:
     def n_workers(self) -> int:
         """Landmarkers at once (:attr:`workers`, None resolved to the free cores)."""
         return max(1, int(self.workers)) if self.workers is not None else free_cores()
+
+
+def _check_calibration_file(path: str | os.PathLike) -> None:
+    """``--calibration``: an existing file (a video or an ``actor.json``; read later)."""
+    if os.path.isdir(path):
+        raise CaptureError(f"--calibration {os.fspath(path)}: is a folder; give a range-of-motion take "
+                           "(a video) or an actor.json")
+    if not os.path.isfile(path):
+        raise CaptureError(f"--calibration {os.fspath(path)}: no such file")

@@ -16,7 +16,14 @@ from capture2face.pipeline.report.posters import (
     report_curves,
     shrink,
 )
-from capture2face.pipeline.report.tables import esc, facts_table, fidelity_tables, seconds_table, warnings_note
+from capture2face.pipeline.report.tables import (
+    calibration_table,
+    esc,
+    facts_table,
+    fidelity_tables,
+    seconds_table,
+    warnings_note,
+)
 
 STYLE = """
 body{font:14px/1.45 system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;margin:0;background:#f6f6f4;color:#222}
@@ -78,6 +85,7 @@ def render_report_html(report: dict, track, animation, video: str | os.PathLike 
         warnings_note(report),
         (f'<div class="cols"><div>{facts_table(report)}</div><div>{seconds_table(report.get("seconds") or {})}'
          "</div></div>"),
+        *(["<h2>Calibration</h2>", calibration_table(report["calibration"])] if report.get("calibration") else []),
         "<h2>Frames</h2>", poster_html,
         "<h2>Expression fidelity</h2>", fidelity_html,
         ("<h2>ARKit curves</h2><p class=\"note\">From the "

@@ -152,3 +152,29 @@ def _wrinkle_table(fig: dict) -> str:
             f"frames by the region's scores{rest}.</p>"
             '<table class="fidelity"><tr><th class="l">check</th><th>figure</th><th>goal</th><th>met</th></tr>'
             + "".join(rows) + "</table>")
+
+
+def _reading(values: dict, names: list[str]) -> str:
+    return ", ".join(f"{esc(n)} {float(values[n]):.2f}" for n in names if n in values) or "—"
+
+
+def calibration_table(section: dict | None) -> str:
+    """report.json's ``calibration``: each protocol step, the frames it was found at, how
+    like the step the tracker's reading was, and its main curves before and after; "" without."""
+    if not section:
+        return ""
+    rows = []
+    for s in section.get("steps", []):
+        after = s.get("after") or {}
+        names = sorted(after, key=lambda n: -abs(float(after[n])))[:3]  # the step's strongest curves
+        frames = "–".join(str(f) for f in s["frames"]) if s.get("frames") else "not found"
+        match = f'{s["match"]:.2f}' if s.get("match") is not None else ""
+        rows.append(f'<tr><td class="l">{esc(s["name"])}</td><td>{frames}</td><td>{match}</td>'
+                    f'<td class="l">{_reading(s.get("before") or {}, names)}</td>'
+                    f'<td class="l">{_reading(after, names)}</td></tr>')
+    found = sum(1 for s in section.get("steps", []) if s.get("found"))
+    return (f'<p class="note">From {esc(section.get("source", ""))}: {found} of {len(rows)} steps found, '
+            f'{len(section.get("curves", {}))} curves calibrated. Match: how like the step the tracker read the '
+            "hold (1 = alike). Reading: the step's strongest curves at its hold, before and after.</p>"
+            '<table class="calibration"><tr><th class="l">step</th><th>frames</th><th>match</th>'
+            '<th class="l">tracker before</th><th class="l">after</th></tr>' + "".join(rows) + "</table>")
