@@ -46,6 +46,7 @@ from capture2face.io.fingerprint import changes, fingerprint
 from capture2face.io.paths import ERRORS as PATH_ERRORS
 from capture2face.io.staging import check_writable
 from capture2face.pipeline import RunOptions, options_json, outputs_complete, run
+from capture2face.pipeline.calibration import check_calibration, is_calibration_file, learn_calibration
 from capture2face.pipeline.options import input_files
 from capture2face.pipeline.preflight import check_gl, check_shared
 from capture2face.runtime.cores import free_cores
@@ -54,6 +55,7 @@ from capture2face.runtime.log import warnings_to_stderr
 VIDEO_EXTENSIONS = (".mp4", ".mov", ".m4v", ".mkv", ".avi", ".webm", ".mpg", ".mpeg", ".wmv", ".flv")
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".webp", ".bmp", ".tif", ".tiff")
 NEUTRAL_SUFFIX = ".neutral"  # CLIP.neutral.jpg / CLIP.neutral.mp4 beside CLIP.mp4: its rest take
+ROM_SUFFIX = ".rom"  # CLIP.rom.mp4 / CLIP.rom.json beside CLIP.mp4: its actor's calibration
 _QUOTES = "\"'"  # a list line's names may be quoted
 LIST_EXTENSIONS = (".txt", ".lst")
 REPORT_NAME = "batch_report.json"
@@ -65,12 +67,16 @@ RAY_CONNECT_S = 10.0  # --ray HOST:PORT: joined within this (the command's check
 
 @dataclasses.dataclass
 class BatchClip:
-    """One input clip, the output folder name it gets (``OUT/<name>/``) and its rest take
-    (an image or a clip of the actor at rest), if any."""
+    """One input clip, the output folder name it gets (``OUT/<name>/``), its rest take
+    (an image or a clip of the actor at rest) and its calibration (``rom``: a
+    range-of-motion take or an actor.json; ``learned``: the take's ActorCalibration once the
+    batch learned it), if any."""
 
     path: str
     name: str
     neutral: str | None = None
+    rom: str | None = None
+    learned: Any = None
 
 
 def expand_inputs(inputs: Iterable[str | os.PathLike]) -> list[BatchClip]:
@@ -80,7 +86,8 @@ def expand_inputs(inputs: Iterable[str | os.PathLike]) -> list[BatchClip]:
     failed rather than silently dropping it.
 
     Each clip's rest take: a list line's second column (after a tab or `` | ``), else a
-    sidecar ``CLIP.neutral.<image or video extension>`` beside it; sidecars are never
+    sidecar ``CLIP.neutral.<image or video extension>`` beside it; its calibration: a
+    sidecar ``CLIP.rom.<video extension>`` or ``CLIP.rom.json``; sidecars are never
     clips of their own.
 
     Output names are the clip stems; clips sharing a stem get their parent folder's name
@@ -130,7 +137,9 @@ def expand_inputs(inputs: Iterable[str | os.PathLike]) -> list[BatchClip]:
             name, k = f"{base}_{k}", k + 1
         used.add(name)
         neutral = listed.get(p) or _sidecar(p)
-        clips.append(BatchClip(str(p), name, None if neutral is None else str(neutral)))
+        rom = _rom_sidecar(p)
+        clips.append(BatchClip(str(p), name, None if neutral is None else str(neutral),
+                               None if rom is None else str(rom)))
     return clips
 
 
@@ -183,7 +192,17 @@ def _unquoted(text: str) -> str:
 
 
 def _is_sidecar(path: Path) -> bool:
-    return path.stem.lower().endswith(NEUTRAL_SUFFIX)
+    return path.stem.lower().endswith((NEUTRAL_SUFFIX, ROM_SUFFIX))
+
+
+def _rom_sidecar(clip: Path) -> Path | None:
+    """``CLIP.rom.json`` or ``CLIP.rom.<video extension>`` beside ``clip``, if there is one."""
+    for ext in (".json",) + VIDEO_EXTENSIONS:
+        for candidate in (clip.with_name(clip.stem + ROM_SUFFIX + ext),
+                          clip.with_name(clip.stem + ROM_SUFFIX + ext.upper())):
+            if candidate.is_file():
+                return candidate
+    return None
 
 
 def _sidecar(clip: Path) -> Path | None:
@@ -197,11 +216,18 @@ def _sidecar(clip: Path) -> Path | None:
 
 
 def clip_options(clip: BatchClip, options: Any) -> Any:
-    """``options`` for one clip: with its rest take (``neutral_image`` or ``neutral_clip``
-    by its extension), unless the batch's options give a rest of their own."""
+    """``options`` for one clip: with its calibration (``clip.rom``, or what the batch
+    learned from it) else its rest take (``neutral_image`` or ``neutral_clip`` by its
+    extension), unless the batch's options give a rest or calibration of their own."""
     track = options.track
-    given = any(getattr(track, k) is not None for k in ("neutral_frame", "neutral_image", "neutral_clip"))
-    if clip.neutral is None or given:
+    given = any(getattr(track, k) is not None
+                for k in ("neutral_frame", "neutral_image", "neutral_clip", "calibration"))
+    if given:
+        return options
+    if clip.rom is not None:
+        calibration = clip.learned if clip.learned is not None else clip.rom
+        return dataclasses.replace(options, track=dataclasses.replace(track, calibration=calibration))
+    if clip.neutral is None:
         return options
     kind = "neutral_image" if Path(clip.neutral).suffix.lower() in IMAGE_EXTENSIONS else "neutral_clip"
     return dataclasses.replace(options, track=dataclasses.replace(track, **{kind: clip.neutral}))
@@ -228,7 +254,7 @@ class _Report:
         self.path = out / REPORT_NAME
         self.t0 = time.perf_counter()
         self.entries = [{"path": c.path, "name": c.name, "status": "pending", "seconds": None, "error": None,
-                         **({"neutral": c.neutral} if c.neutral else {})}
+                         **({"neutral": c.neutral} if c.neutral else {}), **({"rom": c.rom} if c.rom else {})}
                         for c in clips]
         # An earlier batch's entries stay; this batch's replace those of the same clip.
         merged = [dict(e, earlier=True) for e in _earlier_entries(self.path)]
@@ -273,7 +299,7 @@ def _option_key(name: str, value: Any) -> Any:
     default avatar also as None), numbers as numbers."""
     if name == "character" and value in (None, "default"):
         return "default"
-    if name in ("character", "face_model", "neutral_image", "neutral_clip") and isinstance(value, str) \
+    if name in ("character", "face_model", "neutral_image", "neutral_clip", "calibration") and isinstance(value, str) \
             and Path(value).exists():
         return str(Path(value).resolve())
     if isinstance(value, float) and value.is_integer():
@@ -323,7 +349,8 @@ def _changed_options(stored: dict, options: Any) -> list[str]:
     wanted = options_json(options)
     defaults = options_json(RunOptions())
     # A stage's settings off their defaults are stored only when there are some.
-    names = list(wanted) + [n for n in ("track", "render", "retarget") if n in stored and n not in wanted]
+    extra = ("track", "render", "retarget", "calibration")
+    names = list(wanted) + [n for n in extra if n in stored and n not in wanted]
     changed = []
     for name in names:
         new = wanted.get(name)
@@ -400,8 +427,13 @@ def _batch(clips: list[BatchClip], out: Path, options: Any, jobs: int | None, re
     if progress:
         bar = tqdm(total=len(clips), initial=len(clips) - len(todo), desc="clips", unit="clip")
     try:
+        options, failed = _learn_takes(clips, todo, options, progress)
+        done = _clip_done(report, clips, bar)
+        for i, error in failed.items():
+            done(i, {"status": "failed", "seconds": 0.0, "error": error})
+        todo = [i for i in todo if i not in failed]
         if todo:
-            _run_clips(clips, todo, out, options, jobs, ray_address, _clip_done(report, clips, bar))
+            _run_clips(clips, todo, out, options, jobs, ray_address, done)
     finally:
         if bar is not None:
             bar.close()
@@ -416,8 +448,44 @@ def _check_batch(options: Any, progress: bool, ray_address: str | None) -> None:
     # context where the workers are local processes (a Ray worker may be another machine).
     # The default avatar too: built here once (then cached) rather than by every worker.
     check_shared(options, progress)
+    check_calibration(options.track)  # an actor.json loads, a take decodes
     if not ray_address:
         check_gl()
+
+
+def _learn_takes(clips: list[BatchClip], todo: list[int], options: Any, progress: bool
+                 ) -> tuple[Any, dict[int, str]]:
+    """Learn each range-of-motion take the clips ``todo`` use once, here, before any clip
+    runs (not once per clip): the batch's ``--calibration`` take (``options`` come back
+    carrying what it learned) and each ``CLIP.rom.<video>`` (into its clips' ``learned``).
+    A take that cannot be learned fails the clips that use it: ``{index: error}``."""
+    if not todo:
+        return options, {}
+    track = options.track
+    shared = track.calibration
+    if isinstance(shared, (str, os.PathLike)) and not is_calibration_file(shared):
+        try:
+            learned = learn_calibration(shared, track, progress)
+        except CaptureError as exc:
+            return options, dict.fromkeys(todo, str(exc))
+        return dataclasses.replace(options, track=dataclasses.replace(track, calibration=learned)), {}
+    takes: dict[str, Any] = {}  # a take's resolved path -> its ActorCalibration, or the error learning it
+    failed = {}
+    for i in todo:
+        rom = clip_options(clips[i], options).track.calibration
+        if not isinstance(rom, str) or is_calibration_file(rom) or rom != clips[i].rom:
+            continue  # the batch's own calibration, an actor.json (loaded by the clip), or none
+        key = str(Path(rom).resolve())
+        if key not in takes:
+            try:
+                takes[key] = learn_calibration(rom, track, progress)
+            except CaptureError as exc:
+                takes[key] = str(exc)
+        if isinstance(takes[key], str):
+            failed[i] = takes[key]
+        else:
+            clips[i].learned = takes[key]
+    return options, failed
 
 
 def _plan_clips(report: _Report, clips: list[BatchClip], out: Path, options: Any, resume: bool) -> list[int]:
