@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from capture2face import batch
-from capture2face.batch import BatchClip, clip_options, expand_inputs
+from capture2face.batch import clip_options, expand_inputs
 from capture2face.calibration import ActorCalibration
 from capture2face.cli import main
 from capture2face.pipeline import RunOptions, options_json
