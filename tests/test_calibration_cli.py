@@ -230,3 +230,7 @@ def test_track_and_batch_carry_the_calibration(actor_json, tmp_path):
     assert main(argv + ["--resume"]) == 0
     entry = json.loads((out / "batch_report.json").read_text())["clips"][0]
     assert entry["status"] == "ok" and "calibration" in entry["rerun"]
+    # One --calibration for the whole batch: it wins over the clip's own.
+    assert main(argv[:4] + [str(tmp_path / "all"), *argv[5:], "--calibration", str(actor_json)]) == 0
+    report = json.loads((tmp_path / "all" / "clip" / "report.json").read_text())
+    assert report["options"]["calibration"] == str(actor_json) and report["calibration"]["steps"]

@@ -17,7 +17,7 @@ from capture2face.gltf import export_glb
 from capture2face.gltf.character import export_character_animation
 from capture2face.gltf.container import CHARACTER_SUFFIXES
 from capture2face.io.video_input import open_video
-from capture2face.pipeline.calibration import resolve_calibration
+from capture2face.pipeline.calibration import is_calibration_file, resolve_calibration
 from capture2face.pipeline.options import RunOptions
 from capture2face.retarget import RetargetOptions, retarget
 from capture2face.rig.arkit_names import drive_mode
@@ -46,10 +46,11 @@ def start_track_workers(clip: str | os.PathLike, options: RunOptions):
     """The segment-tracking processes ``run`` will use for ``clip``, started now so that
     their start-up (Python, MediaPipe, the model) overlaps the checks before tracking;
     None when the clip will be tracked by one landmarker (too short, ``--face``, one
-    core, or a clip that does not open: the checks report that)."""
+    core, or a clip that does not open: the checks report that), or when a calibration
+    take is learned first (tracked with workers of its own; the clip's start after it)."""
     track = options.track
     n = track.n_workers()
-    if n < 2 or track.landmarker.face is not None:
+    if n < 2 or track.landmarker.face is not None or _learns_a_take(track.calibration):
         return None
     try:
         frames = open_video(clip).n_frames
@@ -57,6 +58,10 @@ def start_track_workers(clip: str | os.PathLike, options: RunOptions):
         return None
     k = min(n, frames // MIN_SEGMENT_FRAMES)
     return SegmentWorkers(k - 1, track.landmarker) if k >= 2 else None
+
+
+def _learns_a_take(calibration) -> bool:
+    return isinstance(calibration, (str, os.PathLike)) and not is_calibration_file(calibration)
 
 
 def retarget_stage(track, rig: FaceRig, options: RetargetOptions | None = None):
