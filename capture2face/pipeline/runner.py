@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import contextlib
+import dataclasses
 import json
 import os
 import shutil
@@ -211,11 +212,13 @@ def _calibration(options: RunOptions, progress: bool, tmp: Path, seconds: dict[s
 
 
 def _track(clip, options: RunOptions, progress: bool, work: Path, workers, info, calibration=None):
-    """Pass 1, refusing a damaged clip unless ``options.allow_truncated``."""
+    """Pass 1 (with ``calibration``: the track rests on it and carries it), refusing a
+    damaged clip unless ``options.allow_truncated``."""
+    if calibration is not None:  # learned or loaded once, before tracking
+        options = dataclasses.replace(options, track=dataclasses.replace(options.track, calibration=calibration))
     with watch_damage(clip) as damage:
         try:
-            return track_stage(clip, options, progress, workdir=work, workers=workers, info=info,
-                               calibration=calibration)
+            return track_stage(clip, options, progress, workdir=work, workers=workers, info=info)
         finally:
             if workers is not None:
                 workers.close()

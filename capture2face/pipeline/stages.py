@@ -28,15 +28,14 @@ from capture2face.tracking.segments import MIN_SEGMENT_FRAMES, SegmentWorkers
 
 
 def track_stage(clip: str | os.PathLike, options: RunOptions, progress: bool = True,
-                workdir: str | os.PathLike | None = None, workers=None, info=None, calibration=None):
+                workdir: str | os.PathLike | None = None, workers=None, info=None):
     """Pass 1: the clip's :class:`~capture2face.tracking.track.Track` (with ``workdir``,
     its landmarks stay in files there: memory does not grow with the clip's length;
     ``workers``: :func:`start_track_workers`' processes; ``info``: the clip's
-    :func:`~capture2face.io.video_input.open_video` probe, if already made). With a
-    calibration (``calibration``, else ``options.track.calibration`` resolved now) the
+    :func:`~capture2face.io.video_input.open_video` probe, if already made). With
+    ``options.track.calibration`` (an ``ActorCalibration``, or a file resolved now) the
     track rests on it and carries it (:func:`~capture2face.calibration.attach.attach`)."""
-    if calibration is None and options.track.calibration is not None:
-        calibration = resolve_calibration(options.track, progress)
+    calibration = resolve_calibration(options.track, progress)
     track = track_clip(clip, options.track, progress=progress, workdir=workdir, workers=workers,
                        info=info)
     return track if calibration is None else attach(track, calibration)
