@@ -20,8 +20,11 @@ from capture2face.calibration.protocol import PROTOCOL, STEP_NAMES, Step, target
 from capture2face.calibration.segment import MATCH_WARN, activity, align, find_runs, idle_frames
 from capture2face.calibration.solve import step_weights
 from capture2face.maths.stats import pearson
-from capture2face.tracking.rest import ActorRest, actor_rest, aligned_rest
+from capture2face.tracking.rest import FACE, REGIONS, ActorRest, actor_rest, aligned_rest
 
+MIN_NEUTRAL_FRAMES = 5
+CALM_SHARE = 0.05  # a clip's calmest frames by the calibration, whose reading is its offset
+_CHUNK = 4096
 GAIN_BOUNDS, OFFSET_BOUNDS = (0.5, 3.0), (-0.3, 0.3)
 # A curve the tracker's own reading follows on the take this well (Pearson r over the holds
 # and the idle frames) keeps that reading, with the take's gain and offset ("tracker"); the
@@ -52,16 +55,19 @@ def calibrate(track, steps: tuple[Step, ...] = PROTOCOL, base_curves: np.ndarray
             for each step's before/after in the report; None: the scores calibrated to rest.
     """
     names = list(track.blendshape_names)
-    rest = actor_rest(track)
     cols = _score_columns(names)
-    raw = frame_features(track.landmarks_head, track.blendshapes, rest.landmarks, rest.scores, cols)
     fps = float(track.fps) if track.fps and np.isfinite(track.fps) else 30.0
     valid = np.asarray(track.presence, bool)
     terms = pose_terms(track.head_pose)
-    pose_model, idle = _pose_model(raw, terms, valid)
-    feats = raw - terms @ pose_model
-    act = activity(group_motion(feats), idle, fps)
-    runs = find_runs(act, fps, valid)
+    # Twice: first from the take's calmest frames per region (the brows' may be the frown's),
+    # then from its opening neutral, found by the first pass.
+    rest = actor_rest(track)
+    for _ in range(2):
+        raw = frame_features(track.landmarks_head, track.blendshapes, rest.landmarks, rest.scores, cols)
+        pose_model, idle = _pose_model(raw, terms, valid)
+        feats = raw - terms @ pose_model
+        runs = find_runs(activity(group_motion(feats), idle, fps), fps, valid)
+        rest = _neutral_rest(track, idle, runs)
     rest_frames = idle
 
     reading = _reading(np.asarray(track.blendshapes, np.float64), rest.scores, names)
@@ -100,6 +106,17 @@ def calibrate(track, steps: tuple[Step, ...] = PROTOCOL, base_curves: np.ndarray
     _fit_gains(calibration, feats, base, fits, rest_frames, steps)
     _report_steps(calibration, track, base)
     return calibration
+
+
+def _neutral_rest(track, idle: np.ndarray, runs: list) -> ActorRest:
+    """The take's rest: its idle frames before the first step (the protocol opens on the
+    neutral), or all its idle frames when fewer than :data:`MIN_NEUTRAL_FRAMES` come first."""
+    first = idle[idle < runs[0].start] if runs else idle
+    frames = first if len(first) >= MIN_NEUTRAL_FRAMES else idle
+    lm = np.median(np.asarray(track.landmarks_head[frames], np.float32), 0)
+    scores = np.median(np.nan_to_num(np.asarray(track.blendshapes[frames], np.float32)), 0)
+    return ActorRest(face=lm, landmarks=lm, scores=scores, frames=dict.fromkeys((*REGIONS, FACE), frames),
+                     source=f"the neutral of {track.source}")
 
 
 def _pose_model(raw: np.ndarray, terms: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -206,27 +223,39 @@ def calibration_rest(calibration: ActorCalibration, track=None) -> ActorRest:
 
 def calibrated_curves(track, calibration: ActorCalibration, base: np.ndarray, aligned: bool = True) -> np.ndarray:
     """(F, S) float32: ``base`` (F, S) curves with each curve from the actor's expressions
-    replaced by the calibration's (before the caller's filter), each frame read against the
-    take's rest laid onto the clip's head coordinates (a clip's own rest is its calmest
-    frames, which on a clip that frowns throughout is a frown), less the pose model's
-    shift. ``aligned``: False when the track is the take itself."""
+    replaced by the calibration's (before the caller's filter).
+
+    Each frame is read against the take's rest laid onto the clip's head coordinates, less
+    the pose model's shift, and then less the clip's offset from it: the reading's median
+    over the frames the calibration finds calmest (:data:`CALM_SHARE` of the lowest total
+    step weight). The tracker reads one face at rest a little differently under another
+    light (0.02 IOD on the brows of a synthetic actor: a frown's size), but not every clip
+    rests long enough to take its own rest (a clip that frowns throughout). ``aligned``:
+    False when the track is the take itself (no offset).
+    """
     out = np.array(base, np.float32, copy=True)
-    if not calibration.curves or not len(calibration.basis):
-        return out
-    names = list(track.blendshape_names)
-    if names != calibration.score_names:
+    if not calibration.curves or not len(calibration.basis) or list(track.blendshape_names) != calibration.score_names:
         return out
     rest = calibration_rest(calibration, track if aligned else None)
-    cols = _score_columns(names)
-    col = {n: i for i, n in enumerate(names)}
-    chunk = 4096
-    for s in range(0, track.n_frames, chunk):
-        span = slice(s, min(s + chunk, track.n_frames))
+    cols = _score_columns(calibration.score_names)
+
+    def features(span, offset=0.0) -> np.ndarray:
         feats = frame_features(track.landmarks_head, track.blendshapes, rest.landmarks, rest.scores, cols, span)
-        feats -= pose_terms(np.asarray(track.head_pose[span])) @ calibration.pose_model
-        mix = _mix(calibration, _weights(feats, calibration))
+        return feats - pose_terms(np.asarray(track.head_pose[span])) @ calibration.pose_model - offset
+
+    spans = [slice(s, min(s + _CHUNK, track.n_frames)) for s in range(0, track.n_frames, _CHUNK)]
+    offset = 0.0
+    if aligned:
+        total = np.concatenate([_weights(features(span), calibration).sum(1) for span in spans])
+        valid = np.flatnonzero(np.asarray(track.presence, bool))
+        if len(valid) >= 3:
+            calm = valid[total[valid] <= np.quantile(total[valid], CALM_SHARE)]
+            offset = np.median(features(calm), 0)
+    col = {n: i for i, n in enumerate(calibration.score_names)}
+    for span in spans:
+        mix = _mix(calibration, _weights(features(span, offset), calibration))
         for name, c in calibration.curves.items():
-            if c.get("source", "expressions") == "expressions":
+            if c["source"] == "expressions":
                 out[span, col[name]] = np.clip(c["gain"] * mix[:, col[name]] + c["offset"], 0.0, 1.0)
     return out
 
