@@ -70,19 +70,19 @@ def test_step_weights_recover_a_bounded_mix():
     assert step_weights(-basis[:1], basis)[0, 0] == 0.0
 
 
-def _calibration(**changes) -> ActorCalibration:
+def _calibration() -> ActorCalibration:
     rng = np.random.default_rng(1)
-    fields = dict(
-        source="rom.mp4", fps=30.0, steps=[StepFit("brows_up", True, (10, 40), (15, 35), 0.9, {"browInnerUp": 0.4},
-                                                   {"browInnerUp": 0.98}), StepFit("frown", False)],
-        rest_face=rng.normal(size=(478, 3)).astype(np.float32), rest_landmarks=rng.normal(size=(478, 3)).astype(np.float32),
-        rest_scores=rng.uniform(size=52).astype(np.float32), score_names=["_neutral", *ARKIT_NAMES[:51]],
-        pose_model=rng.normal(size=(13, 30)).astype(np.float32), basis=rng.normal(size=(1, 30)).astype(np.float32),
-        basis_steps=["brows_up"], noise=np.array([0.1], np.float32),
+    f32 = lambda a: np.asarray(a, np.float32)  # noqa: E731
+    return ActorCalibration(
+        source="rom.mp4", fps=30.0,
+        steps=[StepFit("brows_up", True, (10, 40), (15, 35), 0.9, {"browInnerUp": 0.4}, {"browInnerUp": 0.98}),
+               StepFit("frown", False)],
+        rest_face=f32(rng.normal(size=(478, 3))), rest_landmarks=f32(rng.normal(size=(478, 3))),
+        rest_scores=f32(rng.uniform(size=52)), score_names=["_neutral", *ARKIT_NAMES[:51]],
+        pose_model=f32(rng.normal(size=(13, 30))), basis=f32(rng.normal(size=(1, 30))),
+        basis_steps=["brows_up"], noise=f32([0.1]),
         curves={"browInnerUp": {"source": "expressions", "gain": 1.1, "offset": -0.02, "steps": ["brows_up"]}},
         warnings=["calibration: the take shows no 'frown'"])
-    fields.update(changes)
-    return ActorCalibration(**fields)
 
 
 def test_actor_json_round_trips_and_reads_edits(tmp_path):
