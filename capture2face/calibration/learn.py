@@ -23,7 +23,6 @@ from capture2face.maths.stats import pearson
 from capture2face.tracking.rest import FACE, REGIONS, ActorRest, actor_rest, aligned_rest
 
 MIN_NEUTRAL_FRAMES = 5
-CALM_SHARE = 0.05  # a clip's calmest frames by the calibration, whose reading is its offset
 _CHUNK = 4096
 GAIN_BOUNDS, OFFSET_BOUNDS = (0.5, 3.0), (-0.3, 0.3)
 # A curve the tracker's own reading follows on the take this well (Pearson r over the holds
@@ -31,7 +30,7 @@ GAIN_BOUNDS, OFFSET_BOUNDS = (0.5, 3.0), (-0.3, 0.3)
 # others come from the actor's expressions ("expressions"). On a synthetic ICT actor the
 # expressions' blink, fitted on 0.8 s holds, missed the performance's 0.25 s blinks (r 0.65
 # where the tracker's reads 0.93), while the brows the tracker barely reads came out right.
-TRACKER_R = 0.7
+TRACKER_R, TRACKER_GAIN_MAX = 0.7, 2.0
 POSE_ROUNDS = 4  # fits of the pose model, each on the idle frames of the one before
 
 
@@ -184,18 +183,26 @@ def _fit_gains(calibration: ActorCalibration, feats: np.ndarray, base: np.ndarra
         at += n
     mix = _mix(calibration, _weights(feats[frames], calibration))
     for name, c in calibration.curves.items():
-        y = goal[:, col[name]]
-        tracker = base[frames, col[name]].astype(np.float64)
-        c["source"] = "tracker" if pearson(tracker, y) >= TRACKER_R else "expressions"
-        # The range: its own holds to their target and the idle frames to 0 (other steps'
-        # crosstalk is the mix's and the tracker's to keep apart, not the gain's).
         use = shows[:, col[name]]
-        x = (tracker if c["source"] == "tracker" else mix[:, col[name]])[use]
-        y = y[use]
-        design = np.stack([x, np.ones_like(x)], 1)
-        (gain, offset), *_ = np.linalg.lstsq(design, y, rcond=None)
+        y = goal[use, col[name]]
+        tracker = base[frames[use], col[name]].astype(np.float64)
+        gain, offset = _line(tracker, y)
+        # The tracker's own curve where it follows the holds and reaches their range
+        # without being blown up (a browDown MediaPipe scores 0.01 at a frown follows the
+        # frown, but is the tracker's noise times 30).
+        if pearson(tracker, y) >= TRACKER_R and gain <= TRACKER_GAIN_MAX:
+            c["source"] = "tracker"
+        else:
+            c["source"] = "expressions"
+            gain, offset = _line(mix[use, col[name]], y)
         c["gain"] = round(float(np.clip(gain, *GAIN_BOUNDS)), 4)
         c["offset"] = round(float(np.clip(offset, *OFFSET_BOUNDS)), 4)
+
+
+def _line(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """(gain, offset) of the least-squares line from (N,) ``x`` to ``y``."""
+    (gain, offset), *_ = np.linalg.lstsq(np.stack([x, np.ones_like(x)], 1), y, rcond=None)
+    return float(gain), float(offset)
 
 
 def _report_steps(calibration: ActorCalibration, track, before: np.ndarray) -> None:
@@ -223,37 +230,21 @@ def calibration_rest(calibration: ActorCalibration, track=None) -> ActorRest:
 
 def calibrated_curves(track, calibration: ActorCalibration, base: np.ndarray, aligned: bool = True) -> np.ndarray:
     """(F, S) float32: ``base`` (F, S) curves with each curve from the actor's expressions
-    replaced by the calibration's (before the caller's filter).
-
-    Each frame is read against the take's rest laid onto the clip's head coordinates, less
-    the pose model's shift, and then less the clip's offset from it: the reading's median
-    over the frames the calibration finds calmest (:data:`CALM_SHARE` of the lowest total
-    step weight). The tracker reads one face at rest a little differently under another
-    light (0.02 IOD on the brows of a synthetic actor: a frown's size), but not every clip
-    rests long enough to take its own rest (a clip that frowns throughout). ``aligned``:
-    False when the track is the take itself (no offset).
-    """
+    replaced by the calibration's (before the caller's filter), each frame read against the
+    take's rest laid onto the clip's head coordinates (a clip's own rest is its calmest
+    frames, which on a clip that frowns throughout is a frown), less the pose model's
+    shift. ``aligned``: False when the track is the take itself."""
     out = np.array(base, np.float32, copy=True)
     if not calibration.curves or not len(calibration.basis) or list(track.blendshape_names) != calibration.score_names:
         return out
     rest = calibration_rest(calibration, track if aligned else None)
     cols = _score_columns(calibration.score_names)
-
-    def features(span, offset=0.0) -> np.ndarray:
-        feats = frame_features(track.landmarks_head, track.blendshapes, rest.landmarks, rest.scores, cols, span)
-        return feats - pose_terms(np.asarray(track.head_pose[span])) @ calibration.pose_model - offset
-
-    spans = [slice(s, min(s + _CHUNK, track.n_frames)) for s in range(0, track.n_frames, _CHUNK)]
-    offset = 0.0
-    if aligned:
-        total = np.concatenate([_weights(features(span), calibration).sum(1) for span in spans])
-        valid = np.flatnonzero(np.asarray(track.presence, bool))
-        if len(valid) >= 3:
-            calm = valid[total[valid] <= np.quantile(total[valid], CALM_SHARE)]
-            offset = np.median(features(calm), 0)
     col = {n: i for i, n in enumerate(calibration.score_names)}
-    for span in spans:
-        mix = _mix(calibration, _weights(features(span, offset), calibration))
+    for s in range(0, track.n_frames, _CHUNK):
+        span = slice(s, min(s + _CHUNK, track.n_frames))
+        feats = frame_features(track.landmarks_head, track.blendshapes, rest.landmarks, rest.scores, cols, span)
+        feats -= pose_terms(np.asarray(track.head_pose[span])) @ calibration.pose_model
+        mix = _mix(calibration, _weights(feats, calibration))
         for name, c in calibration.curves.items():
             if c["source"] == "expressions":
                 out[span, col[name]] = np.clip(c["gain"] * mix[:, col[name]] + c["offset"], 0.0, 1.0)

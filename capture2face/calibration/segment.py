@@ -19,6 +19,7 @@ IDLE_SHARE = 0.2  # the take's calmest frames, whose motion is the tracker's noi
 MIN_RUN_S = 0.25  # shorter runs are dropped
 # A run's hold: its frames whose activity reaches this share of the run's highest.
 HOLD_SHARE = 0.75
+MATCH_BONUS = 0.3
 # A matched step whose reading looks less like it than this is named in a warning.
 MATCH_WARN = 0.2
 
@@ -72,10 +73,12 @@ def find_runs(act: np.ndarray, fps: float, valid: np.ndarray) -> list[Run]:
 
 def align(similarity: np.ndarray) -> list[tuple[int, int]]:
     """Order-keeping match of runs to steps: (run, step) pairs maximizing the sum of
-    ``1 + similarity[run, step]`` (R, K), either side free to go unmatched (a step the
-    actor left out, a run of motion that is no step)."""
+    ``MATCH_BONUS + similarity[run, step]`` (R, K), either side free to go unmatched (a
+    step the actor left out, a run of motion that is no step). The bonus lets the order
+    match the steps the tracker cannot read (similarity 0) without letting it pair a run
+    with a step it reads unlike when the next step reads like it."""
     R, K = similarity.shape
-    gain = 1.0 + similarity
+    gain = MATCH_BONUS + similarity
     best = np.zeros((R + 1, K + 1))
     for i in range(1, R + 1):
         for k in range(1, K + 1):
