@@ -186,6 +186,8 @@ def _print_json(result: dict, path: str | None) -> None:
 def _cmd_eval(args: argparse.Namespace) -> int:
     if args.actor is not None or args.target is not None:
         return _cmd_eval_actor(args)
+    if args.calibration:
+        raise CaptureError("--calibration needs an ARKit character as the --actor (it performs the ROM take)")
     result = evaluate_synthetic(
         frames=args.frames, seed=args.seed, target_variant=args.target_variant,
         size=args.size, progress=not args.quiet, start=args.start,
@@ -204,7 +206,7 @@ def _cmd_eval_actor(args: argparse.Namespace) -> int:
         raise CaptureError("--target-variant and --start go with the default avatar's loop; "
                            "leave them out with --actor / --target")
     result = evaluate_actor_synthetic(args.actor, args.target, frames=args.frames, seed=args.seed,
-                                      size=args.size, progress=not args.quiet)
+                                      size=args.size, progress=not args.quiet, calibration=args.calibration)
     _print_json(result, args.json)
     if not args.quiet:
         print(actor_summary_line(result, "truth's neutral"), file=sys.stderr)
@@ -439,6 +441,9 @@ def _add_eval_synthetic_parser(evals, common: argparse.ArgumentParser) -> None:
                         "figures: ARKit curves and fidelity measures against its truth")
     p.add_argument("--target", metavar="CHARACTER", default=None,
                    help="with --actor: retarget onto this character ('default', the default: the default avatar)")
+    p.add_argument("--calibration", action="store_true",
+                   help="with --actor: also render the actor's range-of-motion take, calibrate on it and judge "
+                        "the performance calibrated (docs/calibration.md)")
     p.add_argument("--json", metavar="PATH", help="also write the figures as JSON")
     _add_start_option(p)
     p.set_defaults(func=_cmd_eval)

@@ -1,107 +1,116 @@
-"""A rest from outside the clip (--neutral-image, --neutral-clip) and batch's rest takes."""
+"""The calibration core: the protocol, finding its steps, the actor's expression mix, actor.json."""
 
 from __future__ import annotations
 
-import dataclasses
+import json
 
 import numpy as np
 import pytest
 
-from capture2face.batch import BatchClip, clip_options, expand_inputs
+from capture2face.calibration import PROTOCOL, ActorCalibration, StepFit
+from capture2face.calibration.protocol import step_amounts, target_matrix
+from capture2face.calibration.segment import Run, align, find_runs
+from capture2face.calibration.solve import MAX_WEIGHT, step_weights
 from capture2face.errors import CaptureError
-from capture2face.pipeline import RunOptions
-from capture2face.pipeline.options import input_files
-from capture2face.tracking import TrackOptions, track_clip
-from capture2face.tracking.rest import GEOMETRY, actor_rest, rest_geometry
-from tests.helpers import shared_clip
-
-FRAMES = 60
+from capture2face.topology import ARKIT_NAMES
 
 
-def _still(clip, frame: int, path) -> None:
-    import av
-    import cv2
-
-    with av.open(str(clip)) as c:
-        for i, f in enumerate(c.decode(video=0)):
-            if i == frame:
-                cv2.imwrite(str(path), f.to_ndarray(format="rgb24")[:, :, ::-1])
-                return
-
-
-@pytest.fixture(scope="module")
-def d11():
-    clip = shared_clip("d11.mp4")
-    return clip, track_clip(clip, TrackOptions(max_frames=FRAMES, workers=1), progress=False)
-
-
-def test_neutral_image_rests_the_track_on_the_photo(d11, tmp_path):
-    """A still of the clip's own calmest frame as the neutral image: the rest is that
-    frame's face (brows, lids and lips within 0.01 IOD of the clip's own reading of it,
-    after the photo is laid onto the clip's head coordinates), and says where it came from."""
-    clip, own = d11
-    frame = int(actor_rest(own).frames["face"][0])
-    _still(clip, frame, tmp_path / "rest.jpg")
-    track = track_clip(clip, TrackOptions(max_frames=FRAMES, workers=1, neutral_image=tmp_path / "rest.jpg"),
-                       progress=False)
-    rest = actor_rest(track)
-    assert rest.source == f"image {tmp_path / 'rest.jpg'}"
-    assert all(len(f) == 0 for f in rest.frames.values()) and rest.single_frame is None
-    got = rest_geometry(rest.face[None])[0]
-    want = rest_geometry(np.asarray(own.landmarks_head[frame:frame + 1]))[0]
-    assert np.abs(got - want).max() < 0.01, dict(zip(GEOMETRY, got - want))
-    np.testing.assert_array_equal(track.landmarks_head, own.landmarks_head)  # only the rest changed
+def test_protocol_steps_one_at_a_time_and_their_targets():
+    amounts = step_amounts(30.0)
+    assert amounts.shape[1] == len(PROTOCOL)
+    assert (np.count_nonzero(amounts > 1e-9, axis=1) <= 1).all()  # never two steps at once
+    assert np.isclose(amounts.max(0), 1.0).all()  # each held at full
+    assert 20.0 <= len(amounts) / 30.0 <= 45.0  # the issue's 20-40 s, about
+    targets = target_matrix()
+    assert targets.shape == (len(ARKIT_NAMES), len(PROTOCOL))
+    k = [s.name for s in PROTOCOL].index("jaw_open")
+    assert targets[ARKIT_NAMES.index("jawOpen"), k] == 1.0 and targets[:, k].sum() == 1.0
+    # every goal curve of the issue is shown by some step
+    for name in ("jawOpen", "eyeBlinkLeft", "eyeBlinkRight", "browInnerUp", "browDownLeft", "browDownRight",
+                 "mouthSmileLeft", "mouthSmileRight"):
+        assert targets[ARKIT_NAMES.index(name)].max() == 1.0, name
 
 
-def test_neutral_clip_gives_its_own_rest(d11):
-    """The clip as its own neutral take: the same rest (brows, lids and lips within 0.005
-    IOD), only laid onto the 60 tracked frames' median face."""
-    clip, own = d11
-    cut = dataclasses.replace(TrackOptions(max_frames=FRAMES, workers=1), neutral_clip=clip)
-    rest = actor_rest(track_clip(clip, cut, progress=False))
-    whole = actor_rest(track_clip(clip, TrackOptions(workers=1), progress=False))  # the take is not cut
-    assert rest.source == f"clip {clip}"
-    got, want = rest_geometry(rest.face[None])[0], rest_geometry(whole.face[None])[0]
-    assert np.abs(got - want).max() < 0.005, dict(zip(GEOMETRY, got - want))
+def test_align_keeps_the_order_and_skips_a_missing_step():
+    # four runs for five steps; run 2 looks like step 3 (step 2 left out by the actor)
+    sim = np.full((4, 5), -0.2)
+    for run, step in ((0, 0), (1, 1), (2, 3), (3, 4)):
+        sim[run, step] = 0.9
+    assert align(sim) == [(0, 0), (1, 1), (2, 3), (3, 4)]
+    # with no reading at all (every similarity 0), the order alone matches run k to step k
+    assert align(np.zeros((3, 3))) == [(0, 0), (1, 1), (2, 2)]
 
 
-def test_a_neutral_image_without_a_face_fails_in_one_line(d11, tmp_path):
-    import cv2
+def test_find_runs_one_per_expression_with_its_hold():
+    fps = 30.0
+    t = np.arange(300) / fps
+    act = np.full(300, 1.0)
+    for centre, peak in ((2.0, 20.0), (4.0, 6.0), (6.0, 40.0)):
+        act += peak * np.exp(-0.5 * ((t - centre) / 0.3) ** 2)
+    runs = find_runs(act, fps, np.ones(300, bool))
+    assert len(runs) == 3
+    for run, centre in zip(runs, (2.0, 4.0, 6.0)):
+        assert isinstance(run, Run) and run.start <= run.hold_start < run.hold_stop <= run.stop
+        assert abs((run.hold_start + run.hold_stop) / 2 / fps - centre) < 0.1
+    # a face lost over a run's frames takes the run away
+    valid = np.ones(300, bool)
+    valid[150:270] = False
+    assert len(find_runs(act, fps, valid)) == 2
 
-    cv2.imwrite(str(tmp_path / "wall.jpg"), np.full((240, 320, 3), 128, np.uint8))
-    with pytest.raises(CaptureError, match=r"^--neutral-image: .*wall\.jpg: no face"):
-        track_clip(d11[0], TrackOptions(max_frames=5, workers=1, neutral_image=tmp_path / "wall.jpg"),
-                   progress=False)
+
+def test_step_weights_recover_a_bounded_mix():
+    rng = np.random.default_rng(0)
+    basis = rng.normal(size=(6, 200))
+    true = np.clip(rng.uniform(-0.5, 1.2, (50, 6)), 0.0, MAX_WEIGHT)
+    w = step_weights(true @ basis, basis)
+    assert w.min() >= 0.0 and w.max() <= MAX_WEIGHT
+    # the ridge shrinks each weight by ~2 %: recovered within that
+    assert np.abs(w - true).max() < 0.05
+    # a negative mix reads 0, never below
+    assert step_weights(-basis[:1], basis)[0, 0] == 0.0
 
 
-def test_one_rest_at_a_time_and_it_must_exist(tmp_path):
-    with pytest.raises(CaptureError, match="--neutral-frame and --neutral-clip"):
-        TrackOptions(neutral_frame=3, neutral_clip=__file__).validate()
-    with pytest.raises(CaptureError, match="--neutral-image .*nope.jpg: no such file"):
-        TrackOptions(neutral_image=tmp_path / "nope.jpg").validate()
+def _calibration() -> ActorCalibration:
+    rng = np.random.default_rng(1)
+    f32 = lambda a: np.asarray(a, np.float32)  # noqa: E731
+    return ActorCalibration(
+        source="rom.mp4", fps=30.0,
+        steps=[StepFit("brows_up", True, (10, 40), (15, 35), 0.9, {"browInnerUp": 0.4}, {"browInnerUp": 0.98}),
+               StepFit("frown", False)],
+        rest_face=f32(rng.normal(size=(478, 3))), rest_landmarks=f32(rng.normal(size=(478, 3))),
+        rest_scores=f32(rng.uniform(size=52)), score_names=["_neutral", *ARKIT_NAMES[:51]],
+        pose_model=f32(rng.normal(size=(13, 30))), basis=f32(rng.normal(size=(1, 30))),
+        basis_steps=["brows_up"], noise=f32([0.1]),
+        curves={"browInnerUp": {"source": "expressions", "gain": 1.1, "offset": -0.02, "steps": ["brows_up"]}},
+        warnings=["calibration: the take shows no 'frown'"])
 
 
-def test_batch_finds_each_clips_rest_take(tmp_path):
-    """Sidecars (CLIP.neutral.jpg / .mp4) and a list file's second column name each clip's
-    rest take; a sidecar is never a clip of its own; the take becomes the clip's
-    neutral_image or neutral_clip by its extension."""
-    for name in ("a.mp4", "a.neutral.jpg", "b.mp4", "b.neutral.mp4", "c.mp4", "rest c.png"):
-        (tmp_path / name).write_bytes(b"x")
-    clips = {c.name: c for c in expand_inputs([tmp_path])}
-    assert set(clips) == {"a", "b", "c"}
-    assert clips["a"].neutral == str(tmp_path / "a.neutral.jpg")
-    assert clips["b"].neutral == str(tmp_path / "b.neutral.mp4") and clips["c"].neutral is None
-    listing = tmp_path / "takes.txt"
-    listing.write_text("c.mp4\trest c.png\na.mp4 | b.neutral.mp4  # another take\nb.mp4\n")
-    listed = {c.name: c for c in expand_inputs([listing])}
-    assert listed["c"].neutral == str(tmp_path / "rest c.png")
-    assert listed["a"].neutral == str(tmp_path / "b.neutral.mp4")  # the list wins over the sidecar
-    assert listed["b"].neutral == str(tmp_path / "b.neutral.mp4")  # no column: the sidecar
-    options = RunOptions()
-    assert clip_options(clips["a"], options).track.neutral_image == str(tmp_path / "a.neutral.jpg")
-    assert clip_options(clips["b"], options).track.neutral_clip == str(tmp_path / "b.neutral.mp4")
-    assert clip_options(clips["c"], options) is options
-    forced = RunOptions(track=TrackOptions(neutral_frame=4))  # the batch's own rest wins
-    assert clip_options(BatchClip("x.mp4", "x", "x.neutral.jpg"), forced) is forced
-    # The take is one of the run's inputs: --resume reruns a clip whose take changed.
-    assert input_files(clips["a"].path, clip_options(clips["a"], options))["neutral_image"] == clips["a"].neutral
+def test_actor_json_round_trips_and_reads_edits(tmp_path):
+    cal = _calibration()
+    path = tmp_path / "actor.json"
+    cal.save(path)
+    back = ActorCalibration.load(path)
+    assert back.to_json() == cal.to_json()
+    data = json.loads(path.read_text())
+    data["curves"]["browInnerUp"]["gain"] = 0.7  # what a user edits
+    path.write_text(json.dumps(data))
+    assert ActorCalibration.load(path).curves["browInnerUp"]["gain"] == 0.7
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d.pop("format"), "not an actor calibration"),
+    (lambda d: d["curves"]["browInnerUp"].update(steps=["smile"]), "names steps the calibration lacks"),
+    (lambda d: d["curves"]["browInnerUp"].update(source="guess"), "source must be"),
+    (lambda d: d["rest"].update(landmarks=[[0, 0, 0]]), "not 478 landmarks"),
+    (lambda d: d.pop("basis"), "damaged"),
+])
+def test_actor_json_damage_is_one_line(tmp_path, edit, message):
+    data = _calibration().to_json()
+    edit(data)
+    path = tmp_path / "actor.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(CaptureError, match=message):
+        ActorCalibration.load(path)
+    path.write_text("{not json")
+    with pytest.raises(CaptureError, match="not JSON"):
+        ActorCalibration.load(path)

@@ -74,3 +74,32 @@ def test_fidelity_on_tracks_gives_eval_fidelitys_figures(tmp_path):
     assert json.loads((tmp_path / "tool.json").read_text()) == expected
     assert json.loads((tmp_path / "again.json").read_text()) == expected
     assert first.stdout.splitlines()[-1] == cli.stdout.splitlines()[-1]  # the summary line
+
+
+def test_protocol_sheet_shows_every_step(tmp_path):
+    """tools/protocol_sheet.py: the neutral and the 20 steps in 7 x 3 cells, each step's face
+    unlike the neutral's."""
+    import cv2
+    import numpy as np
+
+    from tests.helpers import shared_character
+
+    out = tmp_path / "sheet.png"
+    done = _tool("tools/protocol_sheet.py", os.fspath(out), "--cell", "64",
+                 "--character", os.fspath(shared_character("ict-a.glb")), timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    sheet = cv2.imread(os.fspath(out)).astype(np.float64)
+    assert sheet.shape[1] == 7 * 64 and sheet.shape[0] % 3 == 0 and sheet.shape[0] > 3 * 64
+    row = sheet.shape[0] // 3
+    cells = [sheet[r * row:r * row + 64, k * 64:(k + 1) * 64] for r in range(3) for k in range(7)]
+    differences = [np.abs(c - cells[0]).mean() for c in cells[1:]]
+    assert min(differences) > 0.3, differences
+
+
+def test_calibration_doc_lists_the_protocol_in_order():
+    from capture2face.calibration.protocol import STEP_NAMES
+
+    text = (REPO / "docs" / "calibration.md").read_text(encoding="utf-8")
+    found = re.findall(r"^\d+\. \*\*(\w+)\*\*", text, re.M)
+    assert found == list(STEP_NAMES)
+    assert (REPO / "docs" / "calibration_protocol.jpg").stat().st_size < 400_000

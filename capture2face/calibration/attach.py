@@ -1,7 +1,7 @@
-"""A clip's track carrying its actor's calibration: the calibration's rest laid onto the
-clip's head coordinates, and the calibration itself (as its JSON text, saved with the track),
-so that every stage after tracking (the ARKit curves, the character solve, the exports)
-reads the same actor's calibration, from a track file too."""
+"""A clip's track carrying its actor's calibration (as its JSON text, saved with the track),
+so that every stage after tracking (the ARKit curves, the character solve, the wrinkles'
+rest, the exports) reads the same actor's calibration, from a track file too; the track
+rests on the take's neutral, laid onto its head coordinates."""
 
 from __future__ import annotations
 

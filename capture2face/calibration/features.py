@@ -29,7 +29,7 @@ LANDMARKS = np.array(sorted(set(BROWS + EYE_RIGHT + EYE_LEFT + IRIS_RIGHT + IRIS
 DEPTH_WEIGHT = 0.5
 # A score's change of 1 counts as much as a landmark moving this far (IOD): the scores carry
 # the fast detail the landmark filter smooths away and the lids' closure MediaPipe reads well.
-SCORE_WEIGHT = 0.1
+SCORE_WEIGHT = 1.0
 REFERENCE_DISTANCE_CM = 50.0
 
 
@@ -85,3 +85,30 @@ def pose_terms(head_pose: np.ndarray) -> np.ndarray:
 def group_motion(features: np.ndarray) -> np.ndarray:
     """(F, G) the RMS change of each of :data:`GROUPS` (IOD)."""
     return np.stack([np.sqrt((features[:, g] ** 2).mean(1)) for g in GROUPS.values()], 1)
+
+
+# Which landmark groups and scores an ARKit curve moves, by its name's start: a step's
+# basis keeps only its curves' regions (elsewhere the take's hold holds the tracker's
+# noise, which would let the step explain motion it does not make).
+_REGION_GROUPS = {"brow": ("brows",), "eye": ("eyes", "irises"), "jaw": ("lips", "jaw"),
+                  "mouth": ("lips", "jaw", "cheeks"), "cheek": ("cheeks", "lips"), "nose": ("cheeks", "lips"),
+                  "tongue": ("lips",)}
+_REGION_SCORES = {"brow": ("brow",), "eye": ("eye",), "jaw": ("jaw", "mouth"), "mouth": ("mouth", "jaw"),
+                  "cheek": ("cheek", "mouth"), "nose": ("nose", "mouth"), "tongue": ("tongue",)}
+
+
+def _region(name: str) -> str:
+    return next((r for r in _REGION_GROUPS if name.startswith(r)), "mouth")
+
+
+def curve_mask(curves, score_names: list[str], score_columns: np.ndarray) -> np.ndarray:
+    """(D,) bool the features of the regions ``curves`` (ARKit names) move."""
+    n_lm = 3 * len(LANDMARKS)
+    mask = np.zeros(n_lm + len(score_columns), bool)
+    for name in curves:
+        region = _region(name)
+        for g in _REGION_GROUPS[region]:
+            mask[GROUPS[g]] = True
+        starts = _REGION_SCORES[region]
+        mask[n_lm:] |= np.array([score_names[c].startswith(starts) for c in score_columns])
+    return mask

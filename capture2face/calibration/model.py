@@ -57,8 +57,12 @@ class ActorCalibration:
             (:func:`~capture2face.calibration.features.pose_terms`), taken off every frame.
         basis: (K, D) float32 each found step's feature change at its hold.
         basis_steps: K names of the steps the basis rows belong to.
-        curves: ARKit name -> {"gain", "offset", "steps"}: the calibrated curve is
-            ``clip(gain * sum_k w_k target_k + offset, 0, 1)`` over the steps that show it.
+        noise: (K,) float32 each step's weight that the take's idle frames reach (its 90th
+            percentile there): weights below it are the tracker's noise.
+        curves: ARKit name -> {"source", "gain", "offset", "steps"}: the calibrated curve
+            is ``clip(gain * x + offset, 0, 1)``, ``x`` the tracker's own curve (source
+            "tracker") or the mix ``sum_k w_k target_k`` of the actor's expressions that
+            show it ("expressions").
         warnings: what the take lacked or showed badly.
     """
 
@@ -72,6 +76,7 @@ class ActorCalibration:
     pose_model: np.ndarray
     basis: np.ndarray
     basis_steps: list[str]
+    noise: np.ndarray
     curves: dict[str, dict]
     warnings: list[str] = field(default_factory=list)
 
@@ -89,6 +94,7 @@ class ActorCalibration:
                      "landmarks": r(self.rest_landmarks), "face": r(self.rest_face)},
             "pose_model": r(self.pose_model, 5),
             "basis": {name: r(row, 5) for name, row in zip(self.basis_steps, self.basis, strict=True)},
+            "noise": dict(zip(self.basis_steps, r(self.noise), strict=True)),
         }
 
     def save(self, path: str | os.PathLike) -> None:
@@ -105,7 +111,8 @@ class ActorCalibration:
             steps = [StepFit(s["name"], bool(s["found"]), _pair(s.get("frames")), _pair(s.get("hold")),
                              s.get("match"), dict(s.get("before", {})), dict(s.get("after", {})))
                      for s in data["steps"]]
-            curves = {str(k): {"gain": float(v["gain"]), "offset": float(v["offset"]), "steps": list(v["steps"])}
+            curves = {str(k): {"source": str(v.get("source", "expressions")), "gain": float(v["gain"]),
+                               "offset": float(v["offset"]), "steps": list(v["steps"])}
                       for k, v in data["curves"].items()}
             out = cls(source=str(data.get("source", "")), fps=float(data.get("fps", 30.0)), steps=steps,
                       rest_face=np.asarray(data["rest"]["face"], np.float32),
@@ -113,9 +120,13 @@ class ActorCalibration:
                       rest_scores=np.asarray(list(data["rest"]["scores"].values()), np.float32),
                       score_names=names, pose_model=np.asarray(data["pose_model"], np.float32),
                       basis=basis.reshape(len(basis_steps), -1), basis_steps=basis_steps,
+                      noise=np.asarray([data["noise"][n] for n in basis_steps], np.float32),
                       curves=curves, warnings=list(data.get("warnings", [])))
         except (KeyError, TypeError, ValueError) as exc:
             raise CaptureError(f"{where}: a damaged actor calibration ({type(exc).__name__}: {exc})") from None
+        bad = [k for k, v in out.curves.items() if v["source"] not in ("tracker", "expressions")]
+        if bad:
+            raise CaptureError(f"{where}: curve {bad[0]}'s source must be \"tracker\" or \"expressions\"")
         if out.rest_landmarks.shape != (478, 3) or out.rest_face.shape != (478, 3):
             raise CaptureError(f"{where}: a damaged actor calibration (its rest is not 478 landmarks)")
         for name, c in out.curves.items():

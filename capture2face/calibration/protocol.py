@@ -51,20 +51,27 @@ PROTOCOL: tuple[Step, ...] = (
     Step("jaw_open", "Open the jaw wide, lips relaxed", {"jawOpen": 1.0}),
     Step("jaw_left", "Jaw to your left, lips closed", {"jawLeft": 1.0}),
     Step("jaw_right", "Jaw to your right, lips closed", {"jawRight": 1.0}),
-    Step("smile", "Smile, lips closed", _both("mouthSmile", 0.5)),
-    Step("wide_smile", "Wide smile, as broad as you can", {**_both("mouthSmile"), **_both("cheekSquint", 0.5)}),
+    Step("jaw_forward", "Push the jaw forward", {"jawForward": 1.0}),
+    Step("smile", "Wide smile, as broad as you can", {**_both("mouthSmile"), **_both("cheekSquint", 0.5)}),
     Step("frown_mouth", "Pull the mouth corners down", _both("mouthFrown")),
+    Step("stretch", "Stretch the lips sideways and down, as in 'eek'", _both("mouthStretch")),
     Step("pucker", "Pucker: a kiss, lips pushed forward", {"mouthPucker": 1.0}),
     Step("funnel", "Funnel: lips rounded as in 'oo', a little open", {"mouthFunnel": 1.0, "jawOpen": 0.2}),
     Step("lips_pressed", "Press the lips together", _both("mouthPress")),
+    Step("lips_rolled_in", "Roll both lips in over the teeth", {"mouthRollLower": 1.0, "mouthRollUpper": 1.0}),
+    Step("lower_lip_down", "Pull the lower lip down, showing the lower teeth", _both("mouthLowerDown")),
+    Step("upper_lip_up", "Raise the upper lip, showing the upper teeth", _both("mouthUpperUp")),
+    Step("mouth_left", "Move the closed mouth to your left", {"mouthLeft": 1.0}),
+    Step("mouth_right", "Move the closed mouth to your right", {"mouthRight": 1.0}),
+    Step("chin_up", "Push the lower lip and chin up (a pout)", {"mouthShrugLower": 1.0, "mouthShrugUpper": 0.5}),
     Step("cheek_puff", "Puff the cheeks out", {"cheekPuff": 1.0}),
     Step("sneer", "Sneer: wrinkle the nose", _both("noseSneer")),
 )
 STEP_NAMES = tuple(s.name for s in PROTOCOL)
 
 # Timing of a take, seconds: the neutral at the start, then per step: ease in, hold, ease
-# out, neutral. About 38 s for the 20 steps (the synthetic take; a real take may differ).
-LEAD_NEUTRAL, EASE, HOLD, GAP = 1.5, 0.25, 0.8, 0.5
+# out, neutral. About 42 s for the 27 steps (the synthetic take; a real take may differ).
+LEAD_NEUTRAL, EASE, HOLD, GAP = 1.5, 0.2, 0.7, 0.4
 
 
 def target_matrix(names: list[str] | tuple[str, ...] = ARKIT_NAMES,

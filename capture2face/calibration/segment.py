@@ -7,15 +7,19 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.ndimage import uniform_filter1d
+from scipy.signal import find_peaks
 
 # Activity: each landmark group's RMS change over its typical change on the take's idle
-# frames, the largest group's, smoothed over SMOOTH_S. Motion is activity above NOISE_RATIO.
-NOISE_RATIO = 3.0
+# frames, the largest group's, smoothed over SMOOTH_S. A step is a peak of at least
+# MIN_PEAK standing PROMINENCE above its valleys, peaks at least MIN_APART_S apart.
+MIN_PEAK, PROMINENCE, MIN_APART_S = 4.0, 2.5, 0.6
+RUN_SHARE = 0.4
 SMOOTH_S = 0.1
 IDLE_SHARE = 0.2  # the take's calmest frames, whose motion is the tracker's noise
-MIN_RUN_S, MERGE_GAP_S = 0.25, 0.12  # shorter runs are dropped; closer ones are one run
+MIN_RUN_S = 0.25  # shorter runs are dropped
 # A run's hold: its frames whose activity reaches this share of the run's highest.
 HOLD_SHARE = 0.75
+MATCH_BONUS = 0.3
 # A matched step whose reading looks less like it than this is named in a warning.
 MATCH_WARN = 0.2
 
@@ -48,32 +52,33 @@ def activity(motion: np.ndarray, idle: np.ndarray, fps: float) -> np.ndarray:
 
 
 def find_runs(act: np.ndarray, fps: float, valid: np.ndarray) -> list[Run]:
-    """Runs of motion in (F,) :func:`activity` ``act``; ``valid`` (F,) frames with a face."""
-    moving = (act > NOISE_RATIO) & valid
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], moving.astype(np.int8), [0]])))
-    spans = [[int(a), int(b)] for a, b in zip(edges[::2], edges[1::2])]
-    merged: list[list[int]] = []
-    for s in spans:
-        if merged and s[0] - merged[-1][1] <= MERGE_GAP_S * fps:
-            merged[-1][1] = s[1]
-        else:
-            merged.append(s)
+    """Runs of motion in (F,) :func:`activity` ``act``: each peak standing
+    :data:`PROMINENCE` above the valleys beside it (one per expression: the take returns
+    to neutral between steps, though seldom all the way), spanning the frames around it
+    above :data:`RUN_SHARE` of it; ``valid`` (F,) frames with a face."""
+    act = np.where(valid, act, 0.0)
+    peaks, _ = find_peaks(act, height=MIN_PEAK, prominence=PROMINENCE, distance=max(1, round(MIN_APART_S * fps)))
+    bounds = np.concatenate([[0], [(a + int(np.argmin(act[a:b]))) for a, b in zip(peaks[:-1], peaks[1:])],
+                             [len(act)]])
     runs = []
-    for a, b in merged:
-        if b - a < MIN_RUN_S * fps:
-            continue
-        peak = act[a:b].max()
-        above = np.flatnonzero(act[a:b] >= HOLD_SHARE * peak)
-        runs.append(Run(a, b, a + int(above[0]), a + int(above[-1]) + 1))
+    for i, p in enumerate(peaks):
+        lo, hi = int(bounds[i]), int(bounds[i + 1])
+        span = np.flatnonzero(act[lo:hi] >= RUN_SHARE * act[p]) + lo
+        hold = np.flatnonzero(act[lo:hi] >= HOLD_SHARE * act[p]) + lo
+        start, stop = int(span[0]), int(span[-1]) + 1
+        if stop - start >= MIN_RUN_S * fps:
+            runs.append(Run(start, stop, int(hold[0]), int(hold[-1]) + 1))
     return runs
 
 
 def align(similarity: np.ndarray) -> list[tuple[int, int]]:
     """Order-keeping match of runs to steps: (run, step) pairs maximizing the sum of
-    ``1 + similarity[run, step]`` (R, K), either side free to go unmatched (a step the
-    actor left out, a run of motion that is no step)."""
+    ``MATCH_BONUS + similarity[run, step]`` (R, K), either side free to go unmatched (a
+    step the actor left out, a run of motion that is no step). The bonus lets the order
+    match the steps the tracker cannot read (similarity 0) without letting it pair a run
+    with a step it reads unlike when the next step reads like it."""
     R, K = similarity.shape
-    gain = 1.0 + similarity
+    gain = MATCH_BONUS + similarity
     best = np.zeros((R + 1, K + 1))
     for i in range(1, R + 1):
         for k in range(1, K + 1):

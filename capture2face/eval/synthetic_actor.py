@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from capture2face.calibration.attach import attach
 from capture2face.character.load import load_character
 from capture2face.errors import CaptureError, NoFaceError
 from capture2face.eval.synthetic import (
@@ -54,6 +55,7 @@ from capture2face.measures import (
     source_measures,
 )
 from capture2face.retarget import RetargetOptions
+from capture2face.retarget.arkit import calibrate_take
 from capture2face.retarget.gaze import eye_radius_iod
 from capture2face.rig.arkit_names import arkit_morphs
 from capture2face.rig.avatar import default_avatar
@@ -192,29 +194,47 @@ def evaluate_actor_track(track, truth, actor, target, options: RetargetOptions |
 
 def evaluate_actor_synthetic(actor=None, target=None, frames: int = 300, seed: int = 0, size: int = 512,
                              progress: bool = True, workdir: str | Path | None = None,
-                             options: RetargetOptions | None = None) -> dict:
+                             options: RetargetOptions | None = None, calibration: bool = False) -> dict:
     """Render ``frames`` frames of ``actor`` (a character file, a FaceRig, or None /
     "default": the default avatar), track them, retarget onto ``target`` (likewise; None:
     the default avatar) and score against the truth (:func:`evaluate_actor_track`).
 
     Args:
         workdir: where the synthetic clip goes (default: a temporary folder, removed).
+        calibration: also render the actor's range-of-motion take (``synth --rom``, the same
+            seed: its own head motion and light), calibrate on it, and score the performance
+            calibrated; the result's ``calibration`` says what the take gave.
     """
     rig, target_rig = resolve_characters(actor, target)
+    if calibration and rig is None:
+        raise CaptureError("--calibration needs an ARKit character as the --actor (it performs the ROM take)")
     with tempfile.TemporaryDirectory(prefix="capture2face-eval-") as tmp:
         folder = Path(workdir) if workdir else Path(tmp)
         clip = synthesize(folder / "synthetic.mp4", SynthOptions(frames=frames, seed=seed, size=size),
                           progress=progress, actor=rig)
-        try:
-            track = track_clip(clip.video_path, TrackOptions(), progress=progress)
-        except NoFaceError:  # the clip is ours: the cause is the actor, not its temporary video
-            raise CaptureError(f"actor {_label(actor, rig)}: the tracker finds no face in the {frames} frames "
-                               "rendered of it; the actor must be a character with a human face and "
-                               "ARKit-named morphs") from None
+        track = _track(clip.video_path, actor, rig, progress)
+        if calibration:
+            rom = synthesize(folder / "rom.mp4", SynthOptions(seed=seed, size=size, rom=True), progress=progress,
+                             actor=rig)
+            learned = calibrate_take(_track(rom.video_path, actor, rig, progress))
+            track = attach(track, learned)
     source = rig if rig is not None else default_avatar()
     result = evaluate_actor_track(track, clip.truth, source, target_rig, options)
     result.update({"seed": int(seed), "size": int(size)})
+    if calibration:
+        result["calibration"] = {
+            "steps_found": [s.name for s in learned.steps if s.found],
+            "steps_missing": [s.name for s in learned.steps if not s.found],
+            "curves": {n: c["source"] for n, c in learned.curves.items()}, "warnings": learned.warnings}
     return result
+
+
+def _track(path, actor, rig, progress: bool):
+    try:
+        return track_clip(path, TrackOptions(), progress=progress)
+    except NoFaceError:  # the clip is ours: the cause is the actor, not its temporary video
+        raise CaptureError(f"actor {_label(actor, rig)}: the tracker finds no face in the frames rendered of it; "
+                           "the actor must be a character with a human face and ARKit-named morphs") from None
 
 
 def _label(actor, rig) -> str:

@@ -22,8 +22,9 @@ gives each of the 52 curves ARKit's meaning (0 at rest, 1 at the full pose):
   squint, which ARKit calls eyeLookDown and eyeSquint: where the blink score stays within
   :data:`BLINK_GATE` of its rest, the closure fades out with it.
 * **a calibrated actor** (a track carrying a calibration from a range-of-motion take,
-  :mod:`capture2face.calibration`): each curve the take showed is the calibration's
-  instead (this actor's own expressions, mixed to fit the frame); the others as above.
+  :mod:`capture2face.calibration`): each curve the take showed is the calibration's: the
+  curve above with the take's gain and offset where the tracker read it well on the take,
+  else this actor's own expressions mixed to fit the frame; the others as above.
 * then all curves pass a zero-phase One Euro filter tuned for [0, 1] scores
   (:data:`SCORE_FILTER`) and are clipped to [0, 1].
 """
@@ -33,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 
 from capture2face.calibration.attach import track_calibration
-from capture2face.calibration.learn import calibrated_curves
+from capture2face.calibration.learn import calibrate, calibrated_curves, tracker_adjusted
 from capture2face.maths.stats import pearson
 from capture2face.tracking.filtering import OneEuro, one_euro
 from capture2face.tracking.rest import GEOMETRY_PAIRS, ActorRest, actor_rest, pair_distances
@@ -146,7 +147,8 @@ def arkit_curves(track, rest: ActorRest | None = None) -> np.ndarray:
     from_calibration = {}  # column -> its calibrated curve (F,)
     if calibration is not None and calibration.curves:
         mixed = calibrated_curves(track, calibration, np.zeros(raw.shape, np.float32))
-        from_calibration = {names.index(n): mixed[:, names.index(n)] for n in calibration.curves if n in names}
+        from_calibration = {names.index(n): mixed[:, names.index(n)] for n, c in calibration.curves.items()
+                            if n in names and c["source"] == "expressions"}
     # A few columns at a time: each curve is calibrated and filtered on its own, so this is
     # the same as the whole (F, S) at once with a fraction of the float64 temporaries.
     out = np.empty(raw.shape, np.float32)
@@ -162,4 +164,11 @@ def arkit_curves(track, rest: ActorRest | None = None) -> np.ndarray:
             elif c in geometric:
                 curves[:, j] = geometric[c]
         out[:, c0:cols.stop] = np.clip(one_euro(curves, times, SCORE_FILTER), 0.0, 1.0)
-    return out
+    return out if calibration is None else tracker_adjusted(out, calibration, names)
+
+
+def calibrate_take(track):
+    """The :class:`~capture2face.calibration.ActorCalibration` of a tracked ROM take
+    (:func:`capture2face.calibration.calibrate`), judging the tracker's own curves as this
+    module reads them."""
+    return calibrate(track, base_curves=arkit_curves(track))
