@@ -8,9 +8,10 @@ import dataclasses
 import os
 from pathlib import Path
 
-from capture2face.calibration import ActorCalibration, calibrate
+from capture2face.calibration import ActorCalibration
 from capture2face.errors import CaptureError
 from capture2face.io.video_input import open_video
+from capture2face.retarget.arkit import calibrate_take
 from capture2face.tracking import TrackOptions, track_clip
 
 CALIBRATION_SUFFIX = ".json"  # an actor.json; any other file is a take to learn from
@@ -57,7 +58,7 @@ def learn_calibration(take: str | os.PathLike, options: TrackOptions | None = No
         raise CaptureError(f"--calibration: {exc}") from None
     if not track.tracked_frames:
         raise CaptureError(f"--calibration {os.fspath(take)}: no face in the take")
-    return calibrate(track)
+    return calibrate_take(track)
 
 
 def resolve_calibration(options: TrackOptions, progress: bool = True) -> ActorCalibration | None:
