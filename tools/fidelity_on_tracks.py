@@ -13,7 +13,8 @@ takes (a .glb or FaceRig .npz, or a built-in avatar's name; default: the default
 With a calibration (docs/calibration.md) each track carries it first: ``--calibration``
 an actor.json for every clip; ``--take first:S`` calibrates each clip on its own first S
 seconds (a partial range-of-motion take, in-sample: the frames judged include the take's);
-``--take rest`` on a take of the clip's own rest frames alone (a take holding only a neutral).
+``--take rest`` on a take of the clip's calmest frames alone (those the whole face's rest
+takes: a take holding only a neutral).
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ def take_of(track, spec: str):
     from capture2face.tracking.rest import actor_rest
 
     if spec == "rest":
-        frames = np.unique(np.concatenate([np.asarray(f, np.int64) for f in actor_rest(track).frames.values()]))
+        frames = np.asarray(actor_rest(track).frames["face"], np.int64)  # the whole face at its calmest
     elif spec.startswith("first:"):
         frames = np.flatnonzero(np.asarray(track.times) < float(spec.split(":", 1)[1]))
     else:

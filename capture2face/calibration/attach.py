@@ -1,7 +1,10 @@
 """A clip's track carrying its actor's calibration (as its JSON text, saved with the track),
-so that every stage after tracking (the ARKit curves, the character solve, the wrinkles'
-rest, the exports) reads the same actor's calibration, from a track file too; the track
-rests on the take's neutral, laid onto its head coordinates."""
+so that every stage after tracking (the ARKit curves, the character solve, the exports)
+reads the same actor's calibration, from a track file too.
+
+The track keeps its own rest: a take's rest laid onto a real clip made its figures worse
+(docs/calibration.md), while the calibration reads its own curves against the take's rest
+(:func:`~capture2face.calibration.learn.calibrated_curves`)."""
 
 from __future__ import annotations
 
@@ -9,16 +12,12 @@ import dataclasses
 import functools
 import json
 
-from capture2face.calibration.learn import calibration_rest
 from capture2face.calibration.model import ActorCalibration
-from capture2face.tracking.rest import rest_fields
 
 
 def attach(track, calibration: ActorCalibration):
-    """``track`` resting on the calibration's rest (aligned to its head coordinates), with
-    the calibration in its ``calibration`` field."""
-    rest = calibration_rest(calibration, track)
-    return dataclasses.replace(track, **rest_fields(rest), calibration=json.dumps(calibration.to_json()))
+    """``track`` with the calibration in its ``calibration`` field (its rest its own)."""
+    return dataclasses.replace(track, calibration=json.dumps(calibration.to_json()))
 
 
 @functools.lru_cache(maxsize=4)

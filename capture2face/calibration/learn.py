@@ -12,6 +12,8 @@ blink; a frown MediaPipe scores as nothing still moves this actor's brows somewh
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from capture2face.calibration.features import curve_mask, frame_features, group_motion, pose_terms
@@ -20,7 +22,7 @@ from capture2face.calibration.protocol import PROTOCOL, STEP_NAMES, Step, target
 from capture2face.calibration.segment import MATCH_WARN, activity, align, find_runs, idle_frames
 from capture2face.calibration.solve import step_weights
 from capture2face.maths.stats import pearson
-from capture2face.tracking.rest import FACE, REGIONS, ActorRest, actor_rest, aligned_rest
+from capture2face.tracking.rest import ActorRest, actor_rest, aligned_rest, clip_rest
 
 MIN_NEUTRAL_FRAMES = 5
 _CHUNK = 4096
@@ -30,7 +32,7 @@ GAIN_BOUNDS, OFFSET_BOUNDS = (0.5, 3.0), (-0.3, 0.3)
 # others come from the actor's expressions ("expressions"). On a synthetic ICT actor the
 # expressions' blink, fitted on 0.8 s holds, missed the performance's 0.25 s blinks (r 0.65
 # where the tracker's reads 0.93), while the brows the tracker barely reads came out right.
-TRACKER_R, TRACKER_GAIN_MAX = 0.7, 2.0
+TRACKER_R, TRACKER_GAIN_MAX, TRACKER_OFFSET_MAX = 0.7, 2.0, 0.1
 POSE_ROUNDS = 4  # fits of the pose model, each on the idle frames of the one before
 
 
@@ -108,14 +110,15 @@ def calibrate(track, steps: tuple[Step, ...] = PROTOCOL, base_curves: np.ndarray
 
 
 def _neutral_rest(track, idle: np.ndarray, runs: list) -> ActorRest:
-    """The take's rest: its idle frames before the first step (the protocol opens on the
-    neutral), or all its idle frames when fewer than :data:`MIN_NEUTRAL_FRAMES` come first."""
+    """The take's rest: each region's calmest frames (:func:`~capture2face.tracking.rest.clip_rest`)
+    among its idle frames before the first step (the protocol opens on the neutral), or
+    among all its idle frames when fewer than :data:`MIN_NEUTRAL_FRAMES` come first."""
     first = idle[idle < runs[0].start] if runs else idle
-    frames = first if len(first) >= MIN_NEUTRAL_FRAMES else idle
-    lm = np.median(np.asarray(track.landmarks_head[frames], np.float32), 0)
-    scores = np.median(np.nan_to_num(np.asarray(track.blendshapes[frames], np.float32)), 0)
-    return ActorRest(face=lm, landmarks=lm, scores=scores, frames=dict.fromkeys((*REGIONS, FACE), frames),
-                     source=f"the neutral of {track.source}")
+    candidates = np.zeros(track.n_frames, bool)
+    candidates[first if len(first) >= MIN_NEUTRAL_FRAMES else idle] = True
+    rest = clip_rest(track.landmarks_head, track.blendshapes, list(track.blendshape_names), track.head_pose,
+                     track.times, candidates & np.asarray(track.presence, bool))
+    return dataclasses.replace(rest, source=f"the neutral of {track.source}")
 
 
 def _pose_model(raw: np.ndarray, terms: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -189,8 +192,10 @@ def _fit_gains(calibration: ActorCalibration, feats: np.ndarray, base: np.ndarra
         gain, offset = _line(tracker, y)
         # The tracker's own curve where it follows the holds and reaches their range
         # without being blown up (a browDown MediaPipe scores 0.01 at a frown follows the
-        # frown, but is the tracker's noise times 30).
-        if pearson(tracker, y) >= TRACKER_R and gain <= TRACKER_GAIN_MAX:
+        # frown, but is the tracker's noise times 30) or moved (a curve that reads well
+        # above 0 at the take's rest reads the clip's rest wrong, as browInnerUp on a take
+        # whose calmest brows are its frown's).
+        if pearson(tracker, y) >= TRACKER_R and gain <= TRACKER_GAIN_MAX and abs(offset) <= TRACKER_OFFSET_MAX:
             c["source"] = "tracker"
         else:
             c["source"] = "expressions"

@@ -107,7 +107,9 @@ class ActorCalibration:
         try:
             names = list(data["rest"]["scores"])
             basis_steps = list(data["basis"])
-            basis = np.asarray([data["basis"][n] for n in basis_steps], np.float32)
+            pose_model = np.asarray(data["pose_model"], np.float32)
+            basis = np.asarray([data["basis"][n] for n in basis_steps], np.float32).reshape(len(basis_steps),
+                                                                                             pose_model.shape[1])
             steps = [StepFit(s["name"], bool(s["found"]), _pair(s.get("frames")), _pair(s.get("hold")),
                              s.get("match"), dict(s.get("before", {})), dict(s.get("after", {})))
                      for s in data["steps"]]
@@ -118,8 +120,8 @@ class ActorCalibration:
                       rest_face=np.asarray(data["rest"]["face"], np.float32),
                       rest_landmarks=np.asarray(data["rest"]["landmarks"], np.float32),
                       rest_scores=np.asarray(list(data["rest"]["scores"].values()), np.float32),
-                      score_names=names, pose_model=np.asarray(data["pose_model"], np.float32),
-                      basis=basis.reshape(len(basis_steps), -1), basis_steps=basis_steps,
+                      score_names=names, pose_model=pose_model,
+                      basis=basis, basis_steps=basis_steps,
                       noise=np.asarray([data["noise"][n] for n in basis_steps], np.float32),
                       curves=curves, warnings=list(data.get("warnings", [])))
         except (KeyError, TypeError, ValueError) as exc:
