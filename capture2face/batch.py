@@ -217,20 +217,17 @@ def _sidecar(clip: Path) -> Path | None:
 
 def clip_options(clip: BatchClip, options: Any) -> Any:
     """``options`` for one clip: with its calibration (``clip.rom``, or what the batch
-    learned from it) else its rest take (``neutral_image`` or ``neutral_clip`` by its
-    extension), unless the batch's options give a rest or calibration of their own."""
+    learned from it) unless the batch gives one for every clip, and its rest take
+    (``neutral_image`` or ``neutral_clip`` by its extension) unless the batch gives a rest."""
     track = options.track
-    given = any(getattr(track, k) is not None
-                for k in ("neutral_frame", "neutral_image", "neutral_clip", "calibration"))
-    if given:
-        return options
-    if clip.rom is not None:
-        calibration = clip.learned if clip.learned is not None else clip.rom
-        return dataclasses.replace(options, track=dataclasses.replace(track, calibration=calibration))
-    if clip.neutral is None:
-        return options
-    kind = "neutral_image" if Path(clip.neutral).suffix.lower() in IMAGE_EXTENSIONS else "neutral_clip"
-    return dataclasses.replace(options, track=dataclasses.replace(track, **{kind: clip.neutral}))
+    changes: dict[str, Any] = {}
+    if track.calibration is None and clip.rom is not None:
+        changes["calibration"] = clip.learned if clip.learned is not None else clip.rom
+    rest_given = any(getattr(track, k) is not None for k in ("neutral_frame", "neutral_image", "neutral_clip"))
+    if not rest_given and clip.neutral is not None:
+        kind = "neutral_image" if Path(clip.neutral).suffix.lower() in IMAGE_EXTENSIONS else "neutral_clip"
+        changes[kind] = clip.neutral
+    return dataclasses.replace(options, track=dataclasses.replace(track, **changes)) if changes else options
 
 
 def _run_clip(path: str, out: str, name: str, options: Any) -> dict:

@@ -140,7 +140,7 @@ def _cmd_track(args: argparse.Namespace) -> int:
     find_face_model(args.face_model)
     calibration = resolve_calibration(options, progress=not args.quiet)
     track = track_clip(args.clip, options, progress=not args.quiet)
-    if calibration is not None:  # the track rests on it and carries it (track.npz keeps it)
+    if calibration is not None:  # the track carries it (track.npz keeps it)
         track = attach(track, calibration)
     track.save(args.output)
     if args.overlay:
@@ -283,9 +283,9 @@ def _add_neutral_options(p: argparse.ArgumentParser) -> None:
 def _add_calibration_option(p: argparse.ArgumentParser, batch: bool = False) -> None:
     p.add_argument("--calibration", metavar="ROM_OR_JSON", default=None,
                    help=("the actor's calibration" + (" for every clip (else CLIP.rom.mp4 or CLIP.rom.json beside "
-                                                      "a clip, for that clip)" if batch else ", instead") +
+                                                      "a clip, for that clip)" if batch else "") +
                          ": a range-of-motion take (docs/calibration.md), learned first, or the actor.json "
-                         "`capture2face calibrate` wrote; it brings the rest too"))
+                         "`capture2face calibrate` wrote"))
 
 
 def _common_options() -> argparse.ArgumentParser:

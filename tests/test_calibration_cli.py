@@ -55,16 +55,6 @@ def _one_line_error(capsys, code: int, argv: list[str], *words: str) -> None:
 
 
 # ---- fast: the flags' checks, the options, batch's sidecars ------------------------------
-def test_calibration_with_a_neutral_take_is_one_line_error(tmp_path, capsys, no_tracking):
-    (tmp_path / "a.json").write_text("{}")
-    for flag in (["--neutral-clip", str(SAMPLE)], ["--neutral-frame", "0"]):
-        _one_line_error(capsys, 2, ["run", str(SAMPLE), "-o", str(tmp_path / "out"), "--calibration",
-                                    str(tmp_path / "a.json"), *flag], "--calibration and --neutral-", "give one")
-        _one_line_error(capsys, 2, ["track", str(SAMPLE), "-o", str(tmp_path / "t.npz"), "--calibration",
-                                    str(tmp_path / "a.json"), *flag], "--calibration and --neutral-")
-    assert not (tmp_path / "out").exists()
-
-
 @pytest.mark.parametrize("content", [None, "garbage", '{"format": "something else"}', "folder"])
 def test_a_missing_or_bad_calibration_file_is_one_line_error(tmp_path, capsys, no_tracking, content):
     path = tmp_path / ("cal" if content == "folder" else "actor.json")

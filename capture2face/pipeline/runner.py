@@ -212,7 +212,7 @@ def _calibration(options: RunOptions, progress: bool, tmp: Path, seconds: dict[s
 
 
 def _track(clip, options: RunOptions, progress: bool, work: Path, workers, info, calibration=None):
-    """Pass 1 (with ``calibration``: the track rests on it and carries it), refusing a
+    """Pass 1 (with ``calibration``: the track carries it), refusing a
     damaged clip unless ``options.allow_truncated``."""
     if calibration is not None:  # learned or loaded once, before tracking
         options = dataclasses.replace(options, track=dataclasses.replace(options.track, calibration=calibration))

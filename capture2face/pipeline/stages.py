@@ -34,7 +34,7 @@ def track_stage(clip: str | os.PathLike, options: RunOptions, progress: bool = T
     ``workers``: :func:`start_track_workers`' processes; ``info``: the clip's
     :func:`~capture2face.io.video_input.open_video` probe, if already made). With
     ``options.track.calibration`` (an ``ActorCalibration``, or a file resolved now) the
-    track rests on it and carries it (:func:`~capture2face.calibration.attach.attach`)."""
+    track carries it (:func:`~capture2face.calibration.attach.attach`)."""
     calibration = resolve_calibration(options.track, progress)
     track = track_clip(clip, options.track, progress=progress, workdir=workdir, workers=workers,
                        info=info)

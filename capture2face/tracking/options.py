@@ -35,10 +35,10 @@ class TrackOptions:
             clip, :mod:`.rest`).
         neutral_image: instead, a photo or still of the same actor at rest.
         neutral_clip: instead, a short take of the same actor at rest.
-        calibration: instead, the actor's calibration (:mod:`capture2face.calibration`): a
-            range-of-motion take (a video), its ``actor.json``, or an ``ActorCalibration``;
-            it brings the rest too. Tracking itself ignores it: ``pipeline`` learns or
-            loads it and lays it onto the clip's track.
+        calibration: the actor's calibration (:mod:`capture2face.calibration`): a
+            range-of-motion take (a video), its ``actor.json``, or an ``ActorCalibration``.
+            Tracking itself ignores it: ``pipeline`` learns or loads it and the clip's
+            track carries it.
         max_gap_seconds: gaps up to this long are interpolated; longer ones hold.
         min_cutoff, beta, d_cutoff: One Euro filter of the head-coordinate landmarks
             (Hz, 1/cm, Hz); see :mod:`.filtering`.
@@ -77,8 +77,6 @@ class TrackOptions:
                                       ("--neutral-clip", self.neutral_clip)) if v is not None]
         if len(given) > 1:
             raise CaptureError(f"{' and '.join(given)}: give one rest (a frame, an image or a clip), not several")
-        if given and self.calibration is not None:
-            raise CaptureError(f"--calibration and {given[0]}: the calibration brings the actor's rest; give one")
         if isinstance(self.calibration, (str, os.PathLike)):
             _check_calibration_file(self.calibration)
         for flag, path, kind in (("--neutral-image", self.neutral_image, "an image file (a photo or still)"),
