@@ -202,7 +202,7 @@ def test_track_and_batch_carry_the_calibration(actor_json, tmp_path):
     assert main(["-q", "track", str(SAMPLE), "-o", str(tmp_path / "t.npz"), "--calibration", str(actor_json)]) == 0
     track = Track.load(tmp_path / "t.npz")
     assert json.loads(track.calibration)["source"] == ActorCalibration.load(actor_json).source
-    assert track.rest_source.startswith("calibration")
+    assert track.rest_source == "clip"  # the clip keeps its own rest
     # A batch: the clip's CLIP.rom.json; --resume runs it again once the calibration changed.
     shutil.copy(SAMPLE, tmp_path / "clip.mp4")
     shutil.copy(actor_json, tmp_path / "clip.rom.json")
