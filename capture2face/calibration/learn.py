@@ -19,7 +19,7 @@ import numpy as np
 from capture2face.calibration.features import curve_mask, frame_features, group_motion, pose_terms
 from capture2face.calibration.model import ActorCalibration, StepFit
 from capture2face.calibration.protocol import PROTOCOL, STEP_NAMES, Step, target_matrix
-from capture2face.calibration.segment import MATCH_WARN, activity, align, find_runs, idle_frames
+from capture2face.calibration.segment import MATCH_WARN, activity, align, find_runs, idle_frames, weak_runs
 from capture2face.calibration.solve import step_weights
 from capture2face.maths.stats import pearson
 from capture2face.tracking.rest import ActorRest, actor_rest, aligned_rest, clip_rest
@@ -67,7 +67,8 @@ def calibrate(track, steps: tuple[Step, ...] = PROTOCOL, base_curves: np.ndarray
         raw = frame_features(track.landmarks_head, track.blendshapes, rest.landmarks, rest.scores, cols)
         pose_model, idle = _pose_model(raw, terms, valid)
         feats = raw - terms @ pose_model
-        runs = find_runs(activity(group_motion(feats), idle, fps), fps, valid)
+        act = activity(group_motion(feats), idle, fps)
+        runs = find_runs(act, fps, valid)
         rest = _neutral_rest(track, idle, runs)
     rest_frames = idle
 
@@ -78,17 +79,23 @@ def calibrate(track, steps: tuple[Step, ...] = PROTOCOL, base_curves: np.ndarray
         v = reading[run.hold_start:run.hold_stop].mean(0)
         sim[i] = (targets.T @ v) / (np.linalg.norm(targets, axis=0) * max(np.linalg.norm(v), 1e-9))
     pairs = {k: i for i, k in align(sim)} if len(runs) else {}
+    found = {k: runs[i] for k, i in pairs.items()}
+    weak = weak_runs(act, found, len(steps), fps, valid) if found else {}
 
     fits, rows, row_steps, warnings = [], [], [], []
     for k, step in enumerate(steps):
-        if k not in pairs:
+        if k not in found and k not in weak:
             fits.append(StepFit(step.name, False))
             warnings.append(f"calibration: the take shows no '{step.name}' ({step.instruction.lower()}): "
                             "its curves keep the tracker's reading")
             continue
-        run = runs[pairs[k]]
-        match = float(sim[pairs[k], k])
-        if match < MATCH_WARN:
+        run = found.get(k) or weak[k]
+        v = reading[run.hold_start:run.hold_stop].mean(0)
+        match = float(targets[:, k] @ v / (np.linalg.norm(targets[:, k]) * max(np.linalg.norm(v), 1e-9)))
+        if k in weak:
+            warnings.append(f"calibration: '{step.name}' shows faintly (frames {run.start}-{run.stop - 1}, found by "
+                            "its place in the order); check the take, or edit actor.json")
+        elif match < MATCH_WARN:
             warnings.append(f"calibration: '{step.name}' (frames {run.start}-{run.stop - 1}) reads unlike it "
                             f"(match {match:.2f}); check the take, or edit actor.json")
         fits.append(StepFit(step.name, True, (run.start, run.stop - 1), (run.hold_start, run.hold_stop - 1),

@@ -14,6 +14,7 @@ from scipy.signal import find_peaks
 # MIN_PEAK standing PROMINENCE above its valleys, peaks at least MIN_APART_S apart.
 MIN_PEAK, PROMINENCE, MIN_APART_S = 4.0, 2.5, 0.6
 RUN_SHARE = 0.4
+WEAK_PEAK = 2.0  # a missing step's peak, looked for between its found neighbours
 SMOOTH_S = 0.1
 IDLE_SHARE = 0.2  # the take's calmest frames, whose motion is the tracker's noise
 MIN_RUN_S = 0.25  # shorter runs are dropped
@@ -93,3 +94,48 @@ def align(similarity: np.ndarray) -> list[tuple[int, int]]:
         else:
             k -= 1
     return pairs[::-1]
+
+
+def weak_runs(act: np.ndarray, found: dict[int, Run], n_steps: int, fps: float, valid: np.ndarray) -> dict[int, Run]:
+    """Runs for the steps ``found`` (step -> Run) lacks, looked for where the order puts
+    them: the frames between the found neighbours, shared evenly among the missing steps
+    there, each taking its share's peak when it reaches :data:`WEAK_PEAK` (an expression the
+    tracker reads faintly, below the peaks :func:`find_runs` takes)."""
+    out: dict[int, Run] = {}
+    k = 0
+    while k < n_steps:
+        if k in found:
+            k += 1
+            continue
+        end = k
+        while end < n_steps and end not in found:
+            end += 1
+        lo = found[k - 1].stop if k - 1 in found else 0
+        hi = found[end].start if end in found else len(act)
+        while lo + 1 < hi and act[lo + 1] <= act[lo]:  # past the neighbours' own tails
+            lo += 1
+        while hi - 1 > lo and act[hi - 2] <= act[hi - 1]:
+            hi -= 1
+        edges = np.linspace(lo, hi, end - k + 1).round().astype(int)
+        for j, step in enumerate(range(k, end)):
+            a, b = int(edges[j]), int(edges[j + 1])
+            if b - a < MIN_RUN_S * fps:
+                continue
+            part = np.where(valid[a:b], act[a:b], 0.0)
+            p = int(np.argmax(part))
+            if part[p] < WEAK_PEAK:
+                continue
+            span = _around(part, p, RUN_SHARE * part[p])
+            hold = _around(part, p, HOLD_SHARE * part[p])
+            if span[1] - span[0] >= MIN_RUN_S * fps:
+                out[step] = Run(a + span[0], a + span[1], a + hold[0], a + hold[1])
+        k = end
+    return out
+
+
+def _around(values: np.ndarray, peak: int, floor: float) -> tuple[int, int]:
+    """(start, stop) of the frames around ``peak`` whose values stay at or above ``floor``."""
+    below = values < floor
+    left = np.flatnonzero(below[:peak])
+    right = np.flatnonzero(below[peak:])
+    return (int(left[-1]) + 1 if len(left) else 0), (peak + int(right[0]) if len(right) else len(values))
