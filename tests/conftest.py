@@ -6,6 +6,8 @@ from pathlib import Path
 
 import pytest
 
+from tests import helpers
+
 
 @pytest.fixture(scope="session")
 def avatar():
@@ -70,3 +72,26 @@ def no_tracking(monkeypatch):
     monkeypatch.setattr(eval_fidelity, "track_stage", tracked)
     monkeypatch.setattr(stages, "track_clip", tracked)
     monkeypatch.setattr(batch, "_run_clip", tracked)
+
+
+@pytest.fixture(scope="session")
+def rom_take(tmp_path_factory) -> Path:
+    """The range-of-motion protocol performed by ../shared/characters/ict-a.glb at 256 px
+    (``synth --rom``, ~1260 frames; skipped without the shared characters)."""
+    from capture2face.character.load import load_character
+    from capture2face.synth import SynthOptions, synthesize
+
+    actor = load_character(helpers.shared_character("ict-a.glb"))
+    path = tmp_path_factory.mktemp("rom") / "rom.mp4"
+    synthesize(path, SynthOptions(size=256, rom=True), progress=False, actor=actor)
+    return path
+
+
+@pytest.fixture(scope="session")
+def actor_json(rom_take, tmp_path_factory) -> Path:
+    """ict-a's actor.json, learned from :func:`rom_take` by ``capture2face calibrate``."""
+    from capture2face.cli import main
+
+    path = tmp_path_factory.mktemp("actor") / "actor.json"
+    assert main(["-q", "calibrate", str(rom_take), "-o", str(path)]) == 0
+    return path

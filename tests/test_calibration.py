@@ -114,3 +114,38 @@ def test_actor_json_damage_is_one_line(tmp_path, edit, message):
     path.write_text("{not json")
     with pytest.raises(CaptureError, match="not JSON"):
         ActorCalibration.load(path)
+
+
+# ---- against the truth: a synthetic actor's performance, calibrated by its own ROM take ----
+@pytest.mark.slow
+def test_a_calibration_reads_the_brows_mediapipe_misses(actor_json, tmp_path):
+    """ict-a's performance (seed 0) read with its actor.json: the frown MediaPipe scores as
+    nothing follows the truth, and browInnerUp's error falls to a fraction of MediaPipe's."""
+    from capture2face.calibration.attach import attach
+    from capture2face.character.load import load_character
+    from capture2face.eval.synthetic import arkit_columns
+    from capture2face.maths.stats import pearson
+    from capture2face.retarget.arkit import arkit_curves
+    from capture2face.synth import SynthOptions, synthesize
+    from capture2face.tracking import TrackOptions, track_clip
+    from tests.helpers import shared_character
+
+    actor = load_character(shared_character("ict-a.glb"))
+    clip = synthesize(tmp_path / "perf.mp4", SynthOptions(frames=300, size=256, seed=0), progress=False, actor=actor)
+    track = track_clip(clip.video_path, TrackOptions(), progress=False)
+    before = arkit_curves(track)
+    after = arkit_curves(attach(track, ActorCalibration.load(actor_json)))
+    names, truth = list(track.blendshape_names), clip.truth
+    columns = arkit_columns(truth.blend_names)
+    figures = {}
+    for name in ("browDownLeft", "browDownRight", "browInnerUp", "eyeBlinkLeft", "mouthSmileLeft"):
+        c, t = names.index(name), truth.blend_weights[:, columns[name]].astype(np.float64)
+        figures[name] = {"r": pearson(after[:, c], t), "r_before": pearson(before[:, c], t),
+                         "mae": float(np.abs(after[:, c] - t).mean()),
+                         "mediapipe_mae": float(np.abs(track.blendshapes[:, c] - t).mean())}
+    for side in ("Left", "Right"):
+        f = figures["browDown" + side]
+        assert f["r"] > f["r_before"] + 0.2 and f["r"] > 0.6 and f["mae"] < f["mediapipe_mae"], figures
+    assert figures["browInnerUp"]["mae"] < 0.5 * figures["browInnerUp"]["mediapipe_mae"], figures
+    for name in ("eyeBlinkLeft", "mouthSmileLeft"):  # what the tracker reads well stays read well
+        assert figures[name]["r"] > 0.85, figures

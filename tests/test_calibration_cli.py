@@ -21,29 +21,10 @@ from capture2face.pipeline.options import input_files
 from capture2face.pipeline.report.tables import calibration_table
 from capture2face.tracking import TrackOptions
 from capture2face.tracking.track import Track
-from tests.helpers import shared_character
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLE = REPO / "sample_videos" / "sample.mp4"
 
-
-@pytest.fixture(scope="session")
-def rom_take(tmp_path_factory) -> Path:
-    """The protocol performed by ../shared/characters/ict-a.glb at 256 px (~1100 frames)."""
-    from capture2face.character.load import load_character
-    from capture2face.synth import SynthOptions, synthesize
-
-    actor = load_character(shared_character("ict-a.glb"))
-    path = tmp_path_factory.mktemp("rom") / "rom.mp4"
-    synthesize(path, SynthOptions(size=256, rom=True), progress=False, actor=actor)
-    return path
-
-
-@pytest.fixture(scope="session")
-def actor_json(rom_take, tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("actor") / "actor.json"
-    assert main(["-q", "calibrate", str(rom_take), "-o", str(path)]) == 0
-    return path
 
 
 def _one_line_error(capsys, code: int, argv: list[str], *words: str) -> None:
