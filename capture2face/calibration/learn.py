@@ -25,6 +25,7 @@ from capture2face.maths.stats import pearson
 from capture2face.tracking.rest import ActorRest, actor_rest, aligned_rest, clip_rest
 
 MIN_NEUTRAL_FRAMES = 5
+OTHER_READING = 0.3  # a step's hold the tracker reads as another curve this high is named
 _CHUNK = 4096
 GAIN_BOUNDS, OFFSET_BOUNDS = (0.5, 3.0), (-0.3, 0.3)
 # A curve the tracker's own reading follows on the take this well (Pearson r over the holds
@@ -95,9 +96,10 @@ def calibrate(track, steps: tuple[Step, ...] = PROTOCOL, base_curves: np.ndarray
         if k in weak:
             warnings.append(f"calibration: '{step.name}' shows faintly (frames {run.start}-{run.stop - 1}, found by "
                             "its place in the order); check the take, or edit actor.json")
-        elif match < MATCH_WARN:
-            warnings.append(f"calibration: '{step.name}' (frames {run.start}-{run.stop - 1}) reads unlike it "
-                            f"(match {match:.2f}); check the take, or edit actor.json")
+        elif match < MATCH_WARN and v.max() >= OTHER_READING and targets[int(np.argmax(v)), k] == 0.0:
+            # Read as another expression (not merely unread: MediaPipe scores no cheek puff).
+            warnings.append(f"calibration: '{step.name}' (frames {run.start}-{run.stop - 1}) reads as "
+                            f"{names[int(np.argmax(v))]} {v.max():.2f}; check the take, or edit actor.json")
         fits.append(StepFit(step.name, True, (run.start, run.stop - 1), (run.hold_start, run.hold_stop - 1),
                             round(match, 3)))
         rows.append(feats[run.hold_start:run.hold_stop].mean(0) * curve_mask(step.targets, names, cols))

@@ -14,6 +14,7 @@ from capture2face.errors import CaptureError
 from capture2face.io.atomic import write_text_atomic
 
 FORMAT = "capture2face.ActorCalibration/1"
+LEARNED = ("rest", "pose_model", "basis", "noise")  # actor.json's arrays, after what a user edits
 
 
 @dataclass
@@ -98,7 +99,13 @@ class ActorCalibration:
         }
 
     def save(self, path: str | os.PathLike) -> None:
-        write_text_atomic(path, json.dumps(self.to_json(), indent=1) + "\n")
+        """actor.json: what a user reads and edits first, one item a line; then the learned
+        arrays, one line each."""
+        data = self.to_json()
+        learned = {k: data.pop(k) for k in LEARNED}
+        head = json.dumps(data, indent=1)
+        tail = ",\n".join(f" {json.dumps(k)}: {json.dumps(v, separators=(',', ':'))}" for k, v in learned.items())
+        write_text_atomic(path, f"{head[:-2]},\n{tail}\n}}\n")
 
     @classmethod
     def from_json(cls, data: dict, where: str = "calibration") -> ActorCalibration:
