@@ -203,7 +203,8 @@ def evaluate_actor_synthetic(actor=None, target=None, frames: int = 300, seed: i
         workdir: where the synthetic clip goes (default: a temporary folder, removed).
         calibration: also render the actor's range-of-motion take (``synth --rom``, the same
             seed: its own head motion and light), calibrate on it, and score the performance
-            calibrated; the result's ``calibration`` says what the take gave.
+            calibrated; the result's ``calibration`` says what the take gave, with the
+            ARKit curves' figures without it (``arkit_curves_uncalibrated``).
     """
     rig, target_rig = resolve_characters(actor, target)
     if calibration and rig is None:
@@ -217,12 +218,14 @@ def evaluate_actor_synthetic(actor=None, target=None, frames: int = 300, seed: i
             rom = synthesize(folder / "rom.mp4", SynthOptions(seed=seed, size=size, rom=True), progress=progress,
                              actor=rig)
             learned = calibrate_take(_track(rom.video_path, actor, rig, progress))
-            track = attach(track, learned)
+            plain, track = track, attach(track, learned)
     source = rig if rig is not None else default_avatar()
     result = evaluate_actor_track(track, clip.truth, source, target_rig, options)
     result.update({"seed": int(seed), "size": int(size)})
     if calibration:
+        use = np.asarray(plain.presence, bool) & np.asarray(clip.truth.face_visible, bool)
         result["calibration"] = {
+            "arkit_curves_uncalibrated": arkit_curve_figures(plain, clip.truth, use),
             "steps_found": [s.name for s in learned.steps if s.found],
             "steps_missing": [s.name for s in learned.steps if not s.found],
             "curves": {n: c["source"] for n, c in learned.curves.items()}, "warnings": learned.warnings}
