@@ -62,6 +62,7 @@ from capture2face.rig.avatar import default_avatar
 from capture2face.rig.face_rig import FaceRig
 from capture2face.synth import SynthOptions, actor_rig, synthesize
 from capture2face.tracking import TrackOptions, track_clip
+from capture2face.tracking.rest import with_frame_rest
 
 # The curves the goals name: r >= 0.9 and an MAE below MediaPipe's where they move.
 GOAL_CURVES = ("jawOpen", "eyeBlinkLeft", "eyeBlinkRight", "browInnerUp", "mouthSmileLeft", "mouthSmileRight",
@@ -224,8 +225,10 @@ def evaluate_actor_synthetic(actor=None, target=None, frames: int = 300, seed: i
     result.update({"seed": int(seed), "size": int(size)})
     if calibration:
         use = np.asarray(plain.presence, bool) & np.asarray(clip.truth.face_visible, bool)
+        held = clip.truth.pose_frames("neutral")
+        posed = with_frame_rest(plain, int(held[0])) if len(held) else plain  # as the figures above are scored
         result["calibration"] = {
-            "arkit_curves_uncalibrated": arkit_curve_figures(plain, clip.truth, use),
+            "arkit_curves_uncalibrated": arkit_curve_figures(posed, clip.truth, use),
             "steps_found": [s.name for s in learned.steps if s.found],
             "steps_missing": [s.name for s in learned.steps if not s.found],
             "curves": {n: c["source"] for n, c in learned.curves.items()}, "warnings": learned.warnings}
