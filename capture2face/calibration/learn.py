@@ -34,6 +34,9 @@ GAIN_BOUNDS, OFFSET_BOUNDS = (0.5, 3.0), (-0.3, 0.3)
 # expressions' blink, fitted on 0.8 s holds, missed the performance's 0.25 s blinks (r 0.65
 # where the tracker's reads 0.93), while the brows the tracker barely reads came out right.
 TRACKER_R, TRACKER_GAIN_MAX, TRACKER_OFFSET_MAX = 0.7, 2.0, 0.1
+# A tracker's curve whose take gain falls in this range keeps its reading unchanged: the
+# smiles' gains of 1.06-1.13 on ICT takes raised their error past MediaPipe's raw score.
+TRACKER_KEEP = (0.8, 1.25)
 POSE_ROUNDS = 4  # fits of the pose model, each on the idle frames of the one before
 
 
@@ -206,6 +209,8 @@ def _fit_gains(calibration: ActorCalibration, feats: np.ndarray, base: np.ndarra
         # whose calmest brows are its frown's).
         if pearson(tracker, y) >= TRACKER_R and gain <= TRACKER_GAIN_MAX and abs(offset) <= TRACKER_OFFSET_MAX:
             c["source"] = "tracker"
+            if TRACKER_KEEP[0] <= gain <= TRACKER_KEEP[1]:  # within the take's noise: left as read
+                gain, offset = 1.0, 0.0
         else:
             c["source"] = "expressions"
             gain, offset = _line(mix[use, col[name]], y)
