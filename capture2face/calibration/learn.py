@@ -6,8 +6,9 @@ features (:mod:`~capture2face.calibration.features`) from the actor's rest at th
 hold: how *this* face, as *this* tracker reads it, shows the expression. A frame of any
 clip is then the bounded least-squares mix of those steps
 (:func:`~capture2face.calibration.solve.step_weights`), and each ARKit curve the mix of
-the steps' weights of it. Lids lowered by a look down are the look-down step's, not a
-blink; a frown MediaPipe scores as nothing still moves this actor's brows somewhere.
+the steps' weights of it: a frown MediaPipe scores as nothing still moves this actor's
+brows somewhere. A curve the tracker reads well on the take keeps the tracker's reading
+(with the take's range where it is compressed).
 """
 
 from __future__ import annotations
