@@ -66,15 +66,17 @@ def calibrate(track, steps: tuple[Step, ...] = PROTOCOL, base_curves: np.ndarray
     valid = np.asarray(track.presence, bool)
     terms = pose_terms(track.head_pose)
     # Twice: first from the take's calmest frames per region (the brows' may be the frown's),
-    # then from its opening neutral, found by the first pass.
+    # then from its opening neutral, found by the first pass; what is learned is relative to
+    # the second pass's rest, the one the calibration keeps.
     rest = actor_rest(track)
-    for _ in range(2):
+    for last in (False, True):
         raw = frame_features(track.landmarks_head, track.blendshapes, rest.landmarks, rest.scores, cols)
         pose_model, idle = _pose_model(raw, terms, valid)
         feats = raw - terms @ pose_model
         act = activity(group_motion(feats), idle, fps)
         runs = find_runs(act, fps, valid)
-        rest = _neutral_rest(track, idle, runs)
+        if not last:
+            rest = _neutral_rest(track, idle, runs)
     rest_frames = idle
 
     reading = _reading(np.asarray(track.blendshapes, np.float64), rest.scores, names)
