@@ -214,11 +214,11 @@ def evaluate_actor_synthetic(actor=None, target=None, frames: int = 300, seed: i
         folder = Path(workdir) if workdir else Path(tmp)
         clip = synthesize(folder / "synthetic.mp4", SynthOptions(frames=frames, seed=seed, size=size),
                           progress=progress, actor=rig)
-        track = _track(clip.video_path, actor, rig, progress)
+        track = _track(clip, actor, rig, progress)
         if calibration:
             rom = synthesize(folder / "rom.mp4", SynthOptions(seed=seed, size=size, rom=True), progress=progress,
                              actor=rig)
-            learned = calibrate_take(_track(rom.video_path, actor, rig, progress))
+            learned = calibrate_take(_track(rom, actor, rig, progress))
             plain, track = track, attach(track, learned)
     source = rig if rig is not None else default_avatar()
     result = evaluate_actor_track(track, clip.truth, source, target_rig, options)
@@ -235,12 +235,14 @@ def evaluate_actor_synthetic(actor=None, target=None, frames: int = 300, seed: i
     return result
 
 
-def _track(path, actor, rig, progress: bool):
+def _track(clip, actor, rig, progress: bool):
+    """The Track of a synthetic ``clip`` of ``actor``."""
     try:
-        return track_clip(path, TrackOptions(), progress=progress)
+        return track_clip(clip.video_path, TrackOptions(), progress=progress)
     except NoFaceError:  # the clip is ours: the cause is the actor, not its temporary video
-        raise CaptureError(f"actor {_label(actor, rig)}: the tracker finds no face in the frames rendered of it; "
-                           "the actor must be a character with a human face and ARKit-named morphs") from None
+        raise CaptureError(f"actor {_label(actor, rig)}: the tracker finds no face in the {clip.truth.n_frames} "
+                           "frames rendered of it; the actor must be a character with a human face and "
+                           "ARKit-named morphs") from None
 
 
 def _label(actor, rig) -> str:
