@@ -254,21 +254,36 @@ def random_arkit_performance(rig: FaceRig, frames: int, seed: int = 0, fps: floa
     expression[0] = 0.0
     gaze = random_gaze(np.random.default_rng([seed, 14]), K)
     gaze[0] = 0.0
-    bones = np.repeat(rig.bone_rest[None].astype(np.float64), K, 0)
-    label = np.full(K, KEY_FREE)
-    label[0] = KEY_NEUTRAL
-    k = Keys(keys, Values(bones, expression, angles, offset, random_lights(rng, K), gaze), label)
-    k = hold_labelled_keys(k, hold, frames)
-    f = np.arange(frames, dtype=np.float64)
-    c = interpolate(k, f)
-    key_pose = exact_holds(k, c, frames)
+    k, c, key_pose = _held_keys(rig, keys, expression, angles, offset, random_lights(rng, K), gaze, hold, frames)
     eyes = c.gaze if rig.has_eyes else None
     arkit = _arkit_frames(rng, k, c.weights, frames, fps, eyes)
+    return _arkit_performance(rig, columns, arkit, c, key_pose, fps, fov_y, eyes)
+
+
+def _held_keys(rig: FaceRig, keys: np.ndarray, weights, angles, offset, light, gaze, hold: int,
+               frames: int) -> tuple[Keys, Values, np.ndarray]:
+    """The keys at frames ``keys`` (K,) with these (K, ...) values and the bones at rest, the
+    first key the neutral held ``hold`` frames: (held keys, their values at every frame,
+    ``key_pose`` labels)."""
+    K = len(keys)
+    label = np.full(K, KEY_FREE)
+    label[0] = KEY_NEUTRAL
+    bones = np.repeat(rig.bone_rest[None].astype(np.float64), K, 0)
+    k = hold_labelled_keys(Keys(keys, Values(bones, weights, angles, offset, light, gaze), label), hold, frames)
+    c = interpolate(k, np.arange(frames, dtype=np.float64))
+    return k, c, exact_holds(k, c, frames)
+
+
+def _arkit_performance(rig: FaceRig, columns: dict[int, str], arkit: np.ndarray, c: Values, key_pose: np.ndarray,
+                       fps: float, fov_y: float, eyes: np.ndarray | None) -> Performance:
+    """The Performance of (F, 52) ARKit weights ``arkit`` on ``rig``'s ``columns`` (morph ->
+    ARKit name), the head and light of ``c`` (every frame's values), bones at rest."""
+    frames = len(arkit)
     weights = np.zeros((frames, rig.n_morphs))
     for m, name in columns.items():
         weights[:, m] = arkit[:, _COL[name]]
     return Performance(
-        times=f / fps, fps=float(fps), fov_y=float(fov_y),
+        times=np.arange(frames, dtype=np.float64) / fps, fps=float(fps), fov_y=float(fov_y),
         bone_positions=np.repeat(rig.bone_rest[None], frames, 0).astype(np.float32),
         blend_weights=weights.astype(np.float32),
         head_angles=c.angles.astype(np.float32),
@@ -279,7 +294,6 @@ def random_arkit_performance(rig: FaceRig, frames: int, seed: int = 0, fps: floa
         exiting=np.zeros(frames, bool),
         eye_rotation=None if eyes is None else eyes.astype(np.float32),
     )
-
 
 def _gaze_of_looks(w: np.ndarray) -> np.ndarray:
     """(F, 2, 2) eye yaw, pitch (degrees) of (F, 52) ARKit weights' eyeLook columns: the
@@ -312,28 +326,7 @@ def rom_performance(rig: FaceRig, seed: int = 0, fps: float = 30.0, head_motion:
     K = len(keys)
     angles, offset = random_head(rig, rng, K)
     settle_head(angles, offset, head_motion)
-    label = np.full(K, KEY_FREE)
-    label[0] = KEY_NEUTRAL
-    bones = np.repeat(rig.bone_rest[None].astype(np.float64), K, 0)
-    k = Keys(keys, Values(bones, np.zeros((K, len(ARKIT_NAMES))), angles, offset, random_lights(rng, K),
-                          np.zeros((K, 2, 2))), label)
-    k = hold_labelled_keys(k, hold, frames)
-    f = np.arange(frames, dtype=np.float64)
-    c = interpolate(k, f)
-    key_pose = exact_holds(k, c, frames)
-    weights = np.zeros((frames, rig.n_morphs))
-    for m, name in columns.items():
-        weights[:, m] = arkit[:, _COL[name]]
+    _, c, key_pose = _held_keys(rig, keys, np.zeros((K, len(ARKIT_NAMES))), angles, offset, random_lights(rng, K),
+                                np.zeros((K, 2, 2)), hold, frames)
     eyes = _gaze_of_looks(arkit) if rig.has_eyes else None
-    return Performance(
-        times=f / fps, fps=float(fps), fov_y=float(fov_y),
-        bone_positions=np.repeat(rig.bone_rest[None], frames, 0).astype(np.float32),
-        blend_weights=weights.astype(np.float32),
-        head_angles=c.angles.astype(np.float32),
-        head_offset=c.offset.astype(np.float32),
-        head_pose=head_poses(rig, c.angles, c.offset, fov_y),
-        light_direction=c.light.astype(np.float32),
-        key_pose=key_pose,
-        exiting=np.zeros(frames, bool),
-        eye_rotation=None if eyes is None else eyes.astype(np.float32),
-    )
+    return _arkit_performance(rig, columns, arkit, c, key_pose, fps, fov_y, eyes)
