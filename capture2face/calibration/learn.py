@@ -168,13 +168,7 @@ def _weights(feats: np.ndarray, calibration: ActorCalibration) -> np.ndarray:
 def _mix(calibration: ActorCalibration, weights: np.ndarray) -> np.ndarray:
     """(F, S) each score column's curve from (F, K) step weights, before gain and offset."""
     steps = {s.name: s for s in PROTOCOL}
-    targets = np.zeros((len(calibration.score_names), len(calibration.basis_steps)))
-    col = {n: i for i, n in enumerate(calibration.score_names)}
-    for k, name in enumerate(calibration.basis_steps):
-        for curve, w in steps[name].targets.items():
-            if curve in col:
-                targets[col[curve], k] = w
-    return weights @ targets.T
+    return weights @ target_matrix(calibration.score_names, tuple(steps[n] for n in calibration.basis_steps)).T
 
 
 def _fit_gains(calibration: ActorCalibration, feats: np.ndarray, base: np.ndarray, fits: list[StepFit],
@@ -185,20 +179,14 @@ def _fit_gains(calibration: ActorCalibration, feats: np.ndarray, base: np.ndarra
     :data:`OFFSET_BOUNDS`."""
     if not len(calibration.basis):
         return
-    holds = [(f, s) for f, s in zip(fits, steps) if f.found]
-    frames = np.concatenate([np.arange(f.hold[0], f.hold[1] + 1) for f, _ in holds] + [rest_frames])
-    goal = np.zeros((len(frames), len(calibration.score_names)))
-    shows = np.zeros_like(goal, bool)  # the frames of the holds of the steps that show each curve, and idle ones
-    shows[len(frames) - len(rest_frames):] = True
+    found = [(f, s) for f, s in zip(fits, steps) if f.found]
+    frames = np.concatenate([np.arange(f.hold[0], f.hold[1] + 1) for f, _ in found] + [rest_frames])
+    lengths = [f.hold[1] - f.hold[0] + 1 for f, _ in found]
+    held = np.repeat(target_matrix(calibration.score_names, tuple(s for _, s in found)).T, lengths, 0)
+    goal = np.concatenate([held, np.zeros((len(rest_frames), held.shape[1]))])  # (N, S)
+    shows = goal > 0.0  # the frames of the holds of the steps that show each curve, and idle ones
+    shows[len(held):] = True
     col = {n: i for i, n in enumerate(calibration.score_names)}
-    at = 0
-    for f, s in holds:
-        n = f.hold[1] - f.hold[0] + 1
-        for curve, w in s.targets.items():
-            if curve in col:
-                goal[at:at + n, col[curve]] = w
-                shows[at:at + n, col[curve]] = True
-        at += n
     mix = _mix(calibration, _weights(feats[frames], calibration))
     for name, c in calibration.curves.items():
         use = shows[:, col[name]]
