@@ -39,7 +39,7 @@ from __future__ import annotations
 import logging
 
 import numpy as np
-from scipy.spatial import cKDTree
+from scipy.spatial import Delaunay, cKDTree
 
 from capture2face.character.landmarks import pose_weights, with_surface_landmarks
 from capture2face.character.wrinkle_bake import bake_maps
@@ -64,6 +64,16 @@ MIN_POSE_SHARE = 0.2
 # A face vertex further than this (in inter-ocular distances) from every fitted avatar
 # skin vertex is not face (hair, ears, neck): it keeps its own skin and no region.
 _FACE_REACH_IOD = 0.08
+
+
+def _head_skin(rig: FaceRig, points: np.ndarray) -> np.ndarray:
+    """(V,) the vertices wrinkles may reach: within the front view's hull of the face's
+    landmarks (``points`` (L, 3), those placed) and, where the skin has a head joint, mostly
+    on it. The avatar fitted onto an anime face's landmarks (large eyes, a small mouth)
+    reaches below its chin; the collar there is the chest's, the hull's bottom the neck's."""
+    placed = np.flatnonzero(np.asarray(rig.landmark_vertices)[:N_MESH] >= 0)
+    inside = Delaunay(points[placed, :2]).find_simplex(rig.vertices[:, :2].astype(np.float64)) >= 0
+    return inside if rig.head_weights is None else inside & (np.asarray(rig.head_weights) >= 0.5)
 
 
 def automatic_wrinkles(rig: FaceRig) -> FaceRig:
@@ -116,7 +126,7 @@ def automatic_wrinkles(rig: FaceRig) -> FaceRig:
     dist, nearest = cKDTree(fitted[askin]).query(rig.vertices.astype(np.float64), k=1)
     nearest = askin[nearest]
     iod = float(np.linalg.norm(points[IOD_PAIR[0]] - points[IOD_PAIR[1]]))
-    face = (rig.material == 0) & (dist < _FACE_REACH_IOD * iod)
+    face = (rig.material == 0) & (dist < _FACE_REACH_IOD * iod) & _head_skin(rig, points)
     to_rig = np.zeros(avatar.n_bones, np.int64)  # avatar bone -> rig bone (head -> 0)
     to_rig[face_bones] = B0 + np.arange(len(face_bones))
     skin_joints, skin_weights = rig.skin_joints.copy(), rig.skin_weights.copy()
