@@ -139,3 +139,14 @@ def test_goals_judge_the_posed_figures_where_the_tracker_cannot_read_the_face():
     assert characters.goals_met(row) == {"mouth_open": True, "eyes": True, "darkening": True}
     row["follow_by"] = characters.TRACKED
     assert characters.goals_met(row)["mouth_open"] is False
+
+
+def test_the_landmark_check_at_load_judges_convention_heads_by_their_presets(godette_performs):
+    from capture2face.measures import landmark_faults
+
+    rig = godette_performs[0]
+    assert landmark_faults(rig) == {}  # its presets A + O open 13-14, Blink_L / _R close the lids
+    faces, bary = rig.landmark_faces.copy(), rig.landmark_bary.copy()
+    faces[14], bary[14] = faces[13], bary[13]  # the lower lip's landmark on the upper lip
+    faults = landmark_faults(rig.replace(landmark_faces=faces, landmark_bary=bary))
+    assert set(faults) == {"mouth_open"} and "jawOpen opens landmarks 13-14" in faults["mouth_open"]
