@@ -41,6 +41,7 @@ import logging
 import numpy as np
 from scipy.spatial import Delaunay, cKDTree
 
+from capture2face.character.landmark_sources import MORPHS
 from capture2face.character.landmarks import pose_weights, with_surface_landmarks
 from capture2face.character.wrinkle_bake import bake_maps
 from capture2face.errors import CaptureError
@@ -67,13 +68,16 @@ _FACE_REACH_IOD = 0.08
 
 
 def _head_skin(rig: FaceRig, points: np.ndarray) -> np.ndarray:
-    """(V,) the vertices wrinkles may reach: within the front view's hull of the face's
-    landmarks (``points`` (L, 3), those placed) and, where the skin has a head joint, mostly
-    on it. The avatar fitted onto an anime face's landmarks (large eyes, a small mouth)
-    reaches below its chin; the collar there is the chest's, the hull's bottom the neck's."""
-    placed = np.flatnonzero(np.asarray(rig.landmark_vertices)[:N_MESH] >= 0)
-    inside = Delaunay(points[placed, :2]).find_simplex(rig.vertices[:, :2].astype(np.float64)) >= 0
-    return inside if rig.head_weights is None else inside & (np.asarray(rig.head_weights) >= 0.5)
+    """(V,) the vertices wrinkles may reach: where the skin has a head joint, those mostly
+    on it (not the neck's, the chest's, a collar's); on a face placed from its morphs, also
+    only within the front view's hull of its landmarks (``points`` (L, 3)). The avatar fitted
+    onto an anime face's landmarks (large eyes, a small mouth) reaches below its chin; on a
+    face the tracker read, the fit is within the tracker's error and its reach is kept."""
+    out = np.ones(rig.n_vertices, bool) if rig.head_weights is None else np.asarray(rig.head_weights) >= 0.5
+    if rig.landmark_source == MORPHS:
+        placed = np.flatnonzero(np.asarray(rig.landmark_vertices)[:N_MESH] >= 0)
+        out &= Delaunay(points[placed, :2]).find_simplex(rig.vertices[:, :2].astype(np.float64)) >= 0
+    return out
 
 
 def automatic_wrinkles(rig: FaceRig) -> FaceRig:
