@@ -262,9 +262,10 @@ def _sheet_rows(clip, track: Track, frames: dict, kept: dict, close: dict) -> li
 def _title(name: str, clip, row: dict) -> list[str]:
     fid, sh = row["fidelity"], row["shading"]
     by = row.get("follow_by", TRACKED)
-    figures = ", ".join(f"{label} r {r:.2f} g {g:.2f}" for label, (r, g) in
-                        (("mouth", follow_figures(row, "mouth_open")), ("brows", follow_figures(row, "brows")),
-                         ("eyes", follow_figures(row, "eyes"))))
+    figures = ", ".join(f"{label} r {r:.2f} g {g:.2f}" if np.isfinite(r) else f"{label}: no morph moves them"
+                        for label, (r, g) in (("mouth", follow_figures(row, "mouth_open")),
+                                              ("brows", follow_figures(row, "brows")),
+                                              ("eyes", follow_figures(row, "eyes"))))
     return [f"{name} on {Path(clip).name}: landmarks {row['landmarks']}, fidelity {fid['faithful']}/{fid['judged']}",
             f"{by}: {figures}, dark {sh['darkening_p95_mean']:.1%}"]
 
