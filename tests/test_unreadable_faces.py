@@ -69,6 +69,18 @@ def test_vrm_eye_bones_give_its_eye_centres(tmp_path):
     assert eye_facts(rig) == {"turn": "eyeballs", "centres": VRM_EYE_BONES}
 
 
+def test_vrm_eye_bones_give_way_to_its_look_expressions_where_it_says_so(tmp_path):
+    from capture2face.gltf.container import GlbReader
+    from capture2face.gltf.rig_import import import_glb
+    from tests.helpers import rewrite
+
+    src = _vrm0_with_eye_bones(tmp_path / "c.vrm")
+    assert GlbReader(src).gltf["extensions"]["VRM"].get("firstPerson") is None  # Bone by default
+    turned = rewrite(src, tmp_path / "d.vrm",
+                     lambda g, _: g["extensions"]["VRM"].update(firstPerson={"lookAtTypeName": "BlendShape"}))
+    assert not import_glb(turned).has_eyes
+
+
 def test_a_vrm_without_eye_bones_turns_its_eyes_by_its_look_presets():
     from capture2face.character.landmark_sources import eye_facts
     from capture2face.character.load import load_character

@@ -184,15 +184,23 @@ def target_weights(gltf: dict, node: int, n_targets: int, weights: dict[str, np.
 
 def eye_bone_nodes(gltf: dict) -> tuple[int, int] | None:
     """The nodes of the humanoid's ``rightEye`` and ``leftEye`` (the character's own right
-    first, as ``FaceRig.eye_centres``); None where the file is no VRM or lacks either."""
+    first, as ``FaceRig.eye_centres``); None where the file is no VRM, lacks either, or
+    says its gaze turns its look expressions instead (VRM 0.x ``firstPerson.lookAtTypeName``
+    "BlendShape", VRM 1.0 ``lookAt.type`` "expression": they turn it, not the bones)."""
     version = vrm_version(gltf)
     if version == "0":
-        human = (gltf["extensions"]["VRM"].get("humanoid") or {}).get("humanBones") or []
+        vrm = gltf["extensions"]["VRM"]
+        look = str((vrm.get("firstPerson") or {}).get("lookAtTypeName") or "Bone")
+        human = (vrm.get("humanoid") or {}).get("humanBones") or []
         bones = {str(b.get("bone")): b.get("node") for b in human if isinstance(b, dict)}
     elif version == "1":
-        human = (gltf["extensions"]["VRMC_vrm"].get("humanoid") or {}).get("humanBones") or {}
+        vrm = gltf["extensions"]["VRMC_vrm"]
+        look = str((vrm.get("lookAt") or {}).get("type") or "bone")
+        human = (vrm.get("humanoid") or {}).get("humanBones") or {}
         bones = {str(k): (v or {}).get("node") for k, v in human.items() if isinstance(v, dict)}
     else:
+        return None
+    if look.lower() != "bone":
         return None
     right, left = bones.get("rightEye"), bones.get("leftEye")
     return None if right is None or left is None else (int(right), int(left))
