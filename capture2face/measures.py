@@ -96,8 +96,9 @@ def landmark_faults(rig) -> dict[str, str]:
     """{measure: why} for each pair of :data:`MEASURES` that does not move the way its morph
     says (:data:`LANDMARK_CHECKS`) on a rig whose landmarks were cast automatically
     (``landmark_faces``): the landmarks are on the wrong parts of the face, the measure
-    says nothing of the performance. Rigs with hand-set landmarks, and morphs the rig does
-    not have, are not checked."""
+    says nothing of the performance. A character without ARKit names is checked with the
+    morphs the same curve drives (Godette's ``A`` + ``O``, ``Blink_L``). Rigs with hand-set
+    landmarks, and morphs the rig does not have, are not checked."""
     if getattr(rig, "landmark_faces", None) is None:
         return {}
     morph = {a: m for m, a in arkit_morphs(rig.morph_names).items()}
@@ -110,9 +111,10 @@ def landmark_faults(rig) -> dict[str, str]:
         if not (have[a] and have[b]):
             out[name] = f"landmarks {a}-{b} have no place on the face"
             continue
-        if morph_name not in morph:
+        delta = _check_delta(rig, morph, morph_name)
+        if delta is None:
             continue
-        moved = landmark_points(rig, rig.vertices + rig.morph_positions[morph[morph_name]].astype(np.float64), [a, b])
+        moved = landmark_points(rig, rig.vertices + delta, [a, b])
         d0, d1 = float(np.linalg.norm(rest[a] - rest[b])), float(np.linalg.norm(moved[0] - moved[1]))
         if way == "open" and d1 - d0 < share * iod:
             out[name] = (f"{morph_name} opens landmarks {a}-{b} by {(d1 - d0) / max(iod, 1e-9):.2f} of the "
@@ -121,6 +123,19 @@ def landmark_faults(rig) -> dict[str, str]:
             out[name] = (f"{morph_name} closes landmarks {a}-{b} to {d1 / max(d0, 1e-9):.2f} of their rest "
                          f"distance (at most {share:.2f} expected)")
     return out
+
+
+def _check_delta(rig, morph: dict[str, int], name: str) -> np.ndarray | None:
+    """(V, 3) float64 what the ARKit morph ``name`` at 1 moves: its own morph, else (a
+    character without ARKit names) the mix of visemes / VRM presets / Rocketbox morphs its
+    curve drives; None where it has neither."""
+    if name in morph:
+        return rig.morph_positions[morph[name]].astype(np.float64)
+    if morph:
+        return None
+    names = [name]
+    mix = arkit_weights(names, np.ones((1, 1), np.float32), rig.morph_names)[0].astype(np.float64)
+    return np.einsum("m,mvc->vc", mix, rig.morph_positions, dtype=np.float64) if mix.any() else None
 
 
 # ---- measures ----------------------------------------------------------------------------

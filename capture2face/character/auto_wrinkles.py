@@ -39,8 +39,9 @@ from __future__ import annotations
 import logging
 
 import numpy as np
-from scipy.spatial import cKDTree
+from scipy.spatial import Delaunay, cKDTree
 
+from capture2face.character.landmark_sources import MORPHS
 from capture2face.character.landmarks import pose_weights, with_surface_landmarks
 from capture2face.character.wrinkle_bake import bake_maps
 from capture2face.errors import CaptureError
@@ -64,6 +65,19 @@ MIN_POSE_SHARE = 0.2
 # A face vertex further than this (in inter-ocular distances) from every fitted avatar
 # skin vertex is not face (hair, ears, neck): it keeps its own skin and no region.
 _FACE_REACH_IOD = 0.08
+
+
+def _head_skin(rig: FaceRig, points: np.ndarray) -> np.ndarray:
+    """(V,) the vertices wrinkles may reach: where the skin has a head joint, those mostly
+    on it (not the neck's, the chest's, a collar's); on a face placed from its morphs, also
+    only within the front view's hull of its landmarks (``points`` (L, 3)). The avatar fitted
+    onto an anime face's landmarks (large eyes, a small mouth) reaches below its chin; on a
+    face the tracker read, the fit is within the tracker's error and its reach is kept."""
+    out = np.ones(rig.n_vertices, bool) if rig.head_weights is None else np.asarray(rig.head_weights) >= 0.5
+    if rig.landmark_source == MORPHS:
+        placed = np.flatnonzero(np.asarray(rig.landmark_vertices)[:N_MESH] >= 0)
+        out &= Delaunay(points[placed, :2]).find_simplex(rig.vertices[:, :2].astype(np.float64)) >= 0
+    return out
 
 
 def automatic_wrinkles(rig: FaceRig) -> FaceRig:
@@ -116,7 +130,7 @@ def automatic_wrinkles(rig: FaceRig) -> FaceRig:
     dist, nearest = cKDTree(fitted[askin]).query(rig.vertices.astype(np.float64), k=1)
     nearest = askin[nearest]
     iod = float(np.linalg.norm(points[IOD_PAIR[0]] - points[IOD_PAIR[1]]))
-    face = (rig.material == 0) & (dist < _FACE_REACH_IOD * iod)
+    face = (rig.material == 0) & (dist < _FACE_REACH_IOD * iod) & _head_skin(rig, points)
     to_rig = np.zeros(avatar.n_bones, np.int64)  # avatar bone -> rig bone (head -> 0)
     to_rig[face_bones] = B0 + np.arange(len(face_bones))
     skin_joints, skin_weights = rig.skin_joints.copy(), rig.skin_weights.copy()

@@ -44,3 +44,18 @@ def landmark_facts(rig: FaceRig) -> dict:
     """report.json's ``character_landmarks``: how the landmarks were found and how many
     have a place on the character."""
     return {"source": rig.landmark_source or "given", "found": int((np.asarray(rig.landmark_vertices) >= 0).sum())}
+
+
+_LOOKS = ("eyelook", "lookup", "lookdown", "lookleft", "lookright")  # ARKit's and VRM's look morphs
+
+
+def eye_facts(rig: FaceRig) -> dict:
+    """report.json's ``character_eyes``: how its eyes follow the actor's gaze. ``turn``:
+    "eyeballs" (they turn about ``eye_centres``; ``centres`` says how those were found:
+    ``FaceRig.eye_source``, "given" for the built-in avatars and our own exports),
+    "morphs" (its look morphs, ``morphs``: ARKit ``eyeLook*``, VRM ``LookUp`` ...), or
+    "none"."""
+    if rig.has_eyes:
+        return {"turn": "eyeballs", "centres": rig.eye_source or "given"}
+    looks = [n for n in rig.morph_names if n.lower().replace("_", "").startswith(_LOOKS)]
+    return {"turn": "morphs" if looks else "none", "centres": "none", "morphs": looks}

@@ -30,9 +30,12 @@ import numpy as np
 from tqdm import tqdm
 
 from capture2face.camera import face_centre_and_height
+from capture2face.character.landmark_sources import MORPHS
 from capture2face.errors import CaptureError
 from capture2face.eval import shading
 from capture2face.eval.contact_sheet import Cell, draw_sheet, square_crop, write_image
+from capture2face.eval.posed import MEASURE as POSED
+from capture2face.eval.posed import posed_follow
 from capture2face.io.video_input import iter_frames
 from capture2face.measures import clip_fidelity
 from capture2face.pipeline import RenderPass, RunOptions, export_stage, retarget_stage, track_stage
@@ -71,6 +74,7 @@ CLOSE_UPS = {
 #: skin darkening p95 at most DARKENING_GOAL; landmark fidelity FIDELITY_GOAL of the judged.
 FOLLOW_GOALS = {"mouth_open": (0.85, 0.7), "eyes": (0.8, 0.7), "brows": (0.75, 0.6)}
 DARKENING_GOAL = 0.03
+TRACKED = "tracked back"  # row["follow_by"]: the figures the goals judge (or POSED)
 FIDELITY_GOAL = 0.9
 
 
@@ -158,6 +162,14 @@ def _fidelity(track, animation, rig: FaceRig, name: str) -> dict:
     return {"judged": int(summary["judged"]), "faithful": int(summary["faithful"])}
 
 
+def _posed(track, animation, rig: FaceRig) -> dict | None:
+    """The posed-landmark figures (:mod:`.posed`); None without the measured landmarks."""
+    try:
+        return posed_follow(track, animation, rig)
+    except CaptureError:
+        return None
+
+
 def _render(clip, track, animation, rig: FaceRig, folder: Path, options: RunOptions, frames: dict,
             progress: bool) -> tuple[dict, dict]:
     """avatar.mp4 into ``folder``; (the kept frames, the close-ups) as RGB images. The
@@ -194,6 +206,9 @@ def perform(spec, clip, track: Track, out_dir: Path, size: int, cell: int, progr
     row = {"landmarks": int(np.count_nonzero(np.asarray(rig.landmark_vertices) >= 0)),
            "fidelity": _fidelity(track, animation, rig, name)}
     row["shading"] = shading.shading_of(folder, progress=progress)
+    row["posed"] = _posed(track, animation, rig)
+    # A face the tracker could not read (its landmarks from its morphs) cannot be tracked back.
+    row["follow_by"] = POSED if rig.landmark_source == MORPHS and row["posed"] else TRACKED
     row["goals"] = goals_met(row)
     sheet = draw_sheet(_sheet_rows(clip, track, frames, kept, close), cell, _title(name, clip, row))
     row["sheet"] = os.fspath(out_dir / f"{name}.png")
@@ -204,13 +219,27 @@ def perform(spec, clip, track: Track, out_dir: Path, size: int, cell: int, progr
 
 def goals_met(row: dict) -> dict[str, bool]:
     """Which of the goals (:data:`FOLLOW_GOALS`, :data:`DARKENING_GOAL`,
-    :data:`FIDELITY_GOAL`) a character's figures meet (fidelity: only where judged)."""
+    :data:`FIDELITY_GOAL`) a character's figures meet (fidelity: only where judged). The
+    mouth, eyes and brows are judged on ``row["follow_by"]``'s figures: tracked back (the
+    default), or the posed landmarks (r, and the gain in the character's range) where the
+    tracker cannot read the face; a feature none of its morphs moves is not judged."""
     sh, fid = row["shading"], row["fidelity"]
-    out = {k: bool(sh[f"{k}_r"] >= r and sh[f"{k}_gain"] >= g) for k, (r, g) in FOLLOW_GOALS.items()}
+    out = {}
+    for k, (r, g) in FOLLOW_GOALS.items():
+        got_r, got_gain = follow_figures(row, k)
+        if np.isfinite(got_r) or row.get("follow_by", TRACKED) == TRACKED:
+            out[k] = bool(got_r >= r and got_gain >= g)
     out["darkening"] = bool(sh["darkening_p95_mean"] <= DARKENING_GOAL)
     if fid["judged"]:
         out["fidelity"] = bool(fid["faithful"] >= FIDELITY_GOAL * fid["judged"])
     return out
+
+
+def follow_figures(row: dict, feature: str) -> tuple[float, float]:
+    """(r, gain) of ``feature`` ("mouth_open", "brows", "eyes") the goals judge."""
+    if row.get("follow_by", TRACKED) == POSED:
+        return row["posed"][f"{feature}_r"], row["posed"][f"{feature}_range_gain"]
+    return row["shading"][f"{feature}_r"], row["shading"][f"{feature}_gain"]
 
 
 def _sheet_rows(clip, track: Track, frames: dict, kept: dict, close: dict) -> list[list[Cell]]:
@@ -232,10 +261,13 @@ def _sheet_rows(clip, track: Track, frames: dict, kept: dict, close: dict) -> li
 
 def _title(name: str, clip, row: dict) -> list[str]:
     fid, sh = row["fidelity"], row["shading"]
+    by = row.get("follow_by", TRACKED)
+    figures = ", ".join(f"{label} r {r:.2f} g {g:.2f}" if np.isfinite(r) else f"{label}: no morph moves them"
+                        for label, (r, g) in (("mouth", follow_figures(row, "mouth_open")),
+                                              ("brows", follow_figures(row, "brows")),
+                                              ("eyes", follow_figures(row, "eyes"))))
     return [f"{name} on {Path(clip).name}: landmarks {row['landmarks']}, fidelity {fid['faithful']}/{fid['judged']}",
-            f"tracked back: mouth r {sh['mouth_open_r']:.2f} g {sh['mouth_open_gain']:.2f}, brows r "
-            f"{sh['brows_r']:.2f} g {sh['brows_gain']:.2f}, eyes r {sh['eyes_r']:.2f} g {sh['eyes_gain']:.2f}, "
-            f"dark {sh['darkening_p95_mean']:.1%}"]
+            f"{by}: {figures}, dark {sh['darkening_p95_mean']:.1%}"]
 
 
 # ---- the gallery ----------------------------------------------------------------------------
@@ -291,7 +323,10 @@ def table(rows: list[dict]) -> str:
             continue
         fid, sh, met = r["fidelity"], r["shading"], r["goals"]
         cells = [str(r["landmarks"]), f"{fid['faithful']}/{fid['judged']}{_mark(met.get('fidelity'))}"]
-        cells += [f"{sh[k + '_r']:.2f} / {sh[k + '_gain']:.2f}{_mark(met[k])}" for k in ("mouth_open", "brows", "eyes")]
+        for k in ("mouth_open", "brows", "eyes"):
+            r_, g_ = follow_figures(r, k)
+            by = " (posed)" if r.get("follow_by") == POSED else ""
+            cells.append(f"{r_:.2f} / {g_:.2f}{by}{_mark(met.get(k))}" if np.isfinite(r_) else "no morph moves it")
         cells.append(f"{sh['darkening_p95_mean']:.1%}{_mark(met['darkening'])}")
         lines.append(f"| {r['name']} | " + " | ".join(cells) + " |")
     return "\n".join(lines)

@@ -53,7 +53,7 @@ from capture2face.gltf.scene import check_hierarchy, mesh_nodes, world_matrices
 from capture2face.gltf.skins import head_weights, read_skeleton, skin_weights
 from capture2face.gltf.surface import scene_surface
 from capture2face.gltf.textures import ATLAS_MAX, DEFAULT_TEXTURE_SIZE, read_textures
-from capture2face.gltf.vrm import expression_morphs, face_forward
+from capture2face.gltf.vrm import VRM_EYE_BONES, expression_morphs, eye_bones, face_forward
 from capture2face.gltf.welding import weld_ids
 from capture2face.rig.face_rig import REGION_NAMES, ZONE_NAMES, FaceRig
 from capture2face.topology import N_LANDMARKS
@@ -120,6 +120,7 @@ def _build(r: GlbReader, glb: Path, mapping: Mapping, ours: dict | None) -> Face
     V, B, M = surface.n_vertices, len(skeleton.bone_names), len(morphs.names)
     rest = (skeleton.bone_rest * scale).astype(np.float32)
     names = tex.wrinkle_names
+    eyes = eye_bones(g, skeleton.bone_nodes, rest, skin_joints, weights)  # a VRM's humanoid eyes
     rig = FaceRig(
         name=str(mapping.name or (ours or {}).get("name") or glb.stem),
         vertices=surface.vertices, normals=surface.normals.astype(np.float32), uvs=tex.uvs,
@@ -147,6 +148,8 @@ def _build(r: GlbReader, glb: Path, mapping: Mapping, ours: dict | None) -> Face
         overlay_vertices=overlay_vertices(g, surface.gltf_material, surface.largest_material,
                                           [(ni, p.rows, p.tri_count) for ni, p in zip(picked, surface.parts)]),
         morph_rules=rules,
+        eye_centres=None if eyes is None else eyes[0], eye_vertex_side=None if eyes is None else eyes[1],
+        eye_source="" if eyes is None else VRM_EYE_BONES,
     )
     if ours:
         return apply_own_extras(rig.replace(head_weights=None), ours, surface)

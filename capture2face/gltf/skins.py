@@ -22,7 +22,8 @@ class Skeleton:
     units (scene space), bone_parents (B,), joint_to_bone (max(J, 1),) bone of each united
     joint, node_joint_map: skinned mesh node -> (its skin's joints,) united joint index,
     node_to_scene: drawn mesh node -> (4, 4) mesh -> scene transform, head_subtree (B,)
-    bones a head rotation turns, whether bone 0 is a joint of the file, and J.
+    bones a head rotation turns, whether bone 0 is a joint of the file, J, and bone_nodes
+    (B,) the node of each bone (-1: a synthetic head).
     """
 
     bone_names: list[str]
@@ -34,6 +35,7 @@ class Skeleton:
     has_head_joint: bool
     head_subtree: np.ndarray
     n_joints: int
+    bone_nodes: np.ndarray
 
 
 def find_head(joint_names: list[str], head_bone: str | None = None) -> int | None:
@@ -135,7 +137,8 @@ def read_skeleton(r: GlbReader, picked: list[int], world: list[np.ndarray], head
             head_subtree[b] = n_ is not None
     return Skeleton(bone_names=bone_names, bone_rest=bone_rest, bone_parents=bone_parents,
                     joint_to_bone=joint_to_bone, node_joint_map=node_joint_map, node_to_scene=node_to_scene,
-                    has_head_joint=head_k is not None, head_subtree=head_subtree, n_joints=len(joints))
+                    has_head_joint=head_k is not None, head_subtree=head_subtree, n_joints=len(joints),
+                    bone_nodes=np.array([joints[k] if k is not None else -1 for k in order], np.int64))
 
 
 def skin_weights(n_vertices: int, parts: list[tuple[slice, np.ndarray | None, np.ndarray | None]]

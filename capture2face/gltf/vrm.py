@@ -33,6 +33,7 @@ from capture2face.runtime.log import log
 # Half a turn about +y: VRM 0.x's scene (facing -z) -> head coordinates (facing +z).
 VRM0_TURN = np.diag([-1.0, 1.0, -1.0])
 _TURN_QUAT = np.array([0.0, 1.0, 0.0, 0.0])  # x, y, z, w
+VRM_EYE_BONES = "VRM humanoid eye bones"  # FaceRig.eye_source of eyes found by eye_bones
 
 
 @dataclass(frozen=True)
@@ -179,3 +180,52 @@ def target_weights(gltf: dict, node: int, n_targets: int, weights: dict[str, np.
                 out[:, index] += weight * weights[name]
     return np.clip(out, 0.0, 1.0)
 
+
+
+def eye_bone_nodes(gltf: dict) -> tuple[int, int] | None:
+    """The nodes of the humanoid's ``rightEye`` and ``leftEye`` (the character's own right
+    first, as ``FaceRig.eye_centres``); None where the file is no VRM, lacks either, or
+    says its gaze turns its look expressions instead (VRM 0.x ``firstPerson.lookAtTypeName``
+    "BlendShape", VRM 1.0 ``lookAt.type`` "expression": they turn it, not the bones)."""
+    version = vrm_version(gltf)
+    if version == "0":
+        vrm = gltf["extensions"]["VRM"]
+        look = str((vrm.get("firstPerson") or {}).get("lookAtTypeName") or "Bone")
+        human = (vrm.get("humanoid") or {}).get("humanBones") or []
+        bones = {str(b.get("bone")): b.get("node") for b in human if isinstance(b, dict)}
+    elif version == "1":
+        vrm = gltf["extensions"]["VRMC_vrm"]
+        look = str((vrm.get("lookAt") or {}).get("type") or "bone")
+        human = (vrm.get("humanoid") or {}).get("humanBones") or {}
+        bones = {str(k): (v or {}).get("node") for k, v in human.items() if isinstance(v, dict)}
+    else:
+        return None
+    if look.lower() != "bone":
+        return None
+    right, left = bones.get("rightEye"), bones.get("leftEye")
+    return None if right is None or left is None else (int(right), int(left))
+
+
+def eye_bones(gltf: dict, bone_nodes: np.ndarray, bone_rest: np.ndarray, skin_joints: np.ndarray,
+              skin_weights: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(``eye_centres`` (2, 3) float32, ``eye_vertex_side`` (V,) int8) of a VRM whose
+    humanoid eye bones are joints of its skin: each eye bone's bind-pose position
+    (``bone_rest``, head cm: VRoid and UniVRM put it at the eyeball's centre) and the
+    vertices weighted mostly on it; None otherwise (the eyes then turn by their lookAt
+    expressions, where the file has them).
+
+    Args:
+        bone_nodes: (B,) each bone's node; skin_joints, skin_weights: (V, 4) bones, weights.
+    """
+    nodes = eye_bone_nodes(gltf)
+    if nodes is None:
+        return None
+    bones = [np.flatnonzero(np.asarray(bone_nodes) == n) for n in nodes]
+    if any(len(b) == 0 for b in bones):
+        return None
+    side = np.full(len(skin_joints), -1, np.int8)
+    for s, b in enumerate(bones):
+        side[(skin_weights * (skin_joints == b[0])).sum(1) >= 0.5] = s
+    if not ((side == 0).any() and (side == 1).any()):
+        return None
+    return np.asarray(bone_rest)[[b[0] for b in bones]].astype(np.float32), side

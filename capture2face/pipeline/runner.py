@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from capture2face.character.landmark_sources import landmark_facts
+from capture2face.character.landmark_sources import eye_facts, landmark_facts
 from capture2face.errors import CaptureError, raise_if_interrupted
 from capture2face.io.atomic import write_text_atomic
 from capture2face.io.fingerprint import fingerprint
@@ -273,6 +273,7 @@ def _report(clip, final: Path, rig: FaceRig, track, info, options: RunOptions, o
         "output_dir": os.fspath(final),
         "character": rig.name,
         "character_landmarks": landmark_facts(rig),
+        "character_eyes": eye_facts(rig),
         "wrinkles": options.render.wrinkles,
         "size": int(options.render.size),
         "frames": n,

@@ -373,8 +373,13 @@ def _retarget_arkit(track, rest: ActorRest, rig, options: RetargetOptions) -> An
     bones = np.repeat(rig.bone_rest[None].astype(np.float32), track.n_frames, 0)
     # Automatic feature points (character.auto_wrinkles) measure the influences where the
     # morphs carry them; as bones they stay at rest (the morphs deform the face).
-    return _animation(track, rest, rig, bones, weights, curves, options,
-                      influence_bones=_per_frame(lambda w: feature_positions(rig, w), weights))
+    influence = _per_frame(lambda w: feature_positions(rig, w), weights)
+    if not arkit_morphs(rig.morph_names):
+        # Its recipes keep some presets on at the actor's rest (d12: Sorrow 0.18 from
+        # browInnerUp 0.2): the features' places there are the influences' rest, so its
+        # wrinkles are 0 while the actor rests.
+        influence -= feature_positions(rig, weights[[track.neutral_frame]]) - rig.bone_rest
+    return _animation(track, rest, rig, bones, weights, curves, options, influence_bones=influence)
 
 
 def _skin_landmarks(rig) -> np.ndarray | None:

@@ -131,6 +131,9 @@ class FaceRig:
         landmark_source: how a user's character's landmarks were found
             (:mod:`capture2face.character.landmark_sources`): "tracker front view",
             "morphs", "none"; "" where they were given (built-in avatars, mappings).
+        eye_source: how ``eye_centres`` were found on a user's character ("VRM humanoid eye
+            bones"); "" where they were given (built-in avatars, our own export) or there
+            are none.
     """
 
     name: str
@@ -177,6 +180,7 @@ class FaceRig:
     overlay_vertices: np.ndarray | None = None
     morph_rules: np.ndarray | None = None
     landmark_source: str = ""
+    eye_source: str = ""
 
     @property
     def has_eyes(self) -> bool:
