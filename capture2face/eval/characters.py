@@ -12,7 +12,9 @@ exported into ``DIR/<name>/`` (a ``run`` folder without compare.mp4 and report),
   ``stretch`` for the forehead, ``compress`` for the others);
 * the figures of the issue's goals: landmark fidelity (judged measures faithful, as
   ``eval fidelity``) and the video tracked back (``eval shading``: mouth, brows and eyes
-  r and gain, skin darkening p95).
+  r and gain, skin darkening p95); and the same tracked back from a check render with the
+  character's hair hidden (``shading_hair_hidden``, :mod:`capture2face.eval.hair_hidden`:
+  a fringe over the brows hides them from the tracker, not from the viewer).
 
 A character that cannot be loaded or driven gets a row with its one-line refusal; one
 that fails later gets its error; neither stops the others.
@@ -33,6 +35,7 @@ from capture2face.camera import face_centre_and_height
 from capture2face.errors import CaptureError
 from capture2face.eval import shading
 from capture2face.eval.contact_sheet import Cell, draw_sheet, square_crop, write_image
+from capture2face.eval.hair_hidden import hair_hidden_figures
 from capture2face.io.video_input import iter_frames
 from capture2face.measures import clip_fidelity
 from capture2face.pipeline import RenderPass, RunOptions, export_stage, retarget_stage, track_stage
@@ -194,6 +197,8 @@ def perform(spec, clip, track: Track, out_dir: Path, size: int, cell: int, progr
     row = {"landmarks": int(np.count_nonzero(np.asarray(rig.landmark_vertices) >= 0)),
            "fidelity": _fidelity(track, animation, rig, name)}
     row["shading"] = shading.shading_of(folder, progress=progress)
+    row["shading_hair_hidden"] = hair_hidden_figures(clip, track, animation, rig, folder, options, row["shading"],
+                                                     progress)
     row["goals"] = goals_met(row)
     sheet = draw_sheet(_sheet_rows(clip, track, frames, kept, close), cell, _title(name, clip, row))
     row["sheet"] = os.fspath(out_dir / f"{name}.png")
@@ -231,11 +236,12 @@ def _sheet_rows(clip, track: Track, frames: dict, kept: dict, close: dict) -> li
 
 
 def _title(name: str, clip, row: dict) -> list[str]:
-    fid, sh = row["fidelity"], row["shading"]
+    fid, sh, bare = row["fidelity"], row["shading"], row["shading_hair_hidden"]
     return [f"{name} on {Path(clip).name}: landmarks {row['landmarks']}, fidelity {fid['faithful']}/{fid['judged']}",
             f"tracked back: mouth r {sh['mouth_open_r']:.2f} g {sh['mouth_open_gain']:.2f}, brows r "
             f"{sh['brows_r']:.2f} g {sh['brows_gain']:.2f}, eyes r {sh['eyes_r']:.2f} g {sh['eyes_gain']:.2f}, "
-            f"dark {sh['darkening_p95_mean']:.1%}"]
+            f"dark {sh['darkening_p95_mean']:.1%}; hair hidden: brows r {bare['brows_r']:.2f} "
+            f"g {bare['brows_gain']:.2f}, eyes r {bare['eyes_r']:.2f} g {bare['eyes_gain']:.2f}"]
 
 
 # ---- the gallery ----------------------------------------------------------------------------
@@ -283,15 +289,18 @@ def _mark(met: bool | None) -> str:
 
 def table(rows: list[dict]) -> str:
     """A Markdown table, one row per character (✓ / ✗: the goal met or not)."""
-    lines = ["| character | landmarks | fidelity | mouth r / gain | brows r / gain | eyes r / gain | darkening p95 |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| character | landmarks | fidelity | mouth r / gain | brows r / gain | eyes r / gain | darkening p95 "
+             "| hair hidden: brows / eyes |",
+             "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if r["status"] != "ok":
-            lines.append(f"| {r['name']} | {r['status']}: {r['message']} | | | | | |")
+            lines.append(f"| {r['name']} | {r['status']}: {r['message']} | | | | | | |")
             continue
         fid, sh, met = r["fidelity"], r["shading"], r["goals"]
         cells = [str(r["landmarks"]), f"{fid['faithful']}/{fid['judged']}{_mark(met.get('fidelity'))}"]
         cells += [f"{sh[k + '_r']:.2f} / {sh[k + '_gain']:.2f}{_mark(met[k])}" for k in ("mouth_open", "brows", "eyes")]
         cells.append(f"{sh['darkening_p95_mean']:.1%}{_mark(met['darkening'])}")
+        bare = r["shading_hair_hidden"]
+        cells.append(" / ".join(f"{bare[k + '_r']:.2f} / {bare[k + '_gain']:.2f}" for k in ("brows", "eyes")))
         lines.append(f"| {r['name']} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
