@@ -52,19 +52,19 @@ def test_goals_met_follows_the_issues_thresholds():
     assert "fidelity" not in characters.goals_met({"shading": shading, "fidelity": {"judged": 0, "faithful": 0}})
 
 
-def test_hair_hidden_leaves_out_the_hair_triangles_only(avatar):
-    """The check render's rig: every triangle drawn as hair gone, the rest kept as it was;
-    a rig without hair has no check render of its own (None)."""
+def test_hair_hidden_leaves_out_the_overlays_only(avatar):
+    """The check render's rig: every triangle of the overlays (hair and lash cards, glasses)
+    gone, the rest kept as it was; a rig without overlays (the built-in avatar) has no check
+    render of its own (None)."""
     from capture2face.eval.hair_hidden import hair_hidden
-    from capture2face.gltf.materials import MATERIAL_CODES
 
-    hair = MATERIAL_CODES["hair"]
-    bare = hair_hidden(avatar)
-    last = np.asarray(avatar.material)[avatar.triangles[:, -1]]
+    assert hair_hidden(avatar) is None
+    rig = avatar.replace(overlay_vertices=np.asarray(avatar.material) == 4)
+    bare = hair_hidden(rig)
+    over = rig.overlay_vertices[avatar.triangles[:, -1]]
     assert 0 < len(bare.triangles) < len(avatar.triangles)
-    assert not (np.asarray(bare.material)[bare.triangles[:, -1]] == hair).any()
-    np.testing.assert_array_equal(bare.triangles, avatar.triangles[last != hair])
-    assert hair_hidden(bare) is None
+    np.testing.assert_array_equal(bare.triangles, avatar.triangles[~over])
+    assert hair_hidden(bare.replace(overlay_vertices=np.zeros(rig.n_vertices, bool))) is None
 
 
 def _cell_is_blank(sheet: np.ndarray, row_top: int, col: int, cell: int) -> bool:

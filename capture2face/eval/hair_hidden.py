@@ -4,10 +4,11 @@ The tracker reads a character's face from avatar.mp4 as it reads an actor's. Whe
 character's hair covers its brows (a Ready Player Me fringe), the tracker puts its brow
 points on the skin below them, and the brows' figure tracked back says how the hair looks,
 not how the brows move (docs/characters.md). The check renders the same performance with
-every triangle drawn as hair left out (material ``hair``: hair, brows, lashes and beards
-made as meshes of their own) and tracks that video back the same way. Every character gets
-it alike, next to the figures of avatar.mp4 as it is; one without hair triangles gets the
-same render's figures.
+the character's overlays left out (``FaceRig.overlay_vertices``: what its file draws in
+front of the face and landmarks must not land on, hair and lash cards, beards, glasses) and
+tracks that video back the same way. Every character gets it alike, next to the figures of
+avatar.mp4 as it is; one without overlays (the built-in avatar, whose head shell is its
+own) gets the same render's figures.
 """
 
 from __future__ import annotations
@@ -18,7 +19,6 @@ from pathlib import Path
 import numpy as np
 
 from capture2face.eval import shading
-from capture2face.gltf.materials import MATERIAL_CODES
 from capture2face.pipeline import RenderPass
 from capture2face.rig.face_rig import FaceRig
 
@@ -27,10 +27,12 @@ FOLDER = "hair_hidden"
 
 
 def hair_hidden(rig: FaceRig) -> FaceRig | None:
-    """``rig`` without the triangles drawn as hair (a triangle's material is its last
-    vertex's), or None where it has none."""
+    """``rig`` without the triangles of its overlays (a triangle's is its last vertex's, as
+    its material), or None where it has none."""
+    if rig.overlay_vertices is None:
+        return None
     triangles = np.asarray(rig.triangles)
-    hair = np.asarray(rig.material)[triangles[:, -1]] == MATERIAL_CODES["hair"]
+    hair = np.asarray(rig.overlay_vertices, bool)[triangles[:, -1]]
     if not hair.any():
         return None
     return dataclasses.replace(rig, triangles=triangles[~hair])
@@ -39,14 +41,14 @@ def hair_hidden(rig: FaceRig) -> FaceRig | None:
 def hair_hidden_figures(clip, track, animation, rig: FaceRig, run_dir: Path, options, shown: dict,
                         progress: bool = False) -> dict:
     """The tracked-back figures (:func:`~capture2face.eval.shading.shading_of`) of the
-    performance rendered without the rig's hair into ``run_dir/hair_hidden``; ``shown``:
-    avatar.mp4's own, returned (with ``"hair_triangles": 0``) for a rig without hair."""
+    performance rendered without the rig's overlays into ``run_dir/hair_hidden``; ``shown``:
+    avatar.mp4's own, returned (with ``"hidden_triangles": 0``) for a rig without them."""
     bare = hair_hidden(rig)
     if bare is None:
-        return {**shown, "hair_triangles": 0}
+        return {**shown, "hidden_triangles": 0}
     folder = Path(run_dir) / FOLDER
     folder.mkdir(parents=True, exist_ok=True)
     RenderPass(clip, track, animation, bare, folder, options).run(progress)
     track.save(folder / "track.npz")
     return {**shading.shading_of(folder, progress=progress),
-            "hair_triangles": int(len(rig.triangles) - len(bare.triangles))}
+            "hidden_triangles": int(len(rig.triangles) - len(bare.triangles))}
