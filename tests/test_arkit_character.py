@@ -223,6 +223,52 @@ def test_arkit_character_performs_at_its_own_range(tmp_path, avatar, factor):
         assert w["scaled"][:, by[name]].max() < 0.1, (name, w["scaled"][:, by[name]].max())
 
 
+def test_lids_do_not_cancel_where_eye_wide_opens_both(tmp_path, avatar):
+    """Issue 31: on a head whose ``eyeWide`` opens both lids (a Ready Player Me head's: the
+    lower as far as its ``eyeSquint`` raises it), an actor raising the upper lid alone is
+    not made of both morphs cancelling on the lower lid (both at 1.00 before, where the
+    actor never squints)."""
+    from capture2face.retarget import RetargetOptions, retarget
+    from capture2face.retarget.arkit_solve import morph_solve
+    from capture2face.retarget.driver import _skin_landmarks
+
+    path = tmp_path / "head.glb"
+    export_arkit_character(avatar, path, naming="_L")
+    actor = _with_landmarks(import_glb(path), avatar)
+    by = _by_arkit(actor)
+    lift = np.clip(1 - np.abs(np.arange(120) - 60) / 20, 0, 1)
+    track = _performed_track(actor, by, {"eyeWideLeft": lift, "eyeWideRight": lift}, {})
+    pos = actor.morph_positions.copy()
+    for side in ("Left", "Right"):
+        pos[by[f"eyeWide{side}"]] -= pos[by[f"eyeSquint{side}"]]
+    rig = actor.replace(morph_positions=pos)
+
+    def lid_pairs(r):
+        solve = morph_solve(r, _skin_landmarks(r), 0.02)
+        names = {k + solve.model.n_free_vars: canonical_arkit(r.morph_names[m])
+                 for k, m in enumerate(solve.model.morphs)}
+        return {(names[a], names[b]) for a, b in solve.antagonists if names[a].startswith("eyeWide")}
+
+    assert lid_pairs(rig) == {("eyeWideLeft", "eyeSquintLeft"), ("eyeWideRight", "eyeSquintRight")}
+    w = retarget(track, rig, RetargetOptions(depth_motion=1.0)).blend_weights
+    for side in ("Left", "Right"):
+        squint, wide = w[:, by[f"eyeSquint{side}"]], w[:, by[f"eyeWide{side}"]]
+        assert squint.max() < 0.05 and wide.max() > 0.3, (side, squint.max(), wide.max())  # 0.09 without the pair
+
+
+def test_lid_pairs_are_antagonists_only_where_they_move_against_each_other():
+    """An ICT head's eyeWide moves the upper lid only: no pair there (its solve unchanged)."""
+    from capture2face.retarget.arkit_solve import opposed_lid_pairs
+
+    upper, lower = np.zeros((2, 3)), np.zeros((2, 3))
+    upper[0, 1], lower[1, 1] = 1.0, 1.0  # (points, xyz): the upper lid's point, the lower's
+    named = {0: "eyeWideLeft", 1: "eyeSquintLeft"}
+    only_upper = np.stack([upper + 0.05 * -lower, lower])  # a wide whose lower lid barely moves
+    both = np.stack([upper - lower, lower])  # Ready Player Me's: both lids open
+    assert opposed_lid_pairs(named, only_upper) == ()
+    assert opposed_lid_pairs(named, both) == (("eyeWideLeft", "eyeSquintLeft"),)
+
+
 def test_head_joint_turns_the_head_and_not_the_body(tmp_path, avatar):
     from capture2face.camera import face_centre_and_height, rotation_matrix
     from capture2face.render.skinning import Deformer

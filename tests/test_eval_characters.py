@@ -52,6 +52,21 @@ def test_goals_met_follows_the_issues_thresholds():
     assert "fidelity" not in characters.goals_met({"shading": shading, "fidelity": {"judged": 0, "faithful": 0}})
 
 
+def test_hair_hidden_leaves_out_the_overlays_only(avatar):
+    """The check render's rig: every triangle of the overlays (hair and lash cards, glasses)
+    gone, the rest kept as it was; a rig without overlays (the built-in avatar) has no check
+    render of its own (None)."""
+    from capture2face.eval.hair_hidden import hair_hidden
+
+    assert hair_hidden(avatar) is None
+    rig = avatar.replace(overlay_vertices=np.asarray(avatar.material) == 4)
+    bare = hair_hidden(rig)
+    over = rig.overlay_vertices[avatar.triangles[:, -1]]
+    assert 0 < len(bare.triangles) < len(avatar.triangles)
+    np.testing.assert_array_equal(bare.triangles, avatar.triangles[~over])
+    assert hair_hidden(bare.replace(overlay_vertices=np.zeros(rig.n_vertices, bool))) is None
+
+
 def _cell_is_blank(sheet: np.ndarray, row_top: int, col: int, cell: int) -> bool:
     x = GAP + col * (cell + GAP)
     return float(sheet[row_top:row_top + cell, x:x + cell].std()) < 2.0
@@ -79,6 +94,7 @@ def test_gallery_on_the_sample_clip(tmp_path):
         assert row["fidelity"]["judged"] > 0 and set(row["goals"]) >= {"mouth_open", "eyes", "brows", "darkening"}
         for key in ("mouth_open_r", "mouth_open_gain", "brows_r", "eyes_r", "darkening_p95_mean"):
             assert np.isfinite(row["shading"][key]), key
+            assert np.isfinite(row["shading_hair_hidden"][key]), key
         assert (out / name / "avatar.mp4").is_file() and (out / name / "animation.glb").is_file()
         sheet = cv2.imread(str(out / f"{name}.png"))
         band = max(12, int(cell * LABEL_BAND))

@@ -12,7 +12,9 @@ exported into ``DIR/<name>/`` (a ``run`` folder without compare.mp4 and report),
   ``stretch`` for the forehead, ``compress`` for the others);
 * the figures of the issue's goals: landmark fidelity (judged measures faithful, as
   ``eval fidelity``) and the video tracked back (``eval shading``: mouth, brows and eyes
-  r and gain, skin darkening p95).
+  r and gain, skin darkening p95); and the same tracked back from a check render with the
+  character's hair hidden (``shading_hair_hidden``, :mod:`capture2face.eval.hair_hidden`:
+  a fringe over the brows hides them from the tracker, not from the viewer).
 
 A character that cannot be loaded or driven gets a row with its one-line refusal; one
 that fails later gets its error; neither stops the others.
@@ -34,6 +36,7 @@ from capture2face.character.landmark_sources import MORPHS
 from capture2face.errors import CaptureError
 from capture2face.eval import shading
 from capture2face.eval.contact_sheet import Cell, draw_sheet, square_crop, write_image
+from capture2face.eval.hair_hidden import hair_hidden_figures
 from capture2face.eval.posed import MEASURE as POSED
 from capture2face.eval.posed import posed_follow
 from capture2face.io.video_input import iter_frames
@@ -209,6 +212,8 @@ def perform(spec, clip, track: Track, out_dir: Path, size: int, cell: int, progr
     row["posed"] = _posed(track, animation, rig)
     # A face the tracker could not read (its landmarks from its morphs) cannot be tracked back.
     row["follow_by"] = POSED if rig.landmark_source == MORPHS and row["posed"] else TRACKED
+    row["shading_hair_hidden"] = hair_hidden_figures(clip, track, animation, rig, folder, options, row["shading"],
+                                                     progress)
     row["goals"] = goals_met(row)
     sheet = draw_sheet(_sheet_rows(clip, track, frames, kept, close), cell, _title(name, clip, row))
     row["sheet"] = os.fspath(out_dir / f"{name}.png")
@@ -260,14 +265,15 @@ def _sheet_rows(clip, track: Track, frames: dict, kept: dict, close: dict) -> li
 
 
 def _title(name: str, clip, row: dict) -> list[str]:
-    fid, sh = row["fidelity"], row["shading"]
+    fid, sh, bare = row["fidelity"], row["shading"], row["shading_hair_hidden"]
     by = row.get("follow_by", TRACKED)
     figures = ", ".join(f"{label} r {r:.2f} g {g:.2f}" if np.isfinite(r) else f"{label}: no morph moves them"
                         for label, (r, g) in (("mouth", follow_figures(row, "mouth_open")),
                                               ("brows", follow_figures(row, "brows")),
                                               ("eyes", follow_figures(row, "eyes"))))
     return [f"{name} on {Path(clip).name}: landmarks {row['landmarks']}, fidelity {fid['faithful']}/{fid['judged']}",
-            f"{by}: {figures}, dark {sh['darkening_p95_mean']:.1%}"]
+            f"{by}: {figures}, dark {sh['darkening_p95_mean']:.1%}; hair hidden: brows r {bare['brows_r']:.2f} "
+            f"g {bare['brows_gain']:.2f}, eyes r {bare['eyes_r']:.2f} g {bare['eyes_gain']:.2f}"]
 
 
 # ---- the gallery ----------------------------------------------------------------------------
@@ -315,11 +321,12 @@ def _mark(met: bool | None) -> str:
 
 def table(rows: list[dict]) -> str:
     """A Markdown table, one row per character (✓ / ✗: the goal met or not)."""
-    lines = ["| character | landmarks | fidelity | mouth r / gain | brows r / gain | eyes r / gain | darkening p95 |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| character | landmarks | fidelity | mouth r / gain | brows r / gain | eyes r / gain | darkening p95 "
+             "| hair hidden: brows / eyes |",
+             "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if r["status"] != "ok":
-            lines.append(f"| {r['name']} | {r['status']}: {r['message']} | | | | | |")
+            lines.append(f"| {r['name']} | {r['status']}: {r['message']} | | | | | | |")
             continue
         fid, sh, met = r["fidelity"], r["shading"], r["goals"]
         cells = [str(r["landmarks"]), f"{fid['faithful']}/{fid['judged']}{_mark(met.get('fidelity'))}"]
@@ -328,5 +335,7 @@ def table(rows: list[dict]) -> str:
             by = " (posed)" if r.get("follow_by") == POSED else ""
             cells.append(f"{r_:.2f} / {g_:.2f}{by}{_mark(met.get(k))}" if np.isfinite(r_) else "no morph moves it")
         cells.append(f"{sh['darkening_p95_mean']:.1%}{_mark(met['darkening'])}")
+        bare = r["shading_hair_hidden"]
+        cells.append(" / ".join(f"{bare[k + '_r']:.2f} / {bare[k + '_gain']:.2f}" for k in ("brows", "eyes")))
         lines.append(f"| {r['name']} | " + " | ".join(cells) + " |")
     return "\n".join(lines)

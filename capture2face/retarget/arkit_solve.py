@@ -75,6 +75,19 @@ ANTAGONISTS = (
     ("mouthLeft", "mouthRight"), ("jawLeft", "jawRight"),
 )
 
+#: Lid morphs that are antagonists on some heads only, penalised as :data:`ANTAGONISTS` where
+#: they move the eye's contour against each other (the cosine of their motions below
+#: :data:`LID_OPPOSITION`). A Ready Player Me head's ``eyeWide`` opens both lids, the lower
+#: as far as the upper (cosine -0.63 to -0.67 with ``eyeSquint``, -0.36 to -0.38 with
+#: ``cheekSquint``): ``eyeWide`` + ``eyeSquint`` at 1 is its upper lid raised alone, and the
+#: solve made every brow raise's lid lift of both at 1 (p99 1.00 where the curves reach
+#: 0.05-0.51). An ICT head's ``eyeWide`` moves the upper lid only (cosines -0.17 to 0.02):
+#: there the pairs are none, and its lids keep the solve measured in docs/characters.md.
+LID_ANTAGONISTS = (
+    ("eyeWideLeft", "eyeSquintLeft"), ("eyeWideRight", "eyeSquintRight"),
+)
+LID_OPPOSITION = -0.3
+
 
 #: MediaPipe's contours of the features (lips, eyes, brows, the nose's wings): the points an
 #: expression moves (the rest, the cheeks, forehead and silhouette, carry the tracker's
@@ -192,15 +205,33 @@ def morph_solve(rig, landmarks: np.ndarray, min_motion: float, across: float = 1
     matrix = np.moveaxis(out.points(np.moveaxis(columns.reshape(n, 3, -1), -1, 0)), 0, -1).reshape(-1, columns.shape[1])
     out.model = LinearRigModel(rest=out.points(rest), matrix=matrix, free_bones=np.zeros(0, np.int64),
                                morphs=solved, n_rigid=6)
-    out.antagonists = antagonist_unknowns(named, solved, out.model.n_free_vars)
+    pairs = ANTAGONISTS + opposed_lid_pairs(named, deltas[:, np.isin(landmarks, EYE_CONTOURS)])
+    out.antagonists = antagonist_unknowns(named, solved, out.model.n_free_vars, pairs)
     return out
 
 
-def antagonist_unknowns(named: dict[int, str], solved: np.ndarray, offset: int) -> np.ndarray:
-    """(P, 2) unknowns (``offset`` plus the position in ``solved``) of the
-    :data:`ANTAGONISTS` pairs whose morphs are both solved; ``named``: {morph: ARKit name}."""
+def opposed_lid_pairs(named: dict[int, str], eye_deltas: np.ndarray) -> tuple[tuple[str, str], ...]:
+    """The :data:`LID_ANTAGONISTS` whose morphs move the eyes' contours against each other
+    (cosine below :data:`LID_OPPOSITION`); ``eye_deltas`` (M, E, 3): each morph's motion of
+    the E contour points, ``named``: {morph: ARKit name}."""
+    morph = {name: m for m, name in named.items()}
+    out = []
+    for a, b in LID_ANTAGONISTS:
+        if a not in morph or b not in morph:
+            continue
+        da, db = eye_deltas[morph[a]].ravel(), eye_deltas[morph[b]].ravel()
+        norm = float(np.linalg.norm(da) * np.linalg.norm(db))
+        if norm > 0 and float(da @ db) / norm < LID_OPPOSITION:
+            out.append((a, b))
+    return tuple(out)
+
+
+def antagonist_unknowns(named: dict[int, str], solved: np.ndarray, offset: int,
+                        pairs: tuple[tuple[str, str], ...] = ANTAGONISTS) -> np.ndarray:
+    """(P, 2) unknowns (``offset`` plus the position in ``solved``) of the antagonist
+    ``pairs`` whose morphs are both solved; ``named``: {morph: ARKit name}."""
     column = {named[int(m)]: offset + k for k, m in enumerate(solved) if int(m) in named}
-    return np.array([(column[a], column[b]) for a, b in ANTAGONISTS if a in column and b in column],
+    return np.array([(column[a], column[b]) for a, b in pairs if a in column and b in column],
                     np.int64).reshape(-1, 2)
 
 
