@@ -36,7 +36,9 @@ from capture2face.maths.rotations import similarity
 from capture2face.retarget.solve import LinearRigModel
 from capture2face.rig.arkit_names import arkit_morphs
 from capture2face.rig.feature_points import landmark_basis
+from capture2face.rig.morph_conventions import convention_channels, convention_weights
 from capture2face.topology import (
+    ARKIT_NAMES,
     BROW_HEIGHT_PAIRS,
     BROWS,
     EYE_LEFT,
@@ -111,6 +113,9 @@ class MorphSolve:
         pair_frames: (K, 3, 3) each difference's operator (:func:`pair_frames`), or None.
         antagonists: (P, 2) unknowns (columns of ``model.matrix``) of the solved morphs'
             :data:`ANTAGONISTS`.
+        full_poses: (52, Ms) on a head of another convention, the solved morphs' weights at
+            each ARKit curve's recipe at 1 (a viseme set's widest mouth is its open visemes
+            together: its range, :mod:`capture2face.retarget.ranges`); None on an ARKit head.
     """
 
     model: LinearRigModel
@@ -119,6 +124,7 @@ class MorphSolve:
     pairs: np.ndarray
     pair_frames: np.ndarray | None = None
     antagonists: np.ndarray | None = None
+    full_poses: np.ndarray | None = None
 
     def points(self, landmark_points: np.ndarray) -> np.ndarray:
         """(..., N + K, 3) the model's points of (..., N, 3) landmark points."""
@@ -176,12 +182,14 @@ def morph_solve(rig, landmarks: np.ndarray, min_motion: float, across: float = 1
     """
     rest, deltas = landmark_basis(rig, landmarks)
     motion = np.linalg.norm(deltas, axis=2).max(1) if len(landmarks) else np.zeros(rig.n_morphs)
-    named = arkit_morphs(rig.morph_names)
-    fixed = np.array([named.get(m) in CURVE_ONLY or motion[m] < min_motion * rig.interocular()
-                      for m in range(rig.n_morphs)], bool)
-    # Only ARKit morphs are solved: others (visemes, a character's extras) have no curve to
-    # say which of two look-alike shapes is meant, and stay 0.
-    solved = np.flatnonzero(~fixed & np.isin(np.arange(rig.n_morphs), list(named)))
+    channels = solve_channels(rig.morph_names)
+    fixed = np.array([bool(channels.get(m)) and set(channels[m]) <= CURVE_ONLY
+                      or motion[m] < min_motion * rig.interocular() for m in range(rig.n_morphs)], bool)
+    # Only the driven morphs are solved (ARKit-named, or a convention's with a recipe): others
+    # (an ARKit head's visemes, a character's extras) have no curve to say which of two
+    # look-alike shapes is meant, and stay 0.
+    solved = np.flatnonzero(~fixed & np.isin(np.arange(rig.n_morphs), list(channels)))
+    named = {m: c[0] for m, c in channels.items() if len(c) == 1}
     pairs = expression_pairs(landmarks)
     out = MorphSolve(model=None, fixed=np.flatnonzero(fixed), fixed_deltas=deltas[fixed],
                      pairs=pairs, pair_frames=pair_frames(rest[pairs[:, 0]] - rest[pairs[:, 1]], across,
@@ -193,14 +201,32 @@ def morph_solve(rig, landmarks: np.ndarray, min_motion: float, across: float = 1
     out.model = LinearRigModel(rest=out.points(rest), matrix=matrix, free_bones=np.zeros(0, np.int64),
                                morphs=solved, n_rigid=6)
     out.antagonists = antagonist_unknowns(named, solved, out.model.n_free_vars)
+    if not arkit_morphs(rig.morph_names):
+        recipes = convention_weights(list(ARKIT_NAMES), np.eye(len(ARKIT_NAMES), dtype=np.float32), rig.morph_names)
+        out.full_poses = recipes[:, solved]
     return out
+
+
+def solve_channels(morph_names: list[str]) -> dict[int, tuple[str, ...]]:
+    """{morph index: the ARKit curves it stands for} of the morphs a solve may set: each
+    ARKit-named morph its name; on a head without ARKit names, each convention morph with a
+    recipe the curves that alone turn it on
+    (:func:`~capture2face.rig.morph_conventions.convention_channels`)."""
+    named = arkit_morphs(morph_names)
+    if named:
+        return {m: (a,) for m, a in named.items()}
+    return convention_channels(morph_names)
 
 
 def antagonist_unknowns(named: dict[int, str], solved: np.ndarray, offset: int) -> np.ndarray:
     """(P, 2) unknowns (``offset`` plus the position in ``solved``) of the
-    :data:`ANTAGONISTS` pairs whose morphs are both solved; ``named``: {morph: ARKit name}."""
-    column = {named[int(m)]: offset + k for k, m in enumerate(solved) if int(m) in named}
-    return np.array([(column[a], column[b]) for a, b in ANTAGONISTS if a in column and b in column],
+    :data:`ANTAGONISTS` pairs whose morphs are both solved; ``named``: {morph: ARKit name}
+    (two morphs may stand for one name: Rocketbox's inner and outer brow lowering)."""
+    column: dict[str, list[int]] = {}
+    for k, m in enumerate(solved):
+        if int(m) in named:
+            column.setdefault(named[int(m)], []).append(offset + k)
+    return np.array([(i, j) for a, b in ANTAGONISTS for i in column.get(a, ()) for j in column.get(b, ())],
                     np.int64).reshape(-1, 2)
 
 
