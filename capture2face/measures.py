@@ -36,7 +36,7 @@ import numpy as np
 
 from capture2face.errors import CaptureError
 from capture2face.maths.stats import pearson
-from capture2face.rig.arkit_names import GAZE_SCORES, arkit_morphs, arkit_weights, drive_mode, driven_morphs
+from capture2face.rig.arkit_names import GAZE_SCORES, arkit_morphs, arkit_weights, drive_mode, solved_morphs
 from capture2face.rig.face_rig import landmark_points, landmark_support
 from capture2face.rig.morph_conventions import convention_weights
 from capture2face.topology import (
@@ -146,13 +146,14 @@ MIN_REACH = 0.5
 
 
 def reach_faults(rig) -> dict[str, str]:
-    """{measure: why} for each of :data:`MEASURES` that the morphs the curves drive
-    (:func:`~capture2face.rig.arkit_names.driven_morphs`), each at 1 or, on a head of
+    """{measure: why} for each of :data:`MEASURES` that the morphs its landmarks solve
+    (:func:`~capture2face.rig.arkit_names.solved_morphs`), each at 1 or, on a head of
     another convention, at each ARKit curve's recipe at 1, move less than :data:`MIN_REACH`
     of a human's (:data:`HUMAN_REACH`): a visemes-only head's brows and eyes, a head with
-    tiny brow morphs. Rigs with face bones (which move the face without morphs) and rigs
-    without landmarks are not checked."""
-    driven = sorted(driven_morphs(rig.morph_names))
+    tiny brow morphs. Rigs with face bones (which move the face without morphs), rigs
+    without landmarks and heads of other conventions with landmarks placed from their morphs
+    (driven by their recipes alone) are not checked."""
+    driven = sorted(solved_morphs(rig))
     if getattr(rig, "landmark_faces", None) is None or not driven or drive_mode(rig) != "arkit":
         return {}
     poses = np.eye(rig.n_morphs, dtype=np.float32)[driven]

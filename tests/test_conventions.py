@@ -308,6 +308,20 @@ def test_fidelity_leaves_out_what_a_head_cannot_make(name, left_out):
         assert faults == {}
 
 
+
+def test_a_head_with_landmarks_placed_from_its_morphs_keeps_its_recipes():
+    """Godette's landmarks are placed from its morphs (the tracker cannot read it): its
+    presets take their recipes, unsolved, and no measure is left out for its reach."""
+    from capture2face.character.landmark_sources import MORPHS
+    from capture2face.character.load import load_character
+    from capture2face.measures import reach_faults
+    from capture2face.rig.arkit_names import MORPH_PLACED, solved_morphs
+
+    assert MORPH_PLACED == MORPHS
+    rig = load_character(shared_character("godette_vrm0_presets.vrm"))
+    assert rig.landmark_source == MORPHS and driven_morphs(rig.morph_names)
+    assert solved_morphs(rig) == {} and reach_faults(rig) == {}
+
 @pytest.mark.slow
 def test_a_viseme_head_opens_its_mouth_as_far_as_the_actor(tmp_path):
     """Landmark fidelity on a real clip: the visemes-only head's mouth follows the actor's

@@ -22,7 +22,7 @@ from capture2face.retarget.rbf import FeatureMap, fit_feature_map
 from capture2face.retarget.solve import LinearSolver, linear_rig_model
 from capture2face.retarget.windows import MappedPoints, SpilledMedian, frame_windows
 from capture2face.rig import influences as inf
-from capture2face.rig.arkit_names import arkit_weights, drive_mode, driven_morphs
+from capture2face.rig.arkit_names import arkit_weights, drive_mode, solved_morphs
 from capture2face.rig.avatar import close_lips
 from capture2face.rig.feature_points import feature_correspondence, feature_positions
 from capture2face.rig.morph_conventions import apply_rules
@@ -367,7 +367,7 @@ def _retarget_arkit(track, rest: ActorRest, rig, options: RetargetOptions) -> An
     curves = arkit_curves(track, rest)
     weights = arkit_weights(list(track.blendshape_names), curves, rig.morph_names)
     landmarks = _skin_landmarks(rig)
-    if options.solve_blend_weights and landmarks is not None and driven_morphs(rig.morph_names):
+    if options.solve_blend_weights and landmarks is not None and solved_morphs(rig):
         weights = _solve_arkit_weights(track, rest, rig, landmarks, weights, options)
     weights = apply_rules(weights, rig.morph_rules)
     bones = np.repeat(rig.bone_rest[None].astype(np.float32), track.n_frames, 0)
