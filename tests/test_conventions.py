@@ -278,12 +278,18 @@ def test_a_convention_head_is_solved_at_its_own_full_range(name, opens):
     assert 0.9 <= ranged.gain[gap[0], 0] <= 1.0  # a human's full opening: the head's full opening
 
 
-def test_rocketbox_brow_lowering_morphs_are_antagonists_of_its_raise():
-    """Two Rocketbox morphs lower each brow (inner, outer): both are the raise's antagonists."""
+def test_rocketbox_teeth_follow_the_solved_jaw_and_its_brows_have_antagonists():
+    """Rocketbox's teeth morphs move no landmark: each takes the weight solved for the head's
+    morph of its recipe (the teeth stayed at the recipe's jaw while the lips' solved jaw
+    closed, and showed through them). Two morphs lower each brow (inner, outer): both are
+    the raise's antagonists."""
     from capture2face.character.load import load_character
 
     rig = load_character(shared_character("valid_rocketbox_Black_M_2_Busi.glb"))
     solve, _ = _solve_of(rig)
+    twins = {rig.morph_names[a]: rig.morph_names[b] for a, b in solve.twins}
+    assert twins["h_teeth.t_AE_AA_h"] == "h_expressions.AE_AA_h"
+    assert twins["h_teeth.t_Ljaw_h"] == "h_expressions.Ljaw_h"
     column = {solve.model.n_free_vars + k: rig.morph_names[m] for k, m in enumerate(solve.model.morphs)}
     pairs = {(column[a].split(".")[-1], column[b].split(".")[-1]) for a, b in solve.antagonists}
     assert {("RbrowUp_h", "RbrowDown_h"), ("RbrowUp_h", "RRbrowDown_h"), ("LLbrowUp_h", "LLbrowDown_h")} <= pairs

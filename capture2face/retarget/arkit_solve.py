@@ -36,7 +36,7 @@ from capture2face.maths.rotations import similarity
 from capture2face.retarget.solve import LinearRigModel
 from capture2face.rig.arkit_names import arkit_morphs
 from capture2face.rig.feature_points import landmark_basis
-from capture2face.rig.morph_conventions import convention_channels, convention_weights
+from capture2face.rig.morph_conventions import convention_channels, convention_recipes, convention_weights
 from capture2face.topology import (
     ARKIT_NAMES,
     BROW_HEIGHT_PAIRS,
@@ -113,6 +113,9 @@ class MorphSolve:
         pair_frames: (K, 3, 3) each difference's operator (:func:`pair_frames`), or None.
         antagonists: (P, 2) unknowns (columns of ``model.matrix``) of the solved morphs'
             :data:`ANTAGONISTS`.
+        twins: (T, 2) (fixed morph, solved morph) of a head of another convention: a morph
+            that moves no landmark takes the weight solved for its recipe's twin (Rocketbox's
+            teeth follow its jaw), not the recipe's.
         full_poses: (52, Ms) on a head of another convention, the solved morphs' weights at
             each ARKit curve's recipe at 1 (a viseme set's widest mouth is its open visemes
             together: its range, :mod:`capture2face.retarget.ranges`); None on an ARKit head.
@@ -125,6 +128,7 @@ class MorphSolve:
     pair_frames: np.ndarray | None = None
     antagonists: np.ndarray | None = None
     full_poses: np.ndarray | None = None
+    twins: np.ndarray | None = None
 
     def points(self, landmark_points: np.ndarray) -> np.ndarray:
         """(..., N + K, 3) the model's points of (..., N, 3) landmark points."""
@@ -204,7 +208,19 @@ def morph_solve(rig, landmarks: np.ndarray, min_motion: float, across: float = 1
     if not arkit_morphs(rig.morph_names):
         recipes = convention_weights(list(ARKIT_NAMES), np.eye(len(ARKIT_NAMES), dtype=np.float32), rig.morph_names)
         out.full_poses = recipes[:, solved]
+        out.twins = recipe_twins(rig.morph_names, out.fixed, solved)
     return out
+
+
+def recipe_twins(morph_names: list[str], fixed: np.ndarray, solved: np.ndarray) -> np.ndarray:
+    """(T, 2) (fixed morph, the first solved morph with the same recipe) of a head of
+    another convention; recipes ``"0"`` have none."""
+    recipe = convention_recipes(morph_names)
+    first: dict[str, int] = {}
+    for m in solved:
+        first.setdefault(recipe.get(int(m), "0"), int(m))
+    return np.array([(int(m), first[recipe[int(m)]]) for m in fixed
+                     if recipe.get(int(m), "0") != "0" and recipe[int(m)] in first], np.int64).reshape(-1, 2)
 
 
 def solve_channels(morph_names: list[str]) -> dict[int, tuple[str, ...]]:

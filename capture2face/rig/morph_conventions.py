@@ -241,6 +241,11 @@ def convention_channels(morph_names: list[str]) -> dict[int, tuple[str, ...]]:
     alone = convention_weights(list(ARKIT_NAMES), np.eye(len(ARKIT_NAMES), dtype=np.float32), morph_names)
     return {m: tuple(ARKIT_NAMES[k] for k in np.flatnonzero(alone[:, m] > 0)) for m in live}
 
+def convention_recipes(morph_names: list[str]) -> dict[int, str]:
+    """{morph index: its recipe} of every morph :data:`RECIPES` knows (Rocketbox's teeth
+    ``t_AE_AA_h`` share the head's ``AE_AA_h``: the solve moves them together)."""
+    return {m: RECIPES[conv][name] for m, (conv, name) in convention_morphs(morph_names).items()}
+
 # FaceRig.morph_rules columns and codes (VRM expression rules).
 RULE_BINARY, RULE_BLINK, RULE_LOOK_AT, RULE_MOUTH, RULE_GROUP = range(5)
 OVERRIDE_CODES = {"none": 0, "block": 1, "blend": 2}
