@@ -114,7 +114,7 @@ class RetargetOptions:
     window_overlap: int = 100
     eye_radius_iod: float = gaze.HUMAN_RADIUS_IOD
     arkit_prior: float = 0.1
-    convention_prior: float = 50.0
+    convention_prior: float = 10.0
     arkit_morph_ridge: float = 0.001
     arkit_sparsity: float = 0.0
     arkit_min_motion: float = 0.02
