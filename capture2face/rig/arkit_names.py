@@ -97,7 +97,7 @@ def solved_morphs(rig) -> dict[int, str]:
     (:mod:`capture2face.retarget.arkit_solve`): the ARKit-named ones; another convention's
     where the tracker read the head's landmarks. Landmarks placed from the morphs say where
     they move, not where a human's features are: solved from them, Godette's lids followed
-    the actor at 0.33-0.51 where its recipes alone give 0.59-1.06 (docs/characters.md)."""
+    the actor at 0.33-0.62 where its recipes alone give 0.59-1.06 (docs/characters.md)."""
     named = arkit_morphs(rig.morph_names)
     if named or getattr(rig, "landmark_source", "") == MORPH_PLACED:
         return named
