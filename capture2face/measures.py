@@ -36,9 +36,18 @@ import numpy as np
 
 from capture2face.errors import CaptureError
 from capture2face.maths.stats import pearson
-from capture2face.rig.arkit_names import GAZE_SCORES, arkit_morphs, arkit_weights
+from capture2face.rig.arkit_names import GAZE_SCORES, arkit_morphs, arkit_weights, drive_mode, solved_morphs
 from capture2face.rig.face_rig import landmark_points, landmark_support
-from capture2face.topology import BROW_HEIGHT_PAIRS, IOD_PAIR, LIDS_LEFT, LIDS_RIGHT, LIP_GAP, MOUTH_CORNERS
+from capture2face.rig.morph_conventions import convention_weights
+from capture2face.topology import (
+    ARKIT_NAMES,
+    BROW_HEIGHT_PAIRS,
+    IOD_PAIR,
+    LIDS_LEFT,
+    LIDS_RIGHT,
+    LIP_GAP,
+    MOUTH_CORNERS,
+)
 from capture2face.tracking.head_pose import head_landmarks
 from capture2face.tracking.rest import actor_rest
 
@@ -136,6 +145,48 @@ def _check_delta(rig, morph: dict[str, int], name: str) -> np.ndarray | None:
     names = [name]
     mix = arkit_weights(names, np.ones((1, 1), np.float32), rig.morph_names)[0].astype(np.float64)
     return np.einsum("m,mvc->vc", mix, rig.morph_positions, dtype=np.float64) if mix.any() else None
+
+
+# A human's reach of each measure (its morphs at 1: ICT-FaceKit's generic neutral, as
+# retarget.ranges.REFERENCE_RANGE): (way, change), "up" the measure grows, "down" it shrinks,
+# "either"; IOD, eyes relative to their rest opening (a blink closes them).
+HUMAN_REACH: dict[str, tuple[str, float]] = {
+    "mouth_open": ("up", 0.36), "mouth_width": ("either", 0.079),
+    "brow_right": ("up", 0.065), "brow_left": ("up", 0.065),
+    "eye_right": ("down", 1.0), "eye_left": ("down", 1.0),
+}
+#: A measure whose driven morphs at 1 reach less than this share of a human's is left out:
+#: the character cannot make it at the actor's amplitude (Rocketbox's brow raise, 0.25).
+MIN_REACH = 0.5
+
+
+def reach_faults(rig) -> dict[str, str]:
+    """{measure: why} for each of :data:`MEASURES` that the morphs its landmarks solve
+    (:func:`~capture2face.rig.arkit_names.solved_morphs`), each at 1 or, on a head of
+    another convention, at each ARKit curve's recipe at 1, move less than :data:`MIN_REACH`
+    of a human's (:data:`HUMAN_REACH`): a visemes-only head's brows and eyes, a head with
+    tiny brow morphs. Rigs with face bones (which move the face without morphs), rigs
+    without landmarks and heads of other conventions with landmarks placed from their morphs
+    (driven by their recipes alone) are not checked."""
+    driven = sorted(solved_morphs(rig))
+    if getattr(rig, "landmark_faces", None) is None or not driven or drive_mode(rig) != "arkit":
+        return {}
+    poses = np.eye(rig.n_morphs, dtype=np.float32)[driven]
+    if not arkit_morphs(rig.morph_names):
+        poses = np.concatenate([poses, convention_weights(list(ARKIT_NAMES), np.eye(len(ARKIT_NAMES), dtype=np.float32),
+                                                          rig.morph_names)])
+    rest = _rest_distances(rig)
+    moved = _distances(rig_landmark_points(rig, np.broadcast_to(rig.bone_rest, (len(poses),) + rig.bone_rest.shape),
+                                           poses, MEASURED))
+    change = _normalise(moved, rest) - _normalise(rest[None], rest)
+    out = {}
+    for k, (name, (way, human)) in enumerate(HUMAN_REACH.items()):
+        reach = {"up": change[:, k].max(), "down": -change[:, k].min(), "either": np.abs(change[:, k]).max()}[way]
+        if reach < MIN_REACH * human:
+            a, b = MEASURES[name]
+            out[name] = (f"its morphs at 1 move landmarks {a}-{b} {way} by {max(reach, 0.0):.3f} at most, "
+                         f"{max(reach, 0.0) / human:.2f} of a human's {human:.3f}")
+    return out
 
 
 # ---- measures ----------------------------------------------------------------------------
@@ -537,7 +588,8 @@ def clip_fidelity(track, animation, rig, name: str = "") -> ClipFidelity:
     return ClipFidelity(name=name or Path(str(track.source)).stem, times=np.asarray(track.times)[keep],
                         source=source[keep], character=character[keep], direct=direct[keep],
                         arkit=np.asarray(arkit[keep], np.float64), arkit_names=names, arkit_source=which,
-                        gaze=gaze, gaze_scores=gaze_scores, curves=curves, left_out=landmark_faults(rig),
+                        gaze=gaze, gaze_scores=gaze_scores, curves=curves,
+                        left_out={**reach_faults(rig), **landmark_faults(rig)},
                         scores=scores[keep].astype(np.float64), score_names=list(track.blendshape_names),
                         character_rest=character_rest_measures(rig), wrinkles=_kept(wrinkle_series(animation), keep),
                         source_rest=source_rest_measures(track, source))

@@ -245,6 +245,110 @@ def test_shared_character_opens_its_mouth_on_a_real_clip(tmp_path, name):
     assert np.percentile(anim.blend_weights[:, mouth].sum(1), 99) > 0.3
 
 
+
+# ---- each head at its own full range (issue 31) -------------------------------------------------
+def _solve_of(rig):
+    from capture2face.retarget.arkit_solve import morph_solve
+    from capture2face.rig.feature_points import feature_correspondence
+
+    landmarks, _, _ = feature_correspondence(rig)
+    return morph_solve(rig, landmarks, 0.02, 0.1), landmarks
+
+
+@pytest.mark.parametrize("name, opens", [
+    ("rpm_male_goatee_glasses_visemes_only.glb", ("viseme_aa", "viseme_O")),
+    ("valid_rocketbox_Black_M_2_Busi.glb", ("h_expressions.AE_AA_h", "h_expressions.UH_OO_h")),
+])
+def test_a_convention_head_is_solved_at_its_own_full_range(name, opens):
+    """A head without ARKit names is solved from its landmarks like an ARKit head (its
+    recipes the prior), and the actor's full opening maps onto its open visemes together:
+    the goatee head's viseme_O alone parts its lips 0.6 of a human's, which held its mouth
+    at 0.6 of the actor's (tracked back 0.63)."""
+    from capture2face.character.load import load_character
+    from capture2face.retarget.ranges import range_targets
+    from capture2face.topology import LIP_GAP
+
+    rig = load_character(shared_character(name))
+    solve, landmarks = _solve_of(rig)
+    solved = {rig.morph_names[m] for m in solve.model.morphs}
+    assert set(opens) <= solved
+    assert not solved & {"viseme_sil", "viseme_TH", "h_expressions.MouthOpen_h"}  # recipe "0": never solved
+    ranged = range_targets(solve, landmarks, solve.model.rest[:len(landmarks)])
+    gap = [k for k, (a, b) in enumerate(landmarks[ranged.ends]) if (a, b) == LIP_GAP]
+    assert 0.9 <= ranged.gain[gap[0], 0] <= 1.0  # a human's full opening: the head's full opening
+
+
+def test_rocketbox_teeth_follow_the_solved_jaw_and_its_brows_have_antagonists():
+    """Rocketbox's teeth morphs move no landmark: each takes the weight solved for the head's
+    morph of its recipe (the teeth stayed at the recipe's jaw while the lips' solved jaw
+    closed, and showed through them). Two morphs lower each brow (inner, outer): both are
+    the raise's antagonists."""
+    from capture2face.character.load import load_character
+
+    rig = load_character(shared_character("valid_rocketbox_Black_M_2_Busi.glb"))
+    solve, _ = _solve_of(rig)
+    twins = {rig.morph_names[a]: rig.morph_names[b] for a, b in solve.twins}
+    assert twins["h_teeth.t_AE_AA_h"] == "h_expressions.AE_AA_h"
+    assert twins["h_teeth.t_Ljaw_h"] == "h_expressions.Ljaw_h"
+    column = {solve.model.n_free_vars + k: rig.morph_names[m] for k, m in enumerate(solve.model.morphs)}
+    pairs = {(column[a].split(".")[-1], column[b].split(".")[-1]) for a, b in solve.antagonists}
+    assert {("RbrowUp_h", "RbrowDown_h"), ("RbrowUp_h", "RRbrowDown_h"), ("LLbrowUp_h", "LLbrowDown_h")} <= pairs
+
+
+@pytest.mark.parametrize("name, left_out", [
+    ("rpm_male_goatee_glasses_visemes_only.glb", {"brow_right", "brow_left", "eye_right", "eye_left"}),
+    ("valid_rocketbox_Black_M_2_Busi.glb", {"brow_right", "brow_left"}),
+    ("ict-a.glb", set()),
+    ("rpm_female_arkit_visemes.glb", set()),
+])
+def test_fidelity_leaves_out_what_a_head_cannot_make(name, left_out):
+    """A measure whose morphs at 1 reach under half a human's is not judged at the actor's
+    amplitude: a visemes-only head has no brow or lid morph, Rocketbox's brow raise moves
+    0.27-0.36 of a human's."""
+    from capture2face.character.load import load_character
+    from capture2face.measures import reach_faults
+
+    faults = reach_faults(load_character(shared_character(name)))
+    assert left_out <= set(faults) and not set(faults) & {"mouth_open", "mouth_width"}
+    if not left_out:
+        assert faults == {}
+
+
+
+def test_a_head_with_landmarks_placed_from_its_morphs_keeps_its_recipes():
+    """Godette's landmarks are placed from its morphs (the tracker cannot read it): its
+    presets take their recipes, unsolved, and no measure is left out for its reach."""
+    from capture2face.character.landmark_sources import MORPHS
+    from capture2face.character.load import load_character
+    from capture2face.measures import reach_faults
+    from capture2face.rig.arkit_names import MORPH_PLACED, solved_morphs
+
+    assert MORPH_PLACED == MORPHS
+    rig = load_character(shared_character("godette_vrm0_presets.vrm"))
+    assert rig.landmark_source == MORPHS and driven_morphs(rig.morph_names)
+    assert solved_morphs(rig) == {} and reach_faults(rig) == {}
+
+@pytest.mark.slow
+def test_a_viseme_head_opens_its_mouth_as_far_as_the_actor(tmp_path):
+    """Landmark fidelity on a real clip: the visemes-only head's mouth follows the actor's
+    opening at the actor's amplitude (was 0.72 on d18, 0.26-0.74 on the six clips)."""
+    from capture2face.character.load import load_character
+    from capture2face.measures import clip_fidelity
+    from capture2face.pipeline import RunOptions, run
+    from capture2face.render import RenderOptions
+    from capture2face.retarget.animation import Animation
+    from capture2face.tracking.track import Track
+
+    character = shared_character("rpm_male_goatee_glasses_visemes_only.glb")
+    run(shared_clip("d18.mp4"), tmp_path, RunOptions(character=character, render=RenderOptions(size=128)),
+        progress=False)
+    out = tmp_path / "d18"
+    fig = clip_fidelity(Track.load(out / "track.npz"), Animation.load(out / "animation.npz"),
+                        load_character(character)).figures()
+    mouth = fig["measures"]["mouth_open"]
+    assert mouth["r"] >= 0.9 and 0.8 <= mouth["gain"] <= 1.25, mouth
+    assert "brow_left" in fig["left_out"] and "brow_left" not in fig["measures"]
+
 def test_vrm_animation_plays_in_threejs(tmp_path):
     """three.js's GLTFLoader loads Godette's animation.glb and plays the expressions on the
     file's own targets (tools/threejs_check/load_node.mjs)."""

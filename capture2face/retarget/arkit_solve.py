@@ -36,7 +36,9 @@ from capture2face.maths.rotations import similarity
 from capture2face.retarget.solve import LinearRigModel
 from capture2face.rig.arkit_names import arkit_morphs
 from capture2face.rig.feature_points import landmark_basis
+from capture2face.rig.morph_conventions import convention_channels, convention_recipes, convention_weights
 from capture2face.topology import (
+    ARKIT_NAMES,
     BROW_HEIGHT_PAIRS,
     BROWS,
     EYE_LEFT,
@@ -124,6 +126,12 @@ class MorphSolve:
         pair_frames: (K, 3, 3) each difference's operator (:func:`pair_frames`), or None.
         antagonists: (P, 2) unknowns (columns of ``model.matrix``) of the solved morphs'
             :data:`ANTAGONISTS`.
+        twins: (T, 2) (fixed morph, solved morph) of a head of another convention: a morph
+            that moves no landmark takes the weight solved for its recipe's twin (Rocketbox's
+            teeth follow its jaw), not the recipe's.
+        full_poses: (52, Ms) on a head of another convention, the solved morphs' weights at
+            each ARKit curve's recipe at 1 (a viseme set's widest mouth is its open visemes
+            together: its range, :mod:`capture2face.retarget.ranges`); None on an ARKit head.
     """
 
     model: LinearRigModel
@@ -132,6 +140,8 @@ class MorphSolve:
     pairs: np.ndarray
     pair_frames: np.ndarray | None = None
     antagonists: np.ndarray | None = None
+    full_poses: np.ndarray | None = None
+    twins: np.ndarray | None = None
 
     def points(self, landmark_points: np.ndarray) -> np.ndarray:
         """(..., N + K, 3) the model's points of (..., N, 3) landmark points."""
@@ -189,12 +199,14 @@ def morph_solve(rig, landmarks: np.ndarray, min_motion: float, across: float = 1
     """
     rest, deltas = landmark_basis(rig, landmarks)
     motion = np.linalg.norm(deltas, axis=2).max(1) if len(landmarks) else np.zeros(rig.n_morphs)
-    named = arkit_morphs(rig.morph_names)
-    fixed = np.array([named.get(m) in CURVE_ONLY or motion[m] < min_motion * rig.interocular()
-                      for m in range(rig.n_morphs)], bool)
-    # Only ARKit morphs are solved: others (visemes, a character's extras) have no curve to
-    # say which of two look-alike shapes is meant, and stay 0.
-    solved = np.flatnonzero(~fixed & np.isin(np.arange(rig.n_morphs), list(named)))
+    channels = solve_channels(rig.morph_names)
+    fixed = np.array([bool(channels.get(m)) and set(channels[m]) <= CURVE_ONLY
+                      or motion[m] < min_motion * rig.interocular() for m in range(rig.n_morphs)], bool)
+    # Only the driven morphs are solved (ARKit-named, or a convention's with a recipe): others
+    # (an ARKit head's visemes, a character's extras) have no curve to say which of two
+    # look-alike shapes is meant, and stay 0.
+    solved = np.flatnonzero(~fixed & np.isin(np.arange(rig.n_morphs), list(channels)))
+    named = {m: c[0] for m, c in channels.items() if len(c) == 1}
     pairs = expression_pairs(landmarks)
     out = MorphSolve(model=None, fixed=np.flatnonzero(fixed), fixed_deltas=deltas[fixed],
                      pairs=pairs, pair_frames=pair_frames(rest[pairs[:, 0]] - rest[pairs[:, 1]], across,
@@ -207,6 +219,10 @@ def morph_solve(rig, landmarks: np.ndarray, min_motion: float, across: float = 1
                                morphs=solved, n_rigid=6)
     pairs = ANTAGONISTS + opposed_lid_pairs(named, deltas[:, np.isin(landmarks, EYE_CONTOURS)])
     out.antagonists = antagonist_unknowns(named, solved, out.model.n_free_vars, pairs)
+    if not arkit_morphs(rig.morph_names):
+        recipes = convention_weights(list(ARKIT_NAMES), np.eye(len(ARKIT_NAMES), dtype=np.float32), rig.morph_names)
+        out.full_poses = recipes[:, solved]
+        out.twins = recipe_twins(rig.morph_names, out.fixed, solved)
     return out
 
 
@@ -226,12 +242,38 @@ def opposed_lid_pairs(named: dict[int, str], eye_deltas: np.ndarray) -> tuple[tu
     return tuple(out)
 
 
+def recipe_twins(morph_names: list[str], fixed: np.ndarray, solved: np.ndarray) -> np.ndarray:
+    """(T, 2) (fixed morph, the first solved morph with the same recipe) of a head of
+    another convention; recipes ``"0"`` have none."""
+    recipe = convention_recipes(morph_names)
+    first: dict[str, int] = {}
+    for m in solved:
+        first.setdefault(recipe.get(int(m), "0"), int(m))
+    return np.array([(int(m), first[recipe[int(m)]]) for m in fixed
+                     if recipe.get(int(m), "0") != "0" and recipe[int(m)] in first], np.int64).reshape(-1, 2)
+
+
+def solve_channels(morph_names: list[str]) -> dict[int, tuple[str, ...]]:
+    """{morph index: the ARKit curves it stands for} of the morphs a solve may set: each
+    ARKit-named morph its name; on a head without ARKit names, each convention morph with a
+    recipe the curves that alone turn it on
+    (:func:`~capture2face.rig.morph_conventions.convention_channels`)."""
+    named = arkit_morphs(morph_names)
+    if named:
+        return {m: (a,) for m, a in named.items()}
+    return convention_channels(morph_names)
+
+
 def antagonist_unknowns(named: dict[int, str], solved: np.ndarray, offset: int,
                         pairs: tuple[tuple[str, str], ...] = ANTAGONISTS) -> np.ndarray:
     """(P, 2) unknowns (``offset`` plus the position in ``solved``) of the antagonist
-    ``pairs`` whose morphs are both solved; ``named``: {morph: ARKit name}."""
-    column = {named[int(m)]: offset + k for k, m in enumerate(solved) if int(m) in named}
-    return np.array([(column[a], column[b]) for a, b in pairs if a in column and b in column],
+    ``pairs`` whose morphs are both solved; ``named``: {morph: ARKit name}
+    (two morphs may stand for one name: Rocketbox's inner and outer brow lowering)."""
+    column: dict[str, list[int]] = {}
+    for k, m in enumerate(solved):
+        if int(m) in named:
+            column.setdefault(named[int(m)], []).append(offset + k)
+    return np.array([(i, j) for a, b in pairs for i in column.get(a, ()) for j in column.get(b, ())],
                     np.int64).reshape(-1, 2)
 
 

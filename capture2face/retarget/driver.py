@@ -22,7 +22,7 @@ from capture2face.retarget.rbf import FeatureMap, fit_feature_map
 from capture2face.retarget.solve import LinearSolver, linear_rig_model
 from capture2face.retarget.windows import MappedPoints, SpilledMedian, frame_windows
 from capture2face.rig import influences as inf
-from capture2face.rig.arkit_names import arkit_morphs, arkit_weights, drive_mode
+from capture2face.rig.arkit_names import arkit_morphs, arkit_weights, drive_mode, solved_morphs
 from capture2face.rig.avatar import close_lips
 from capture2face.rig.feature_points import feature_correspondence, feature_positions
 from capture2face.rig.morph_conventions import apply_rules
@@ -72,6 +72,10 @@ class RetargetOptions:
         arkit_prior: an ARKit character (:mod:`capture2face.retarget.arkit_solve`): weight
             (cm^2, the fit's units) of |w - curve|^2 pulling each solved morph towards its
             ARKit curve.
+        convention_prior: ``arkit_prior`` of a head of another convention (visemes,
+            Rocketbox), its recipes the prior: its many look-alike shapes (a spread viseme
+            against a round one, the jaw sideways) traded against each other at 0.1 and
+            bared the teeth for an "O" (docs/characters.md).
         arkit_morph_ridge, arkit_sparsity: ``morph_ridge`` and ``sparsity`` of its solve.
         arkit_min_motion: a morph moving no landmark by more than this (inter-ocular
             distances) takes its curve.
@@ -110,6 +114,7 @@ class RetargetOptions:
     window_overlap: int = 100
     eye_radius_iod: float = gaze.HUMAN_RADIUS_IOD
     arkit_prior: float = 0.1
+    convention_prior: float = 10.0
     arkit_morph_ridge: float = 0.001
     arkit_sparsity: float = 0.0
     arkit_min_motion: float = 0.02
@@ -367,7 +372,7 @@ def _retarget_arkit(track, rest: ActorRest, rig, options: RetargetOptions) -> An
     curves = arkit_curves(track, rest)
     weights = arkit_weights(list(track.blendshape_names), curves, rig.morph_names)
     landmarks = _skin_landmarks(rig)
-    if options.solve_blend_weights and landmarks is not None and arkit_morphs(rig.morph_names):
+    if options.solve_blend_weights and landmarks is not None and solved_morphs(rig):
         weights = _solve_arkit_weights(track, rest, rig, landmarks, weights, options)
     weights = apply_rules(weights, rig.morph_rules)
     bones = np.repeat(rig.bone_rest[None].astype(np.float32), track.n_frames, 0)
@@ -409,7 +414,7 @@ def _solve_arkit_weights(track, rest: ActorRest, rig, landmarks: np.ndarray, pri
     weights[:, solve.fixed] = prior[:, solve.fixed]
     solved, nf = solve.model.morphs, solve.model.n_free_vars
     strength = np.zeros(solve.model.matrix.shape[1])
-    strength[nf:] = options.arkit_prior
+    strength[nf:] = options.arkit_prior if arkit_morphs(rig.morph_names) else options.convention_prior
     prior_x = np.zeros((track.n_frames, len(strength)), np.float32)
     prior_x[:, nf:] = prior[:, solved]
     with MappedPoints(track.landmarks_head, network, landmarks, windows, 1 + options.reweight_iterations) as mapped:
@@ -417,6 +422,8 @@ def _solve_arkit_weights(track, rest: ActorRest, rig, landmarks: np.ndarray, pri
                                   rest.single_frame, prior=prior_x, prior_strength=strength,
                                   antagonists=solve.antagonists):
             weights[w.start:w.stop, solved] += (w.fade[:, None] * x[:, nf:]).astype(np.float32)
+    if solve.twins is not None and len(solve.twins):
+        weights[:, solve.twins[:, 0]] = weights[:, solve.twins[:, 1]]
     return weights
 
 

@@ -90,12 +90,16 @@ class RangeTargets:
         return model_points[:, self.rows, self.components]
 
 
-def character_ranges(solve: MorphSolve, components: np.ndarray, iod: float) -> np.ndarray:
+def character_ranges(solve: MorphSolve, components: np.ndarray, iod: float, poses: np.ndarray | None = None
+                     ) -> np.ndarray:
     """(K, 2) (up, down) IOD: the largest change of each of the solve's pairs (its
-    ``components`` (K,)) that one of its solved morphs makes at 1."""
+    ``components`` (K,)) that one of its solved morphs makes at 1, or with ``poses``
+    (Q, Ms) weights of the solved morphs, one of those poses."""
     n = len(solve.model.rest) - len(solve.pairs)
     nf = solve.model.n_free_vars
     rows = solve.model.matrix[3 * n + 3 * np.arange(len(solve.pairs)) + components, nf:] / iod
+    if poses is not None:
+        rows = rows @ np.asarray(poses, np.float64).T
     if rows.shape[1] == 0:
         return np.zeros((len(solve.pairs), 2))
     return np.stack([np.maximum(rows.max(1), 0.0), np.maximum(-rows.min(1), 0.0)], 1)
@@ -122,6 +126,11 @@ def range_targets(solve: MorphSolve, landmarks: np.ndarray, actor_neutral: np.nd
         return None
     reference = REFERENCE_RANGE[np.asarray(present)[keep]]
     gain = np.clip(ranges[keep] / reference, *RATIO_BOUNDS)
+    if solve.full_poses is not None:
+        # A convention's mix (a viseme head's open visemes together) reaches what no one
+        # morph does, up to a human's range: past it the width is the recipe's, not the head's.
+        mixed = np.minimum(character_ranges(solve, components, iod, solve.full_poses)[keep] / reference, 1.0)
+        gain = np.maximum(gain, mixed)
     width = np.asarray(present)[keep] == WIDTH_PAIR
     gain[width] = np.minimum(gain[width], WIDTH_RATIO_MAX)
     ends = solve.pairs[keep]

@@ -87,6 +87,22 @@ def driven_morphs(morph_names: list[str]) -> dict[int, str]:
     return {m: name for m, (_, name) in convention_morphs(morph_names).items()}
 
 
+#: ``FaceRig.landmark_source`` of landmarks placed from what the head's own morphs move
+#: (:data:`capture2face.character.landmark_sources.MORPHS`: anime faces the tracker cannot read).
+MORPH_PLACED = "morphs"
+
+
+def solved_morphs(rig) -> dict[int, str]:
+    """:func:`driven_morphs` of ``rig`` that its landmarks may solve
+    (:mod:`capture2face.retarget.arkit_solve`): the ARKit-named ones; another convention's
+    where the tracker read the head's landmarks. Landmarks placed from the morphs say where
+    they move, not where a human's features are: solved from them, Godette's lids followed
+    the actor at 0.33-0.62 where its recipes alone give 0.59-1.06 (docs/characters.md)."""
+    named = arkit_morphs(rig.morph_names)
+    if named or getattr(rig, "landmark_source", "") == MORPH_PLACED:
+        return named
+    return driven_morphs(rig.morph_names)
+
 def has_face_bones(rig) -> bool:
     """True when Dutreve's feature-point retargeting can drive ``rig`` (landmark vertices
     on its skin, or at least 4 bones tied to tracker landmarks)."""

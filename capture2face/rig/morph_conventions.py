@@ -228,6 +228,24 @@ def convention_weights(arkit_names: list[str], arkit_curves: np.ndarray, morph_n
     return np.clip(out, 0.0, 1.0)
 
 
+def convention_channels(morph_names: list[str]) -> dict[int, tuple[str, ...]]:
+    """{morph index: the ARKit curves that alone turn it on} of every morph :data:`RECIPES`
+    knows with a recipe other than ``"0"`` (``viseme_aa``: ``jawOpen``; Rocketbox's
+    ``LbrowDown_h``: ``browDownLeft``; ``Joy``, a smile with the eyes: none alone). The
+    solve (:mod:`capture2face.retarget.arkit_solve`) treats a morph whose curves are one
+    ARKit name as that name (curve-only, antagonists)."""
+    known = convention_morphs(morph_names)
+    live = [m for m, (conv, name) in known.items() if parse_recipe(RECIPES[conv][name])]
+    if not live:
+        return {}
+    alone = convention_weights(list(ARKIT_NAMES), np.eye(len(ARKIT_NAMES), dtype=np.float32), morph_names)
+    return {m: tuple(ARKIT_NAMES[k] for k in np.flatnonzero(alone[:, m] > 0)) for m in live}
+
+def convention_recipes(morph_names: list[str]) -> dict[int, str]:
+    """{morph index: its recipe} of every morph :data:`RECIPES` knows (Rocketbox's teeth
+    ``t_AE_AA_h`` share the head's ``AE_AA_h``: the solve moves them together)."""
+    return {m: RECIPES[conv][name] for m, (conv, name) in convention_morphs(morph_names).items()}
+
 # FaceRig.morph_rules columns and codes (VRM expression rules).
 RULE_BINARY, RULE_BLINK, RULE_LOOK_AT, RULE_MOUTH, RULE_GROUP = range(5)
 OVERRIDE_CODES = {"none": 0, "block": 1, "blend": 2}
