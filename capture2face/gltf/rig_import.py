@@ -146,7 +146,7 @@ def _build(r: GlbReader, glb: Path, mapping: Mapping, ours: dict | None) -> Face
         alpha=tex.alpha, alpha_mode=tex.alpha_mode, alpha_cutoff=tex.alpha_cutoff,
         overlay_vertices=overlay_vertices(g, surface.gltf_material, surface.largest_material,
                                           [(ni, p.rows, p.tri_count) for ni, p in zip(picked, surface.parts)]),
-        morph_rules=rules,
+        morph_rules=rules, normals_from_shape=not ours,
     )
     if ours:
         return apply_own_extras(rig.replace(head_weights=None), ours, surface)

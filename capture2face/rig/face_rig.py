@@ -131,6 +131,12 @@ class FaceRig:
         landmark_source: how a user's character's landmarks were found
             (:mod:`capture2face.character.landmark_sources`): "tracker front view",
             "morphs", "none"; "" where they were given (built-in avatars, mappings).
+        normals_from_shape: the renderer turns the normals by the deformed shape itself
+            (the rest ``normals`` plus the change of the smooth normals over
+            ``position_ids``, rest to now) instead of by the sum of ``morph_normals``: a
+            user's character, whose per-morph normal deltas (the file's, or derived one morph
+            at a time) do not add up under combined morphs (they crease cheeks lit from
+            above); False: the built-in avatars and our own export, drawn as they were.
     """
 
     name: str
@@ -177,6 +183,7 @@ class FaceRig:
     overlay_vertices: np.ndarray | None = None
     morph_rules: np.ndarray | None = None
     landmark_source: str = ""
+    normals_from_shape: bool = False
 
     @property
     def has_eyes(self) -> bool:
