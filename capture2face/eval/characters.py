@@ -12,7 +12,9 @@ exported into ``DIR/<name>/`` (a ``run`` folder without compare.mp4 and report),
   ``stretch`` for the forehead, ``compress`` for the others);
 * the figures of the issue's goals: landmark fidelity (judged measures faithful, as
   ``eval fidelity``) and the video tracked back (``eval shading``: mouth, brows and eyes
-  r and gain, skin darkening p95).
+  r and gain, skin darkening p95). The darkening is read in skin.mp4, the same frames
+  drawn again with the base colour one flat tone (:data:`FLAT_SKIN`), so that a beard or
+  painted shadow sliding under a disc is not taken for a shading fault.
 
 A character that cannot be loaded or driven gets a row with its one-line refusal; one
 that fails later gets its error; neither stops the others.
@@ -34,6 +36,7 @@ from capture2face.errors import CaptureError
 from capture2face.eval import shading
 from capture2face.eval.contact_sheet import Cell, draw_sheet, square_crop, write_image
 from capture2face.io.video_input import iter_frames
+from capture2face.io.video_output import VideoWriter
 from capture2face.measures import clip_fidelity
 from capture2face.pipeline import RenderPass, RunOptions, export_stage, retarget_stage, track_stage
 from capture2face.pipeline.preflight import check_character
@@ -72,6 +75,8 @@ CLOSE_UPS = {
 FOLLOW_GOALS = {"mouth_open": (0.85, 0.7), "eyes": (0.8, 0.7), "brows": (0.75, 0.6)}
 DARKENING_GOAL = 0.03
 FIDELITY_GOAL = 0.9
+#: sRGB base colour of every character in skin.mp4 (where the darkening is read): a mid skin tone.
+FLAT_SKIN = (200, 160, 140)
 
 
 def default_clip() -> Path:
@@ -165,6 +170,7 @@ def _render(clip, track, animation, rig: FaceRig, folder: Path, options: RunOpti
     render_pass = RenderPass(clip, track, animation, rig, folder, options,
                              keep_frames=[f for f, _ in frames.values()])
     kept = render_pass.run(progress)["kept"]
+    skin_video(render_pass, folder / "skin.mp4")
     fov = render_pass.render_options.fov_y_degrees
     front = np.eye(4)
     close = {}
@@ -175,6 +181,19 @@ def _render(clip, track, animation, rig: FaceRig, folder: Path, options: RunOpti
             for key, state in states.items():
                 close[key] = renderer.render(close_up_state(rig, state, label, fov))
     return kept, close
+
+
+def skin_video(render_pass: RenderPass, path: Path) -> Path:
+    """``render_pass``'s frames drawn again with the base colour :data:`FLAT_SKIN` everywhere
+    (alpha, normal and wrinkle maps kept): the shading alone, as H.264 like avatar.mp4."""
+    rig, options = render_pass.rig, render_pass.options
+    flat = rig.replace(albedo=np.broadcast_to(np.asarray(FLAT_SKIN, np.uint8), rig.albedo.shape).copy())
+    with Renderer.create_from_options(flat, render_pass.render_options) as renderer, \
+            VideoWriter(path, render_pass.fps, render_pass.render_options.width_height, crf=options.crf,
+                        preset=options.preset, times=render_pass.times) as out:
+        for i in range(render_pass.n):
+            out.write(renderer.render(render_pass.frame_state(i)))
+    return path
 
 
 def perform(spec, clip, track: Track, out_dir: Path, size: int, cell: int, progress: bool = False) -> dict:
@@ -193,7 +212,7 @@ def perform(spec, clip, track: Track, out_dir: Path, size: int, cell: int, progr
     export_stage(rig, animation, folder, track, character=spec)
     row = {"landmarks": int(np.count_nonzero(np.asarray(rig.landmark_vertices) >= 0)),
            "fidelity": _fidelity(track, animation, rig, name)}
-    row["shading"] = shading.shading_of(folder, progress=progress)
+    row["shading"] = shading.shading_of(folder, progress=progress, skin_video=folder / "skin.mp4")
     row["goals"] = goals_met(row)
     sheet = draw_sheet(_sheet_rows(clip, track, frames, kept, close), cell, _title(name, clip, row))
     row["sheet"] = os.fspath(out_dir / f"{name}.png")
