@@ -112,6 +112,6 @@ class Deformer:
                                    head_rotation=head_rotation),
                     self.normals(blend_weights, eye_rotation=eye_rotation, head_rotation=head_rotation))
         positions = self._shaped(bone_positions, blend_weights)
-        normals = self._turned_normals(self._shape_normals(positions).astype(np.float32), eye_rotation, head_rotation)
+        normals = self._turned_normals(self._shape_normals(positions), eye_rotation, head_rotation)
         turn_eyes(self._rig, positions, None, eye_rotation)
         return self._turn(positions, head_rotation, self._pivot), normals

@@ -12,6 +12,7 @@ Eyeballs then turn rigidly about their centres (``eye_rotation``,
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 
 from capture2face.rig.face_rig import FaceRig, turn_eyes
 
@@ -24,24 +25,30 @@ class ShapeNormals:
 
     def __init__(self, rig: FaceRig):
         self._ids = np.asarray(rig.position_ids, np.int64)
-        self._corners = self._ids[np.asarray(rig.triangles, np.int64)].ravel()
-        self._n = int(self._ids.max()) + 1 if len(self._ids) else 0
-        self._tris = np.asarray(rig.triangles, np.int64)
-        self._rest_normals = np.asarray(rig.normals, np.float64)
+        tris = np.asarray(rig.triangles, np.int64)
+        self._a, self._b, self._c = tris[:, 0], tris[:, 1], tris[:, 2]
+        n = int(self._ids.max()) + 1 if len(self._ids) else 0
+        # position id x triangle: each triangle's normal summed onto its corners' positions
+        self._incidence = sp.csr_matrix((np.ones(tris.size, np.float32), (self._ids[tris].ravel(),
+                                         np.repeat(np.arange(len(tris)), 3))), shape=(n, len(tris)))
+        self._rest_normals = np.asarray(rig.normals, np.float32)
         self._rest = self.smooth(rig.vertices)
 
     def smooth(self, positions: np.ndarray) -> np.ndarray:
-        """(V, 3) smooth unit normals of ``positions`` (V, 3); 0 on a vertex in no triangle."""
-        p = np.asarray(positions, np.float64)[self._tris]
-        face = np.repeat(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), 3, axis=0)  # per corner
-        n = np.stack([np.bincount(self._corners, face[:, c], self._n) for c in range(3)], axis=1)
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+        """(V, 3) float32 smooth unit normals of ``positions`` (V, 3); 0 on a vertex in no
+        triangle."""
+        p = np.asarray(positions, np.float32)
+        a = p[self._a]
+        face = np.cross(p[self._b] - a, p[self._c] - a)  # length = twice the area: area-weighted
+        n = self._incidence @ face
+        n /= np.maximum(np.sqrt(np.einsum("vc,vc->v", n, n)), 1e-12)[:, None]
         return n[self._ids]
 
     def __call__(self, positions: np.ndarray) -> np.ndarray:
-        """(V, 3) float64 unit normals of the rig deformed to ``positions`` (V, 3)."""
+        """(V, 3) float32 unit normals of the rig deformed to ``positions`` (V, 3)."""
         n = self._rest_normals + (self.smooth(positions) - self._rest)
-        return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+        n /= np.maximum(np.sqrt(np.einsum("vc,vc->v", n, n)), 1e-12)[:, None]
+        return n
 
 
 def deform(rig: FaceRig, bone_positions: np.ndarray, blend_weights: np.ndarray,
