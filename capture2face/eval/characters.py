@@ -13,9 +13,8 @@ exported into ``DIR/<name>/`` (a ``run`` folder without compare.mp4 and report),
 * the figures of the issue's goals: landmark fidelity (judged measures faithful, as
   ``eval fidelity``) and the video tracked back (``eval shading``: mouth, brows and eyes
   r and gain, skin darkening p95). The darkening is read in skin.mp4, the same frames
-  drawn again with the base colour one flat tone (:func:`skin_tone`: the character's own,
-  so that the tone curve shades it as in avatar.mp4), so that a beard or painted shadow
-  sliding under a disc is not taken for a shading fault.
+  drawn again with the base colour one flat tone (:data:`FLAT_SKIN`), so that a beard or
+  painted shadow sliding under a disc is not taken for a shading fault.
 
 A character that cannot be loaded or driven gets a row with its one-line refusal; one
 that fails later gets its error; neither stops the others.
@@ -76,6 +75,8 @@ CLOSE_UPS = {
 FOLLOW_GOALS = {"mouth_open": (0.85, 0.7), "eyes": (0.8, 0.7), "brows": (0.75, 0.6)}
 DARKENING_GOAL = 0.03
 FIDELITY_GOAL = 0.9
+#: sRGB base colour of every character in skin.mp4 (where the darkening is read): a mid skin tone.
+FLAT_SKIN = (200, 160, 140)
 
 
 def default_clip() -> Path:
@@ -182,23 +183,11 @@ def _render(clip, track, animation, rig: FaceRig, folder: Path, options: RunOpti
     return kept, close
 
 
-def skin_tone(rig: FaceRig) -> np.ndarray:
-    """(3,) uint8 sRGB: the median base colour at the tracker landmarks' vertices (else the
-    face skin's, material 0: a head's skin may run under its hair, painted dark)."""
-    h, w = rig.albedo.shape[:2]
-    ids = np.asarray(rig.landmark_vertices)
-    ids = ids[ids >= 0] if np.any(ids >= 0) else np.flatnonzero(np.asarray(rig.material) == 0)
-    uv = np.asarray(rig.uvs, np.float64)[ids if len(ids) else slice(None)]
-    cols = np.clip((uv[:, 0] % 1.0 * w).astype(int), 0, w - 1)
-    rows = np.clip((uv[:, 1] % 1.0 * h).astype(int), 0, h - 1)
-    return np.median(rig.albedo[rows, cols], axis=0).astype(np.uint8)
-
-
 def skin_video(render_pass: RenderPass, path: Path) -> Path:
-    """``render_pass``'s frames drawn again with the base colour :func:`skin_tone` everywhere
+    """``render_pass``'s frames drawn again with the base colour :data:`FLAT_SKIN` everywhere
     (alpha, normal and wrinkle maps kept): the shading alone, as H.264 like avatar.mp4."""
     rig, options = render_pass.rig, render_pass.options
-    flat = rig.replace(albedo=np.broadcast_to(skin_tone(rig), rig.albedo.shape).copy())
+    flat = rig.replace(albedo=np.broadcast_to(np.asarray(FLAT_SKIN, np.uint8), rig.albedo.shape).copy())
     with Renderer.create_from_options(flat, render_pass.render_options) as renderer, \
             VideoWriter(path, render_pass.fps, render_pass.render_options.width_height, crf=options.crf,
                         preset=options.preset, times=render_pass.times) as out:

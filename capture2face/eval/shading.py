@@ -17,7 +17,7 @@ openings' mean) are compared the same way (r, and gain: the character's standard
 deviation over the actor's), reported beside the mouth.
 
 Given a second video of the same frames with the character's base colour one flat tone
-(its skin's median; ``eval characters`` draws it, skin.mp4), the darkening is read there instead, in the
+(``eval characters`` draws it, skin.mp4), the darkening is read there instead, in the
 discs found in avatar.mp4: a tracked landmark slides a little over the character's
 surface as the face moves, and on a textured head the disc then takes in more or less of
 a beard, a goatee or painted-in shadow (Ready Player Me's goatee: the chin's figure 11 %
