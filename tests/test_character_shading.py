@@ -182,6 +182,40 @@ def test_combined_morphs_shade_as_the_deformed_mesh(ict_derived):
     assert np.percentile(diff, 99.9) < 12.0 and (diff > 10).sum() < 25 and diff.mean() < 0.4
 
 
+# d12's smile frame (22) on Ready Player Me as the solve mixes it: smile, squint and wide
+# eyes, shrug: the cheeks creased dark (skin darkening p95 7.6 % on the right cheek).
+RPM_SMILE = {"mouthShrugUpper": 0.98, "eyeWideRight": 0.72, "mouthSmileRight": 0.68, "eyeSquintRight": 0.64,
+             "cheekSquintRight": 0.61, "mouthLowerDownRight": 0.59, "eyeWideLeft": 0.59, "browInnerUp": 0.55,
+             "mouthSmileLeft": 0.53, "eyeSquintLeft": 0.48}
+
+
+def test_a_user_heads_normals_turn_as_its_deformed_shape_under_combined_morphs():
+    """On a Ready Player Me head (no NORMAL deltas in the file: derived per morph), the
+    renderer turns each skin normal by as much as the deformed shape turns (its welded
+    smooth normals, rest to now). The sum of per-morph deltas does not add up under a
+    combined mix: 19.7 degrees off at p99 (54.7 at worst) before, 1.4 now."""
+    rig = import_glb(shared_character("rpm_female_arkit_visemes.glb"))
+    assert rig.normals_from_shape
+    w = np.zeros(rig.n_morphs, np.float32)
+    for name, value in RPM_SMILE.items():
+        w[rig.morph_index(name)] = value
+    positions, normals = Deformer(rig)(rig.bone_rest, w)
+    ref_positions, ref_normals = deform(rig, rig.bone_rest, w)
+    # float32 positions against the reference's float64: tiny triangles turn by ~1e-4
+    assert np.abs(ref_normals - normals).max() < 1e-3 and np.abs(ref_positions - positions).max() < 1e-4
+    moved = np.abs(rig.morph_positions[w > 0]).max(axis=(0, 2)) > 0
+    skin = (np.asarray(rig.material) == 0) & moved
+    shape_turn = _angles(_welded_normals(rig, positions), _welded_normals(rig, rig.vertices))[skin]
+    error = np.abs(_angles(normals, rig.normals)[skin] - shape_turn)
+    assert skin.sum() > 1000 and np.percentile(shape_turn, 95) > 10.0  # the mix does turn the cheeks
+    assert np.percentile(error, 99) < 3.0 and error.max() < 10.0
+
+
+def test_the_builtin_avatar_keeps_its_morph_normals(avatar):
+    """The built-in avatar (its own exact morph normals) is drawn as before."""
+    assert not avatar.normals_from_shape
+
+
 def test_mask_lashes_draw_only_their_opaque_texels(ict):
     """The eyelash cards are MASK: with an all-transparent alpha they draw nothing (the
     image of the head without them); with their own alpha they draw far fewer pixels than

@@ -96,6 +96,9 @@ def test_gallery_on_the_sample_clip(tmp_path):
             assert np.isfinite(row["shading"][key]), key
             assert np.isfinite(row["shading_hair_hidden"][key]), key
         assert (out / name / "avatar.mp4").is_file() and (out / name / "animation.glb").is_file()
+        # the darkening read in the frames drawn with a flat base colour; avatar.mp4's beside it
+        assert (out / name / "skin.mp4").is_file() and row["shading"]["darkening_read_in"] == "skin.mp4"
+        assert np.isfinite(row["shading"]["darkening_p95_mean_avatar"])
         sheet = cv2.imread(str(out / f"{name}.png"))
         band = max(12, int(cell * LABEL_BAND))
         assert sheet.shape[1] == 6 * cell + 7 * GAP

@@ -69,6 +69,30 @@ def test_patch_brightness_samples_each_disc_where_the_landmarks_are(tmp_path):
     assert np.nanstd(b[:, 1]) < 1.5 and abs(np.nanmean(b[:, 1]) - 180) < 3
 
 
+def test_a_beard_sliding_under_a_disc_is_no_darkening_in_the_flat_colour_video(tmp_path):
+    """The tracked chin point slides over a goatee's edge (a dark block that covers part of
+    the disc in a tenth of the frames): avatar.mp4 reads it as darkening, the same frames
+    with the base colour flat (skin.mp4, where eval characters reads it) do not."""
+    n, size = 60, (160, 120)
+    px = np.zeros((n, 478, 2))
+    px[:, 33], px[:, 263] = (30, 40), (130, 40)  # IOD 100 px: discs of 8 px
+    for name, centre in zip(shading.PATCHES, ((40, 60), (120, 60), (80, 90))):
+        px[:, shading.PATCHES[name]] = centre
+    track = SimpleNamespace(n_frames=n, presence=np.ones(n, bool), landmarks_px=px)
+    videos = {"avatar.mp4": True, "skin.mp4": False}
+    for name, beard in videos.items():
+        with VideoWriter(tmp_path / name, 30, size, crf=0) as out:
+            for f in range(n):
+                frame = np.full((size[1], size[0], 3), 170, np.uint8)
+                if beard:
+                    frame[94 - (f % 10 == 0) * 6:, :] = 50  # over the disc's lower edge; 6 px more now and then
+                out.write(frame)
+    rot = np.repeat(np.eye(3)[None], n, 0)
+    chin = list(shading.PATCHES).index("chin")
+    assert shading.read_darkening(tmp_path / "avatar.mp4", track, rot)[chin] > 0.1
+    assert np.all(shading.read_darkening(tmp_path / "skin.mp4", track, rot) < 0.01)
+
+
 def test_a_folder_without_avatar_video_is_refused(tmp_path):
     with pytest.raises(CaptureError, match="avatar.mp4 and track.npz"):
         shading.shading_of(tmp_path)

@@ -132,6 +132,9 @@ def find_surface_landmarks(rig: FaceRig) -> SurfaceLandmarks:
         CaptureError: the tracker finds no face in the render.
     """
     opts = RenderOptions(size=RENDER_SIZE, wrinkles="off", samples=4)
+    # The views drawn and cast with the summed morph normals, as the landmarks were found
+    # and judged before the renderer turned a user's normals by its shape (the same landmarks).
+    rig = rig.replace(normals_from_shape=False)
     fov = opts.fov_y_degrees
     pose = framing_pose(rig, fov_y_degrees=fov)
     with Renderer(rig, opts) as renderer, \

@@ -14,7 +14,10 @@ exported into ``DIR/<name>/`` (a ``run`` folder without compare.mp4 and report),
   ``eval fidelity``) and the video tracked back (``eval shading``: mouth, brows and eyes
   r and gain, skin darkening p95); and the same tracked back from a check render with the
   character's hair hidden (``shading_hair_hidden``, :mod:`capture2face.eval.hair_hidden`:
-  a fringe over the brows hides them from the tracker, not from the viewer).
+  a fringe over the brows hides them from the tracker, not from the viewer). The darkening
+  is read in skin.mp4, the same frames drawn again with the base colour one flat tone
+  (:data:`FLAT_SKIN`), so that a beard or painted shadow sliding under a disc is not taken
+  for a shading fault.
 
 A character that cannot be loaded or driven gets a row with its one-line refusal; one
 that fails later gets its error; neither stops the others.
@@ -40,6 +43,7 @@ from capture2face.eval.hair_hidden import hair_hidden_figures
 from capture2face.eval.posed import MEASURE as POSED
 from capture2face.eval.posed import posed_follow
 from capture2face.io.video_input import iter_frames
+from capture2face.io.video_output import VideoWriter
 from capture2face.measures import clip_fidelity
 from capture2face.pipeline import RenderPass, RunOptions, export_stage, retarget_stage, track_stage
 from capture2face.pipeline.preflight import check_character
@@ -79,6 +83,10 @@ FOLLOW_GOALS = {"mouth_open": (0.85, 0.7), "eyes": (0.8, 0.7), "brows": (0.75, 0
 DARKENING_GOAL = 0.03
 TRACKED = "tracked back"  # row["follow_by"]: the figures the goals judge (or POSED)
 FIDELITY_GOAL = 0.9
+#: sRGB base colour of every character in skin.mp4 (where the darkening is read): one mid skin
+#: tone for all, near the built-in avatar's (215 165 144): the tone curve darkens a dark skin more
+#: for the same shading (Rocketbox 4.5 % in its own tone, 1.9 % in this).
+FLAT_SKIN = (200, 160, 140)
 
 
 def default_clip() -> Path:
@@ -180,6 +188,7 @@ def _render(clip, track, animation, rig: FaceRig, folder: Path, options: RunOpti
     render_pass = RenderPass(clip, track, animation, rig, folder, options,
                              keep_frames=[f for f, _ in frames.values()])
     kept = render_pass.run(progress)["kept"]
+    skin_video(render_pass, folder / "skin.mp4")
     fov = render_pass.render_options.fov_y_degrees
     front = np.eye(4)
     close = {}
@@ -190,6 +199,19 @@ def _render(clip, track, animation, rig: FaceRig, folder: Path, options: RunOpti
             for key, state in states.items():
                 close[key] = renderer.render(close_up_state(rig, state, label, fov))
     return kept, close
+
+
+def skin_video(render_pass: RenderPass, path: Path) -> Path:
+    """``render_pass``'s frames drawn again with the base colour :data:`FLAT_SKIN` everywhere
+    (alpha, normal and wrinkle maps kept): the shading alone, as H.264 like avatar.mp4."""
+    rig, options = render_pass.rig, render_pass.options
+    flat = rig.replace(albedo=np.broadcast_to(np.asarray(FLAT_SKIN, np.uint8), rig.albedo.shape).copy())
+    with Renderer.create_from_options(flat, render_pass.render_options) as renderer, \
+            VideoWriter(path, render_pass.fps, render_pass.render_options.width_height, crf=options.crf,
+                        preset=options.preset, times=render_pass.times) as out:
+        for i in range(render_pass.n):
+            out.write(renderer.render(render_pass.frame_state(i)))
+    return path
 
 
 def perform(spec, clip, track: Track, out_dir: Path, size: int, cell: int, progress: bool = False) -> dict:
@@ -208,7 +230,7 @@ def perform(spec, clip, track: Track, out_dir: Path, size: int, cell: int, progr
     export_stage(rig, animation, folder, track, character=spec)
     row = {"landmarks": int(np.count_nonzero(np.asarray(rig.landmark_vertices) >= 0)),
            "fidelity": _fidelity(track, animation, rig, name)}
-    row["shading"] = shading.shading_of(folder, progress=progress)
+    row["shading"] = shading.shading_of(folder, progress=progress, skin_video=folder / "skin.mp4")
     row["posed"] = _posed(track, animation, rig)
     # A face the tracker could not read (its landmarks from its morphs) cannot be tracked back.
     row["follow_by"] = POSED if rig.landmark_source == MORPHS and row["posed"] else TRACKED

@@ -15,6 +15,14 @@ run's track.npz): a character whose mouth does not open on screen fails it whate
 animation says. The brows (the two brow heights' mean) and the eyes (the two lid
 openings' mean) are compared the same way (r, and gain: the character's standard
 deviation over the actor's), reported beside the mouth.
+
+Given a second video of the same frames with the character's base colour one flat tone
+(``eval characters`` draws it, skin.mp4), the darkening is read there instead, in the
+discs found in avatar.mp4: a tracked landmark slides a little over the character's
+surface as the face moves, and on a textured head the disc then takes in more or less of
+a beard, a goatee or painted-in shadow (Ready Player Me's goatee: the chin's figure 11 %
+in avatar.mp4, 1.8 % with the colour flat), which is no shading fault. avatar.mp4's own
+figure is kept beside it (``darkening_p95_mean_avatar``).
 """
 
 from __future__ import annotations
@@ -100,8 +108,9 @@ def _lighting(brightness: np.ndarray, rotations: np.ndarray) -> np.ndarray:
     return out
 
 
-def shading_of(run_dir: str | os.PathLike, progress: bool = False) -> dict:
-    """The figures of one ``run`` folder (it needs avatar.mp4 and track.npz)."""
+def shading_of(run_dir: str | os.PathLike, progress: bool = False, skin_video: str | os.PathLike | None = None) -> dict:
+    """The figures of one ``run`` folder (it needs avatar.mp4 and track.npz); the darkening
+    read in ``skin_video`` (avatar.mp4's frames with a flat base colour) where given."""
     folder = Path(run_dir)
     video, source = folder / "avatar.mp4", folder / "track.npz"
     if not video.is_file() or not source.is_file():
@@ -109,9 +118,10 @@ def shading_of(run_dir: str | os.PathLike, progress: bool = False) -> dict:
     with tempfile.TemporaryDirectory(prefix="capture2face-shading-") as work:
         seen = track_stage(video, RunOptions(), progress=progress, workdir=work)
     actor = Track.load(source)
-    brightness = patch_brightness(video, seen)
     n = min(actor.n_frames, seen.n_frames)
-    dark = darkening(brightness[:n], rotation_part(np.asarray(actor.head_pose)[:n]))
+    rotations = rotation_part(np.asarray(actor.head_pose)[:n])
+    seen_dark = read_darkening(video, seen, rotations)
+    dark = seen_dark if skin_video is None else read_darkening(skin_video, seen, rotations)
     follows = feature_follow(source_measures(actor)[:n], source_measures(seen)[:n])
     r = follows["mouth_open_r"]
     return {
@@ -119,9 +129,18 @@ def shading_of(run_dir: str | os.PathLike, progress: bool = False) -> dict:
         "frames_with_face": int(np.count_nonzero(seen.presence)),
         "darkening_p95": {name: float(d) for name, d in zip(PATCHES, dark)},
         "darkening_p95_mean": float(dark.mean()),
+        "darkening_read_in": "avatar.mp4" if skin_video is None else Path(skin_video).name,
+        "darkening_p95_mean_avatar": float(seen_dark.mean()),
         **follows,
         "met": bool(dark.mean() <= BRIGHTNESS_GOAL and r >= MOUTH_R_GOAL),
     }
+
+
+def read_darkening(video: str | os.PathLike, seen: Track, rotations: np.ndarray) -> np.ndarray:
+    """(P,) :func:`darkening` of each disc of ``video``, placed where ``seen`` (the tracked
+    avatar.mp4) has its landmarks, over the frames of ``rotations`` (F, 3, 3)."""
+    n = len(rotations)
+    return darkening(patch_brightness(video, seen)[:n], rotations)
 
 
 def feature_follow(actor: np.ndarray, seen: np.ndarray) -> dict[str, float]:

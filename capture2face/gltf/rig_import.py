@@ -147,7 +147,7 @@ def _build(r: GlbReader, glb: Path, mapping: Mapping, ours: dict | None) -> Face
         alpha=tex.alpha, alpha_mode=tex.alpha_mode, alpha_cutoff=tex.alpha_cutoff,
         overlay_vertices=overlay_vertices(g, surface.gltf_material, surface.largest_material,
                                           [(ni, p.rows, p.tri_count) for ni, p in zip(picked, surface.parts)]),
-        morph_rules=rules,
+        morph_rules=rules, normals_from_shape=not ours,
         eye_centres=None if eyes is None else eyes[0], eye_vertex_side=None if eyes is None else eyes[1],
         eye_source="" if eyes is None else VRM_EYE_BONES,
     )

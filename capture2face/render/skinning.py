@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
+from capture2face.rig.deform import ShapeNormals
 from capture2face.rig.face_rig import FaceRig, turn_eyes
 
 # The per-frame products are small (V x 26 bones, a few active morphs x 3V): one BLAS
@@ -40,6 +41,7 @@ class Deformer:
         self._head = None if hw is None else np.asarray(hw, np.float32)[:, None]
         self._pivot = np.asarray(rig.bone_rest[0], np.float32)
         self._rig = rig
+        self._shape_normals = ShapeNormals(rig) if rig.normals_from_shape else None
 
     def _turn(self, points: np.ndarray, rotation, about: np.ndarray | float) -> np.ndarray:
         """``points`` turned by ``rotation`` about ``about``, blended by the head weights."""
@@ -63,13 +65,18 @@ class Deformer:
         (2, 2) yaw, pitch degrees per eye turns the eyeballs (None: straight ahead), then
         ``head_rotation`` (3, 3) turns the head joint's vertices about it (rigs with
         ``head_weights``)."""
+        positions = self._shaped(bone_positions, blend_weights)
+        turn_eyes(self._rig, positions, None, eye_rotation)
+        return self._turn(positions, head_rotation, self._pivot)
+
+    def _shaped(self, bone_positions: np.ndarray, blend_weights: np.ndarray) -> np.ndarray:
+        """(V, 3) float32 positions after the morphs and the skinning, before any turn."""
         bones, weights = self._check(bone_positions, blend_weights)
         active = np.flatnonzero(weights)
         with _one_blas_thread():
             positions = (self._vertices + weights[active] @ self._morph_positions[active]).reshape(-1, 3)
             positions += self._skin @ (bones - self._bone_rest).astype(np.float32)
-        turn_eyes(self._rig, positions, None, eye_rotation)
-        return self._turn(positions, head_rotation, self._pivot)
+        return positions
 
     def normals(self, blend_weights: np.ndarray, *, eye_rotation: np.ndarray | None = None,
                 head_rotation: np.ndarray | None = None) -> np.ndarray:
@@ -80,6 +87,9 @@ class Deformer:
         with _one_blas_thread():
             normals = (self._normals + weights[active] @ self._morph_normals[active]).reshape(-1, 3)
         normals /= np.maximum(np.sqrt(np.einsum("vc,vc->v", normals, normals)), 1e-12)[:, None]
+        return self._turned_normals(normals, eye_rotation, head_rotation)
+
+    def _turned_normals(self, normals: np.ndarray, eye_rotation, head_rotation) -> np.ndarray:
         turn_eyes(self._rig, None, normals, eye_rotation)
         if head_rotation is None or self._head is None:
             return normals
@@ -97,5 +107,11 @@ class Deformer:
                  *, eye_rotation: np.ndarray | None = None,
                  head_rotation: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(positions, normals), (V, 3) float32 each."""
-        return (self.positions(bone_positions, blend_weights, eye_rotation=eye_rotation, head_rotation=head_rotation),
-                self.normals(blend_weights, eye_rotation=eye_rotation, head_rotation=head_rotation))
+        if self._shape_normals is None:
+            return (self.positions(bone_positions, blend_weights, eye_rotation=eye_rotation,
+                                   head_rotation=head_rotation),
+                    self.normals(blend_weights, eye_rotation=eye_rotation, head_rotation=head_rotation))
+        positions = self._shaped(bone_positions, blend_weights)
+        normals = self._turned_normals(self._shape_normals(positions), eye_rotation, head_rotation)
+        turn_eyes(self._rig, positions, None, eye_rotation)
+        return self._turn(positions, head_rotation, self._pivot), normals

@@ -134,6 +134,12 @@ class FaceRig:
         eye_source: how ``eye_centres`` were found on a user's character ("VRM humanoid eye
             bones"); "" where they were given (built-in avatars, our own export) or there
             are none.
+        normals_from_shape: the renderer turns the normals by the deformed shape itself
+            (the rest ``normals`` plus the change of the smooth normals over
+            ``position_ids``, rest to now) instead of by the sum of ``morph_normals``: a
+            user's character, whose per-morph normal deltas (the file's, or derived one morph
+            at a time) do not add up under combined morphs (they crease cheeks lit from
+            above); False: the built-in avatars and our own export, drawn as they were.
     """
 
     name: str
@@ -181,6 +187,7 @@ class FaceRig:
     morph_rules: np.ndarray | None = None
     landmark_source: str = ""
     eye_source: str = ""
+    normals_from_shape: bool = False
 
     @property
     def has_eyes(self) -> bool:
