@@ -60,3 +60,38 @@ def test_godettes_own_tables():
     # Its down map is linear to 1 at 23 degrees (3.9 / 90), up a slow curve (2.9 / 90).
     assert table[1, 23] == pytest.approx(1.0, abs=0.01) and table[1, 10] == pytest.approx(0.43, abs=0.01)
     assert 0.1 < table[2, 20] < 0.2 and table[0, 0] == 0 and table[0, 45] == pytest.approx(1.0)
+
+
+def test_godettes_mouth_landmarks_and_opening():
+    """Its lips' landmarks on its own small mouth (corners at the ends the vowels move,
+    the upper inner lip on the upper lip, not the nose), and the open vowel filled to the
+    actor's opening at its range."""
+    from capture2face.character.load import load_character
+    from capture2face.rig.face_rig import landmark_points
+    from capture2face.rig.open_fill import HUMAN_OPEN_IOD, actor_opening, fill_opening, morph_openings
+    from tests.helpers import shared_character
+
+    rig = load_character(shared_character("godette_vrm0_presets.vrm"))
+    iod = rig.interocular()
+    p = landmark_points(rig, rig.vertices, [61, 291, 13, 14])
+    assert 0.1 * iod < p[1, 0] - p[0, 0] < 0.2 * iod  # its mouth is 3.6 cm wide, 0.15 eye distances
+    assert 0 < p[2, 1] - p[3, 1] < 0.03 * iod  # closed at rest
+    opens = dict(zip(rig.morph_names, morph_openings(rig)))
+    assert opens["o"] > opens["a"] > opens["u"] > opens["e"] > 0
+    a = landmark_points(rig, rig.vertices + rig.morph_positions[rig.morph_names.index("a")], [61, 291])
+    assert a[1, 0] - a[0, 0] > p[1, 0] - p[0, 0] + 0.05 * iod  # the open vowel widens it
+    w = np.zeros((3, rig.n_morphs), np.float32)
+    w[:, rig.morph_names.index("e")] = 1.0  # a spread shape, nearly closed
+    filled = fill_opening(w, rig, np.array([0.0, 0.5, 2.0]))
+    lips = filled @ morph_openings(rig)
+    assert filled[0].tolist() == w[0].tolist()  # the actor's mouth closed: unchanged
+    assert lips[1] == pytest.approx(0.5 * max(opens.values()), rel=1e-4)  # half a human's: half its range
+    assert filled[2, rig.morph_names.index("a")] == 1.0  # wider than a human's jaw: the open vowel full
+    rounded = fill_opening(w, rig, np.full(3, 0.5), np.ones(3))  # rounded lips open by the round vowel
+    assert rounded[:, rig.morph_names.index("a")].tolist() == [0.0] * 3
+    assert (rounded @ morph_openings(rig)) == pytest.approx(lips[1], rel=1e-4)
+    rest = np.zeros((478, 3))
+    rest[[33, 263], 0] = [-3.0, 3.0]  # an inter-ocular distance of 6
+    lm = np.repeat(rest[None], 2, 0)
+    lm[1, 14, 1] = -HUMAN_OPEN_IOD * 6.0
+    assert actor_opening(lm, rest) == pytest.approx([0.0, 1.0])

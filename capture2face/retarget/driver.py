@@ -27,7 +27,7 @@ from capture2face.rig.avatar import close_lips
 from capture2face.rig.feature_points import feature_correspondence, feature_positions
 from capture2face.rig.look_at import look_weights
 from capture2face.rig.morph_conventions import apply_rules
-from capture2face.rig.open_fill import actor_opening, fill_opening
+from capture2face.rig.open_fill import actor_opening, fill_opening, lips_round
 from capture2face.tracking.rest import REGIONS, ActorRest, actor_rest, landmark_regions
 
 
@@ -377,7 +377,8 @@ def _retarget_arkit(track, rest: ActorRest, rig, options: RetargetOptions) -> An
     if options.solve_blend_weights and landmarks is not None and solved_morphs(rig):
         weights = _solve_arkit_weights(track, rest, rig, landmarks, weights, options)
     if rig.landmark_source == "morphs" and not arkit_morphs(rig.morph_names):  # its recipes at its own range
-        weights = fill_opening(weights, rig, actor_opening(track.landmarks_head, rest.landmarks))
+        weights = fill_opening(weights, rig, actor_opening(track.landmarks_head, rest.landmarks),
+                               lips_round(list(track.blendshape_names), curves))
     if rig.look_ranges is not None:  # a VRM's look presets turn by its own range tables
         weights = look_weights(weights, rig.morph_names, rig.look_ranges, _gaze(track, rest, options))
     weights = apply_rules(weights, rig.morph_rules)

@@ -5,7 +5,8 @@ head's vowel shapes by the lips' shape, and each shape opens its own way: Godett
 opens its lips 0.3 cm, ``U`` 1.0, ``A`` 2.1, ``O`` 2.6 (the rig's landmarks, ``LIP_GAP``).
 So in speech, where small openings go to the spread and round shapes, the mouth opened far
 less than the jaw. Here each frame's opening (the weights times each morph's own opening at
-1, summed) is raised, by adding the open vowel (``A`` / ``aa``), to the actor's opening as a
+1, summed) is raised, by adding the open vowels (``A`` / ``aa``, and ``O`` / ``oh`` as far as
+the actor's lips are rounded: ``mouthFunnel`` or ``mouthPucker``), to the actor's opening as a
 share of a human's full one (the tracked lips' gap over the built-in avatar's ``jawOpen``
 range, :data:`HUMAN_OPEN_IOD`) times the head's own full range (the most any one morph
 opens it): the opening follows the actor's at the head's range, the lips' shape still the
@@ -22,6 +23,7 @@ from capture2face.rig.face_rig import FaceRig, landmark_points
 from capture2face.topology import IOD_PAIR, LIP_GAP
 
 OPEN_VOWELS = ("a", "aa", "viseme_aa")  # the open shape, where a head has one
+ROUND_VOWELS = ("o", "oh", "viseme_o")  # the round open shape
 HUMAN_OPEN_IOD = 0.213  # the built-in avatar's jawOpen at 1 parts its lips 0.213 inter-ocular distances
 
 
@@ -45,9 +47,16 @@ def morph_openings(rig: FaceRig) -> np.ndarray:
     return np.linalg.norm(posed[:, 0] - posed[:, 1], axis=-1) - np.linalg.norm(rest[0] - rest[1])
 
 
-def fill_opening(weights: np.ndarray, rig: FaceRig, share: np.ndarray) -> np.ndarray:
-    """(F, M) ``weights`` with the open vowel raised where the mouth opens less than
-    ``share`` (F,) (:func:`actor_opening`) of the head's full range (the module docs);
+def lips_round(arkit_names: list[str], curves: np.ndarray) -> np.ndarray:
+    """(F,) how round the actor's lips are: the larger of ``mouthFunnel``, ``mouthPucker``."""
+    cols = [list(arkit_names).index(n) for n in ("mouthFunnel", "mouthPucker") if n in arkit_names]
+    return np.asarray(curves, np.float64)[:, cols].max(1) if cols else np.zeros(len(curves))
+
+
+def fill_opening(weights: np.ndarray, rig: FaceRig, share: np.ndarray, rounded: np.ndarray | None = None) -> np.ndarray:
+    """(F, M) ``weights`` with the open vowels raised where the mouth opens less than
+    ``share`` (F,) (:func:`actor_opening`) of the head's full range (the module docs), the
+    round one by ``rounded`` (F,) of the shortfall (:func:`lips_round`; None: 0);
     unchanged for a head without an open vowel or a morph that opens its mouth."""
     names = [str(n).lower().rsplit(".", 1)[-1] for n in rig.morph_names]
     vowel = next((names.index(v) for v in OPEN_VOWELS if v in names), None)
@@ -58,6 +67,12 @@ def fill_opening(weights: np.ndarray, rig: FaceRig, share: np.ndarray) -> np.nda
     if full <= 0 or openings[vowel] <= 0.1 * full:
         return weights
     short = np.maximum(np.asarray(share, np.float64), 0.0) * full - np.asarray(weights, np.float64) @ openings
+    short = np.maximum(short, 0.0)
+    round_vowel = next((names.index(v) for v in ROUND_VOWELS if v in names), None)
     out = np.array(weights, np.float32, copy=True)
-    out[:, vowel] = np.clip(out[:, vowel] + np.maximum(short, 0.0) / openings[vowel], 0.0, 1.0)
+    if round_vowel is not None and rounded is not None and openings[round_vowel] > 0.1 * full:
+        part = np.clip(np.asarray(rounded, np.float64), 0.0, 1.0) * short
+        out[:, round_vowel] = np.clip(out[:, round_vowel] + part / openings[round_vowel], 0.0, 1.0)
+        short = short - part
+    out[:, vowel] = np.clip(out[:, vowel] + short / openings[vowel], 0.0, 1.0)
     return out
