@@ -5,15 +5,18 @@ cannot read (anime, stylised, low-poly heads).
    morphs the same ARKit curves drive, :func:`~capture2face.character.landmarks.pose_weights`):
    each eye's upper lid is the skin ``eyeBlink`` moves most, its lower lid where that lid
    closes to, its corners the ends of what the blink moves; the mouth's lip line is the top
-   of what ``jawOpen`` moves most, its corners what a smile moves most sideways (else the
-   ends of what the jaw moves along the lip line).
+   of what ``jawOpen`` moves most, its corners what a smile moves most sideways among the
+   skin the jaw moves too (a VRM's ``Joy`` is a whole-face feeling), else the ends of what
+   the jaw moves along the lip line.
 2. **MediaPipe's canonical face fitted to them**: an affine map of the head's x-y plane
    through both eye centres and the mouth's, corrected near each eye and the mouth by the
    found feature's own width and height (an anime eye is large, its mouth small), smoothly.
 3. **Cast onto the skin** straight from the front (:func:`~.landmarks.cast_front`), the
    inner lips and lids then moved onto the vertices their morphs part: the upper inner lip
-   onto skin the jaw leaves still, the lower onto what it moves; the upper lid onto what the
-   blink moves, the lower onto what it leaves.
+   onto skin about the lip line that the jaw does not lower (Godette's ``A`` parts its upper
+   lip upwards and sideways: "still" skin was its nose), the lower onto what it moves, the
+   mouth's corners onto the ends of what the jaw moves; the upper lid onto what the blink
+   moves, the lower onto what it leaves.
 """
 
 from __future__ import annotations
