@@ -95,3 +95,20 @@ def test_godettes_mouth_landmarks_and_opening():
     lm = np.repeat(rest[None], 2, 0)
     lm[1, 14, 1] = -HUMAN_OPEN_IOD * 6.0
     assert actor_opening(lm, rest) == pytest.approx([0.0, 1.0])
+
+
+def test_godette_performs_with_its_gaze_tables_and_filled_mouth():
+    """Retargeted, its look presets are its tables of the gaze (still eyes: 0) and its mouth
+    opens as the actor's (the synthetic jaw parts the lips 0.4 eye distances: past a human's
+    full opening, so its open vowel reaches 1)."""
+    from capture2face.character.load import load_character
+    from capture2face.retarget import retarget
+    from tests.helpers import shared_character, synthetic_track
+
+    rig = load_character(shared_character("godette_vrm0_presets.vrm"))
+    track, truth = synthetic_track()
+    w = retarget(track, rig).blend_weights
+    looks = [rig.morph_names.index(n) for n in ("lookup", "lookdown", "lookleft", "lookright")]
+    assert np.abs(w[:, looks]).max() < 0.05
+    assert w[int(np.argmax(truth["jawOpen"])), rig.morph_names.index("a")] == pytest.approx(1.0)
+    assert w[track.neutral_frame, rig.morph_names.index("a")] < 0.05
