@@ -5,15 +5,18 @@ cannot read (anime, stylised, low-poly heads).
    morphs the same ARKit curves drive, :func:`~capture2face.character.landmarks.pose_weights`):
    each eye's upper lid is the skin ``eyeBlink`` moves most, its lower lid where that lid
    closes to, its corners the ends of what the blink moves; the mouth's lip line is the top
-   of what ``jawOpen`` moves most, its corners what a smile moves most sideways (else the
-   ends of what the jaw moves along the lip line).
+   of what ``jawOpen`` moves most, its corners what a smile moves most sideways among the
+   skin the jaw moves too (a VRM's ``Joy`` is a whole-face feeling), else the ends of what
+   the jaw moves along the lip line.
 2. **MediaPipe's canonical face fitted to them**: an affine map of the head's x-y plane
    through both eye centres and the mouth's, corrected near each eye and the mouth by the
    found feature's own width and height (an anime eye is large, its mouth small), smoothly.
 3. **Cast onto the skin** straight from the front (:func:`~.landmarks.cast_front`), the
    inner lips and lids then moved onto the vertices their morphs part: the upper inner lip
-   onto skin the jaw leaves still, the lower onto what it moves; the upper lid onto what the
-   blink moves, the lower onto what it leaves.
+   onto skin about the lip line that the jaw does not lower (Godette's ``A`` parts its upper
+   lip upwards and sideways: "still" skin was its nose), the lower onto what it moves, the
+   mouth's corners onto the ends of what the jaw moves; the upper lid onto what the blink
+   moves, the lower onto what it leaves.
 """
 
 from __future__ import annotations
@@ -44,6 +47,7 @@ MOVED = 0.5  # share of a morph's largest travel above which a vertex is what it
 STILL = 0.2  # ... and below which it is what the morph leaves
 SIDES = (("Right", EYE_RIGHT, LID_UPPER_RIGHT, LID_LOWER_RIGHT, IRIS_RIGHT, (33, 133), (159, 145)),
          ("Left", EYE_LEFT, LID_UPPER_LEFT, LID_LOWER_LEFT, IRIS_LEFT, (263, 362), (386, 374)))
+CORNERS = ((61, 78), (291, 308))  # the mouth's right and left corners, outer and inner
 MOUTH = tuple(sorted(set(LIPS_OUTER) | set(LIP_INNER_UPPER) | set(LIP_INNER_LOWER) | {78, 308}))
 
 
@@ -71,6 +75,9 @@ def morph_landmarks(rig: FaceRig) -> SurfaceLandmarks:
         _snap(out, verts, points, lower, skin & e["still"])
     _snap(out, verts, points, LIP_INNER_UPPER, skin & mouth["still"])
     _snap(out, verts, points, LIP_INNER_LOWER, skin & mouth["moved"])
+    for rows, corner in zip(CORNERS, mouth["corners"]):  # the mouth's ends (x < 0: its right)
+        if corner >= 0:
+            _snap(out, verts, points, rows, np.arange(len(verts)) == corner)
     return out
 
 
@@ -114,20 +121,30 @@ def _mouth(rig: FaceRig, verts: np.ndarray, skin: np.ndarray, eyes: list[dict]) 
     lip = np.flatnonzero(central if central.any() else moved)
     lip = lip[np.argmax(verts[lip, 1])]  # the lower lip's top: the highest point the jaw moves
     line = verts[lip, 1]
-    smile = _travel(rig, ["mouthSmileLeft", "mouthSmileRight"])
-    side = np.where(skin, np.abs(smile[:, 0]), 0.0)
     half_eyes = 0.5 * width_all
+    # The mouth's ends: what the jaw moves along the lip line. A smile's ends where the
+    # smile moves skin the jaw moves too (an ARKit smile pulls the corners; a VRM's Joy
+    # and Fun are whole-face feelings, whose sideways travel lies on the cheeks).
+    jaw_ends = np.flatnonzero((length >= STILL * length.max()) & (np.abs(verts[:, 1] - line) <= 0.15 * half_eyes))
+    smile = _travel(rig, ["mouthSmileLeft", "mouthSmileRight"])
+    side = np.where(skin & (length >= STILL * length.max()), np.abs(smile[:, 0]), 0.0)
+    ends = np.array([], np.int64)
     if side.max() > 0:
         ends = np.flatnonzero(skin & (side >= 0.8 * side.max()) & (np.abs(verts[:, 1] - line) <= 0.15 * half_eyes))
-    else:
-        ends = np.array([], np.int64)
     if len(ends) < 2:
-        ends = np.flatnonzero((length >= STILL * length.max()) & (np.abs(verts[:, 1] - line) <= 0.03 * half_eyes))
+        ends = jaw_ends
     width = 2 * float(np.abs(verts[ends, 0] - mid_x).max()) if len(ends) else 0.25 * width_all
     opening = float(-d[lip, 1])
     near = np.abs(verts[:, 0] - mid_x) <= width
+    inside = np.abs(verts[:, 0] - mid_x) <= 0.55 * width
+    # The upper lip: skin about the lip line the jaw does not lower (it may part it upwards
+    # or sideways: Godette's A moves its upper lip's ends by half the lower lip's drop).
+    upper = (-d[:, 1] < STILL * length.max()) & inside & (verts[:, 1] >= line) & (verts[:, 1] <= line + 0.5 * width)
+    sides = [jaw_ends[verts[jaw_ends, 0] < mid_x], jaw_ends[verts[jaw_ends, 0] >= mid_x]]
+    corners = [int(s[np.argmax(np.abs(verts[s, 0] - mid_x))]) if len(s) else -1 for s in sides]
     return {"centre": np.array([mid_x, line]), "width": width, "height": max(opening, 1e-3),
-            "moved": moved, "still": (length < STILL * length.max()) & near & (verts[:, 1] >= line - 0.5 * opening)}
+            "moved": moved, "still": upper if upper.any() else
+            (length < STILL * length.max()) & near & (verts[:, 1] >= line - 0.5 * opening), "corners": corners}
 
 
 def _fit(canon: np.ndarray, eyes: list[dict], mouth: dict) -> np.ndarray:

@@ -53,7 +53,7 @@ from capture2face.gltf.scene import check_hierarchy, mesh_nodes, world_matrices
 from capture2face.gltf.skins import head_weights, read_skeleton, skin_weights
 from capture2face.gltf.surface import scene_surface
 from capture2face.gltf.textures import ATLAS_MAX, DEFAULT_TEXTURE_SIZE, read_textures
-from capture2face.gltf.vrm import VRM_EYE_BONES, expression_morphs, eye_bones, face_forward
+from capture2face.gltf.vrm import VRM_EYE_BONES, expression_morphs, eye_bones, face_forward, look_ranges
 from capture2face.gltf.welding import weld_ids
 from capture2face.rig.face_rig import REGION_NAMES, ZONE_NAMES, FaceRig
 from capture2face.topology import N_LANDMARKS
@@ -147,7 +147,7 @@ def _build(r: GlbReader, glb: Path, mapping: Mapping, ours: dict | None) -> Face
         alpha=tex.alpha, alpha_mode=tex.alpha_mode, alpha_cutoff=tex.alpha_cutoff,
         overlay_vertices=overlay_vertices(g, surface.gltf_material, surface.largest_material,
                                           [(ni, p.rows, p.tri_count) for ni, p in zip(picked, surface.parts)]),
-        morph_rules=rules, normals_from_shape=not ours,
+        morph_rules=rules, normals_from_shape=not ours, look_ranges=look_ranges(g),
         eye_centres=None if eyes is None else eyes[0], eye_vertex_side=None if eyes is None else eyes[1],
         eye_source="" if eyes is None else VRM_EYE_BONES,
     )

@@ -229,3 +229,70 @@ def eye_bones(gltf: dict, bone_nodes: np.ndarray, bone_rest: np.ndarray, skin_jo
     if not ((side == 0).any() and (side == 1).any()):
         return None
     return np.asarray(bone_rest)[[b[0] for b in bones]].astype(np.float32), side
+
+
+#: Gaze angles (degrees) at which :func:`look_ranges` tabulates the look presets' weights.
+LOOK_DEGREES = np.arange(91, dtype=np.float64)
+
+
+def _hermite(keys: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Unity's AnimationCurve (VRM 0.x's curves): keys (K, 4) time, value, in and out
+    tangents; cubic Hermite between keys, held beyond the ends."""
+    t = np.clip(t, keys[0, 0], keys[-1, 0])
+    k = np.clip(np.searchsorted(keys[:, 0], t, side="right") - 1, 0, max(len(keys) - 2, 0))
+    if len(keys) < 2:
+        return np.full_like(t, keys[0, 1])
+    t0, v0, out0 = keys[k, 0], keys[k, 1], keys[k, 3]
+    t1, v1, in1 = keys[k + 1, 0], keys[k + 1, 1], keys[k + 1, 2]
+    dt = np.maximum(t1 - t0, 1e-9)
+    s = (t - t0) / dt
+    return ((2 * s**3 - 3 * s**2 + 1) * v0 + (s**3 - 2 * s**2 + s) * dt * out0
+            + (-2 * s**3 + 3 * s**2) * v1 + (s**3 - s**2) * dt * in1)
+
+
+def _vrm0_map(entry: dict | None) -> np.ndarray:
+    """(91,) weights of one VRM 0.x ``lookAt*`` degree map: curve(angle / xRange) * yRange."""
+    entry = entry or {}
+    curve = np.asarray(entry.get("curve") or [0, 0, 0, 1, 1, 1, 1, 0], np.float64)
+    keys = curve[: len(curve) // 4 * 4].reshape(-1, 4) if len(curve) >= 4 else np.array([[0, 0, 0, 1], [1, 1, 1, 0.0]])
+    x_range = max(float(entry.get("xRange", 90.0)), 1e-6)
+    return float(entry.get("yRange", 1.0)) * _hermite(keys, np.minimum(LOOK_DEGREES / x_range, 1.0))
+
+
+def _vrm1_map(entry: dict | None) -> np.ndarray:
+    """(91,) weights of one VRM 1.0 ``rangeMap*``: outputScale * min(angle / inputMaxValue, 1)."""
+    entry = entry or {}
+    x_max = max(float(entry.get("inputMaxValue", 90.0)), 1e-6)
+    return float(entry.get("outputScale", 1.0)) * np.minimum(LOOK_DEGREES / x_max, 1.0)
+
+
+def look_ranges(gltf: dict) -> np.ndarray | None:
+    """(3, 91) float32 the weights of the look presets at gaze angles :data:`LOOK_DEGREES`
+    (rows: LookLeft / LookRight, LookDown, LookUp) from the file's own lookAt range tables,
+    clipped to [0, 1]; None where its gaze turns bones (or it is no VRM).
+
+    VRM 0.x: ``firstPerson.lookAtHorizontalOuter`` / ``VerticalDown`` / ``VerticalUp``
+    (``curve`` keys of time, value, in, out tangents over angle / ``xRange``, times
+    ``yRange``; UniVRM's BlendShape applier reads them, the outer map for both sides).
+    VRM 1.0: ``lookAt.rangeMapHorizontalOuter`` / ``VerticalDown`` / ``VerticalUp``
+    (``outputScale`` * angle / ``inputMaxValue``, three-vrm's expression applier).
+    A map that does not start at 0 is lowered to start there (Godette's horizontal curve
+    starts at 0.05, times its ``yRange`` 7.1: 0.36): a gaze straight ahead turns no look
+    preset, where UniVRM's would flick the eyes by 0.36 from side to side as the gaze
+    crosses the middle."""
+    version = vrm_version(gltf)
+    if version == "0":
+        fp = gltf["extensions"]["VRM"].get("firstPerson") or {}
+        if str(fp.get("lookAtTypeName") or "Bone").lower() != "blendshape":
+            return None
+        rows = [_vrm0_map(fp.get(k)) for k in ("lookAtHorizontalOuter", "lookAtVerticalDown", "lookAtVerticalUp")]
+    elif version == "1":
+        look = gltf["extensions"]["VRMC_vrm"].get("lookAt") or {}
+        if str(look.get("type") or "bone").lower() != "expression":
+            return None
+        rows = [_vrm1_map(look.get(k)) for k in ("rangeMapHorizontalOuter", "rangeMapVerticalDown",
+                                                 "rangeMapVerticalUp")]
+    else:
+        return None
+    rows = np.stack(rows)
+    return np.clip(rows - rows[:, :1], 0.0, 1.0).astype(np.float32)

@@ -128,6 +128,11 @@ class FaceRig:
             its last vertex's, as for ``material``. None with ``alpha``.
         alpha_cutoff: (V,) float32 MASK cutoff of each vertex's material (glTF's
             ``alphaCutoff``, default 0.5). None with ``alpha``.
+        look_ranges: (3, 91) float32 the look presets' weights at gaze angles of 0, 1,
+            ..., 90 degrees (rows: LookLeft / LookRight, LookDown, LookUp) of a VRM whose
+            gaze turns its look expressions, from its own range tables
+            (:mod:`capture2face.rig.look_at`); None: its look presets (if any) follow their
+            recipes.
         landmark_source: how a user's character's landmarks were found
             (:mod:`capture2face.character.landmark_sources`): "tracker front view",
             "morphs", "none"; "" where they were given (built-in avatars, mappings).
@@ -185,6 +190,7 @@ class FaceRig:
     landmark_bary: np.ndarray | None = None
     overlay_vertices: np.ndarray | None = None
     morph_rules: np.ndarray | None = None
+    look_ranges: np.ndarray | None = None
     landmark_source: str = ""
     eye_source: str = ""
     normals_from_shape: bool = False
