@@ -160,21 +160,27 @@ HUMAN_REACH: dict[str, tuple[str, float]] = {
 MIN_REACH = 0.5
 
 
-def reach_faults(rig) -> dict[str, str]:
-    """{measure: why} for each of :data:`MEASURES` that the morphs its landmarks solve
-    (:func:`~capture2face.rig.arkit_names.solved_morphs`), each at 1 or, on a head of
-    another convention, at each ARKit curve's recipe at 1, move less than :data:`MIN_REACH`
-    of a human's (:data:`HUMAN_REACH`): a visemes-only head's brows and eyes, a head with
-    tiny brow morphs. Rigs with face bones (which move the face without morphs), rigs
-    without landmarks and heads of other conventions with landmarks placed from their morphs
-    (driven by their recipes alone) are not checked."""
-    driven = sorted(solved_morphs(rig))
-    if getattr(rig, "landmark_faces", None) is None or not driven or drive_mode(rig) != "arkit":
+#: A judged IOD measure (mouth, brows) whose morphs reach less than this share of a human's is
+#: judged at the head's own range: its gain against the actor's divided by that share (an anime
+#: mouth opens 0.55 of a human's in IOD: at its own full range it cannot reach the 0.8 gain
+#: band). The eyes are already relative to each face's own opening.
+OWN_RANGE_BELOW = 0.8
+
+
+def measure_reach(rig) -> dict[str, float]:
+    """{measure: the share of a human's reach (:data:`HUMAN_REACH`)} that the morphs its
+    landmarks solve (:func:`~capture2face.rig.arkit_names.solved_morphs`) make, each at 1 or,
+    on a head of another convention, at each ARKit curve's recipe at 1 (a head with landmarks
+    placed from its morphs: its recipes alone). Empty where not checked: rigs with face bones
+    (which move the face without morphs) and rigs without landmarks."""
+    if getattr(rig, "landmark_faces", None) is None or drive_mode(rig) != "arkit":
         return {}
-    poses = np.eye(rig.n_morphs, dtype=np.float32)[driven]
+    poses = np.eye(rig.n_morphs, dtype=np.float32)[sorted(solved_morphs(rig))]
     if not arkit_morphs(rig.morph_names):
         poses = np.concatenate([poses, convention_weights(list(ARKIT_NAMES), np.eye(len(ARKIT_NAMES), dtype=np.float32),
                                                           rig.morph_names)])
+    if not len(poses):
+        return {}
     rest = _rest_distances(rig)
     moved = _distances(rig_landmark_points(rig, np.broadcast_to(rig.bone_rest, (len(poses),) + rig.bone_rest.shape),
                                            poses, MEASURED))
@@ -182,10 +188,21 @@ def reach_faults(rig) -> dict[str, str]:
     out = {}
     for k, (name, (way, human)) in enumerate(HUMAN_REACH.items()):
         reach = {"up": change[:, k].max(), "down": -change[:, k].min(), "either": np.abs(change[:, k]).max()}[way]
-        if reach < MIN_REACH * human:
-            a, b = MEASURES[name]
-            out[name] = (f"its morphs at 1 move landmarks {a}-{b} {way} by {max(reach, 0.0):.3f} at most, "
-                         f"{max(reach, 0.0) / human:.2f} of a human's {human:.3f}")
+        out[name] = max(float(reach), 0.0) / human
+    return out
+
+
+def reach_faults(rig, reach: dict[str, float] | None = None) -> dict[str, str]:
+    """{measure: why} for each of :data:`MEASURES` whose :func:`measure_reach` is under
+    :data:`MIN_REACH`: a visemes-only head's brows and eyes, a head with tiny brow morphs,
+    an anime head whose brows no expression moves."""
+    reach = measure_reach(rig) if reach is None else reach
+    out = {}
+    for name, share in reach.items():
+        if share < MIN_REACH:
+            (a, b), (way, human) = MEASURES[name], HUMAN_REACH[name]
+            out[name] = (f"its morphs at 1 move landmarks {a}-{b} {way} by {share * human:.3f} at most, "
+                         f"{share:.2f} of a human's {human:.3f}")
     return out
 
 
@@ -400,7 +417,11 @@ class ClipFidelity:
         gaze: (T, 2, 2) the animation's eye yaw and pitch (degrees), or None.
         gaze_scores: (T, 4) the tracker's score differences of :data:`GAZE_CHECKS`.
         left_out: {measure: why} measures left out of the figures: the character's landmark
-            pair does not move with its morph (:func:`landmark_faults`).
+            pair does not move with its morph (:func:`landmark_faults`), or its morphs reach
+            under half a human's (:func:`reach_faults`).
+        reach: {measure: share of a human's reach} (:func:`measure_reach`): a mouth or brow
+            measure under :data:`OWN_RANGE_BELOW` is judged at the head's own range
+            (``range_gain``); empty: every measure judged at the actor's amplitude.
         scores: (T, S) the tracker's scores, names in ``score_names``: which frames are the
             actor's rest (:func:`rest_frames`), whether the brows ever lower; None: no
             level or wrinkle checks.
@@ -428,6 +449,7 @@ class ClipFidelity:
     character_rest: np.ndarray | None = None
     wrinkles: np.ndarray | None = None
     source_rest: np.ndarray | None = None
+    reach: dict[str, float] = field(default_factory=dict)
 
     def figures(self) -> dict:
         """Per measure r, gain, source range, judged and faithful for the character and
@@ -547,25 +569,30 @@ class ClipFidelity:
             limit = MIN_RANGE_EYE if name in EYE_MEASURES else MIN_RANGE_IOD
             r, g = compare(src, self.character[:, k])
             dr, dg = compare(src, self.direct[:, k])
-            entry = {"range": round(rng, 4), "judged": rng >= limit, "r": round(r, 3), "gain": round(g, 3),
-                     "faithful": faithful(r, g), "direct_r": round(dr, 3), "direct_gain": round(dg, 3),
-                     "direct_faithful": faithful(dr, dg)}
+            entry = {"range": round(rng, 4), "judged": rng >= limit, "r": round(r, 3), "gain": round(g, 3)}
+            share = 1.0 if name in EYE_MEASURES else self.reach.get(name, 1.0)
+            scale = 1.0 / share if share < OWN_RANGE_BELOW else 1.0  # judged at the head's own range
+            if scale != 1.0:
+                entry.update(reach=round(share, 3), range_gain=round(g * scale, 3))
+            entry.update(faithful=faithful(r, g * scale), direct_r=round(dr, 3), direct_gain=round(dg, 3),
+                         direct_faithful=faithful(dr, dg * scale))
             if self.curves is not None:
                 cr, cg = compare(src, self.curves[:, k])
-                entry.update(curves_r=round(cr, 3), curves_gain=round(cg, 3), curves_faithful=faithful(cr, cg))
+                entry.update(curves_r=round(cr, 3), curves_gain=round(cg, 3), curves_faithful=faithful(cr, cg * scale))
             measures[name] = entry
             if entry["judged"]:
                 counts["judged"] += 1
                 counts["faithful"] += entry["faithful"]
-                counts["not_worse_than_direct"] += not_worse(r, g, dr, dg)
+                counts["not_worse_than_direct"] += not_worse(r, g * scale, dr, dg * scale)
                 if self.curves is not None:
-                    counts["not_worse_than_curves"] += not_worse(r, g, cr, cg)
+                    counts["not_worse_than_curves"] += not_worse(r, g * scale, cr, cg * scale)
         return measures, counts
 
 
 def clip_fidelity(track, animation, rig, name: str = "") -> ClipFidelity:
     """The measures of one retargeted clip (its ``Track``, ``Animation`` and character)."""
     keep = np.asarray(track.presence, bool)
+    reach = measure_reach(rig)
     source = source_measures(track)
     character = character_measures(rig, animation.bone_positions, animation.blend_weights)
     scores = np.asarray(track.blendshapes)
@@ -589,7 +616,7 @@ def clip_fidelity(track, animation, rig, name: str = "") -> ClipFidelity:
                         source=source[keep], character=character[keep], direct=direct[keep],
                         arkit=np.asarray(arkit[keep], np.float64), arkit_names=names, arkit_source=which,
                         gaze=gaze, gaze_scores=gaze_scores, curves=curves,
-                        left_out={**reach_faults(rig), **landmark_faults(rig)},
+                        left_out={**reach_faults(rig, reach), **landmark_faults(rig)}, reach=reach,
                         scores=scores[keep].astype(np.float64), score_names=list(track.blendshape_names),
                         character_rest=character_rest_measures(rig), wrinkles=_kept(wrinkle_series(animation), keep),
                         source_rest=source_rest_measures(track, source))

@@ -317,16 +317,45 @@ def test_fidelity_leaves_out_what_a_head_cannot_make(name, left_out):
 
 def test_a_head_with_landmarks_placed_from_its_morphs_keeps_its_recipes():
     """Godette's landmarks are placed from its morphs (the tracker cannot read it): its
-    presets take their recipes, unsolved, and no measure is left out for its reach."""
+    presets take their recipes, unsolved; its brows, which no expression moves, are left out,
+    and its mouth, which opens about half a human's, is judged at its own range."""
     from capture2face.character.landmark_sources import MORPHS
     from capture2face.character.load import load_character
-    from capture2face.measures import reach_faults
+    from capture2face.measures import OWN_RANGE_BELOW, measure_reach, reach_faults
     from capture2face.rig.arkit_names import MORPH_PLACED, solved_morphs
 
     assert MORPH_PLACED == MORPHS
     rig = load_character(shared_character("godette_vrm0_presets.vrm"))
     assert rig.landmark_source == MORPHS and driven_morphs(rig.morph_names)
-    assert solved_morphs(rig) == {} and reach_faults(rig) == {}
+    assert solved_morphs(rig) == {} and set(reach_faults(rig)) == {"brow_right", "brow_left"}
+    reach = measure_reach(rig)
+    assert 0.4 < reach["mouth_open"] < OWN_RANGE_BELOW and reach["mouth_width"] > OWN_RANGE_BELOW
+
+
+def test_a_measure_is_judged_at_the_head_s_own_range_where_it_reaches_less_than_a_human():
+    """A mouth that opens at its full range while the actor opens fully is faithful on a head
+    whose mouth reaches half a human's; the eyes (relative to each face's own opening) and
+    heads of a human's reach are judged as before."""
+    from capture2face.measures import ClipFidelity
+
+    t = np.linspace(0, 4 * np.pi, 200)
+    src = np.stack([0.3 * (1 + np.sin(t)), 0.02 * np.sin(t), 0.05 * np.sin(t), 0.05 * np.sin(t),
+                    1 - 0.4 * (1 + np.sin(t)), 1 - 0.4 * (1 + np.sin(t))], 1)
+    half = src.copy()
+    half[:, :4] *= 0.5
+    half[:, 4:] = 1 - 0.2 * (1 + np.sin(t))[:, None]
+
+    def judged(reach):
+        f = ClipFidelity(name="x", times=t, source=src, character=half, direct=half, arkit=np.zeros((200, 0)),
+                         arkit_names=[], arkit_source="tracker", reach=reach)
+        return f.figures()["measures"]
+
+    human = judged({})
+    own = judged({"mouth_open": 0.5, "mouth_width": 1.0, "eye_right": 0.5})
+    assert not human["mouth_open"]["faithful"] and abs(human["mouth_open"]["gain"] - 0.5) < 1e-3
+    assert own["mouth_open"]["faithful"] and abs(own["mouth_open"]["range_gain"] - 1.0) < 1e-3
+    assert own["mouth_open"]["gain"] == human["mouth_open"]["gain"] and "range_gain" not in own["mouth_width"]
+    assert own["eye_right"] == human["eye_right"]
 
 @pytest.mark.slow
 def test_a_viseme_head_opens_its_mouth_as_far_as_the_actor(tmp_path):
