@@ -27,6 +27,11 @@ from capture2face.maths.stats import pearson
 from capture2face.tracking.rest import ActorRest, actor_rest, aligned_rest, clip_rest
 
 MIN_NEUTRAL_FRAMES = 5
+# A step whose hold moves its regions' features less than this many times their RMS on the
+# take's idle frames is not learned: its basis row is the take's noise, which the mix then
+# uses to explain whatever its other rows miss (ICT-a's faint eyes_wide took weights of 1-1.7
+# in frowns and jaw drops).
+MIN_ROW_NOISE = 2.0
 OTHER_READING = 0.3  # a step's hold the tracker reads as another curve this high is named
 _CHUNK = 4096
 GAIN_BOUNDS, OFFSET_BOUNDS = (0.5, 3.0), (-0.3, 0.3)
@@ -101,6 +106,13 @@ def calibrate(track, steps: tuple[Step, ...] = PROTOCOL, base_curves: np.ndarray
                             "its curves keep the tracker's reading")
             continue
         run = found.get(k) or weak[k]
+        mask = curve_mask(step.targets, names, cols)
+        row = feats[run.hold_start:run.hold_stop].mean(0) * mask
+        if np.linalg.norm(row) < MIN_ROW_NOISE * np.sqrt(((feats[idle] * mask) ** 2).sum(1).mean()):
+            fits.append(StepFit(step.name, False))
+            warnings.append(f"calibration: '{step.name}' moves the face too little to learn (frames {run.start}-"
+                            f"{run.stop - 1}, within twice the take's noise): its curves keep the tracker's reading")
+            continue
         v = reading[run.hold_start:run.hold_stop].mean(0)
         match = float(targets[:, k] @ v / (np.linalg.norm(targets[:, k]) * max(np.linalg.norm(v), 1e-9)))
         if k in weak:
@@ -112,7 +124,7 @@ def calibrate(track, steps: tuple[Step, ...] = PROTOCOL, base_curves: np.ndarray
                             f"{names[int(np.argmax(v))]} {v.max():.2f}; check the take, or edit actor.json")
         fits.append(StepFit(step.name, True, (run.start, run.stop - 1), (run.hold_start, run.hold_stop - 1),
                             round(match, 3)))
-        rows.append(feats[run.hold_start:run.hold_stop].mean(0) * curve_mask(step.targets, names, cols))
+        rows.append(row)
         row_steps.append(step.name)
     basis = np.asarray(rows, np.float32).reshape(len(rows), feats.shape[1])
     calibration = ActorCalibration(
