@@ -17,6 +17,7 @@ import dataclasses
 
 import numpy as np
 from scipy.optimize import nnls
+from threadpoolctl import threadpool_limits
 
 from capture2face.calibration.features import curve_mask, curve_region, frame_features, group_motion, pose_terms
 from capture2face.calibration.model import ActorCalibration, StepFit
@@ -60,6 +61,7 @@ def _reading(scores: np.ndarray, rest_scores: np.ndarray, names: list[str]) -> n
     return np.clip((np.nan_to_num(scores) - rest) / (1.0 - rest), 0.0, 1.0)
 
 
+@threadpool_limits.wrap(limits=1, user_api="blas")  # small matrices: BLAS threads only wait on each other
 def calibrate(track, steps: tuple[Step, ...] = PROTOCOL, base_curves: np.ndarray | None = None) -> ActorCalibration:
     """Learn ``track`` (a tracked ROM take, :class:`~capture2face.tracking.track.Track`) as
     the protocol ``steps`` in order. A step the take does not show, or shows unlike itself,
@@ -135,9 +137,10 @@ def calibrate(track, steps: tuple[Step, ...] = PROTOCOL, base_curves: np.ndarray
     if len(basis) and len(rest_frames):
         calibration.noise = np.percentile(step_weights(feats[rest_frames], basis), 90, axis=0).astype(np.float32)
     base = base_curves if base_curves is not None else reading
-    _fit_gains(calibration, feats, base, fits, rest_frames, steps)
-    _fit_explained(calibration, track, feats, base, fits, steps, rest_frames)
-    _report_steps(calibration, track, base)
+    weights = _weights(feats, calibration) if len(basis) else np.zeros((len(feats), 0))  # the take's mix, once
+    _fit_gains(calibration, weights, base, fits, rest_frames, steps)
+    _fit_explained(calibration, track, weights, base, fits, steps, rest_frames)
+    _report_steps(calibration, track, base, weights)
     return calibration
 
 
@@ -188,7 +191,7 @@ def _mix(calibration: ActorCalibration, weights: np.ndarray) -> np.ndarray:
     return weights @ target_matrix(calibration.score_names, tuple(steps[n] for n in calibration.basis_steps)).T
 
 
-def _fit_gains(calibration: ActorCalibration, feats: np.ndarray, base: np.ndarray, fits: list[StepFit],
+def _fit_gains(calibration: ActorCalibration, weights: np.ndarray, base: np.ndarray, fits: list[StepFit],
                rest_frames: np.ndarray, steps: tuple[Step, ...]) -> None:
     """Each curve's source (:data:`TRACKER_R`), gain and offset: its reading (the tracker's
     ``base`` (F, S) curves, or the expressions' mix) over the take's holds (each step's
@@ -204,7 +207,7 @@ def _fit_gains(calibration: ActorCalibration, feats: np.ndarray, base: np.ndarra
     shows = goal > 0.0  # the frames of the holds of the steps that show each curve, and idle ones
     shows[len(held):] = True
     col = {n: i for i, n in enumerate(calibration.score_names)}
-    mix = _mix(calibration, _weights(feats[frames], calibration))
+    mix = _mix(calibration, weights[frames])
     for name, c in calibration.curves.items():
         use = shows[:, col[name]]
         y = goal[use, col[name]]
@@ -226,7 +229,7 @@ def _fit_gains(calibration: ActorCalibration, feats: np.ndarray, base: np.ndarra
         c["offset"] = round(float(np.clip(offset, *OFFSET_BOUNDS)), 4)
 
 
-def _fit_explained(calibration: ActorCalibration, track, feats: np.ndarray, base: np.ndarray,
+def _fit_explained(calibration: ActorCalibration, track, weights: np.ndarray, base: np.ndarray,
                    fits: list[StepFit], steps: tuple[Step, ...], rest_frames: np.ndarray) -> None:
     """Each brow and eye curve's ``explained_by``: how much of it, as calibrated, the take's
     steps of other regions raise (non-negative least squares of the curve over the take's
@@ -245,8 +248,8 @@ def _fit_explained(calibration: ActorCalibration, track, feats: np.ndarray, base
         use[f.hold[0]:f.hold[1] + 1] = True
         moving[f.frames[0]:f.frames[1] + 1] = True
     use[rest_frames[~moving[rest_frames]]] = True
-    curves = tracker_adjusted(calibrated_curves(track, calibration, base, aligned=False), calibration, names)
-    weights = _weights(feats, calibration)[use]
+    curves = tracker_adjusted(calibrated_curves(track, calibration, base, weights=weights), calibration, names)
+    weights = weights[use]
     by_name = {s.name: s for s in PROTOCOL}
     col = {n: i for i, n in enumerate(names)}
     for name, c in calibration.curves.items():
@@ -266,10 +269,9 @@ def _line(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     return float(gain), float(offset)
 
 
-def _report_steps(calibration: ActorCalibration, track, before: np.ndarray) -> None:
+def _report_steps(calibration: ActorCalibration, track, before: np.ndarray, weights: np.ndarray) -> None:
     """Each found step's before/after: its curves' mean over the hold, uncalibrated and calibrated."""
     names = list(track.blendshape_names)
-    weights = clip_weights(track, calibration, aligned=False)
     after = explained_away(tracker_adjusted(calibrated_curves(track, calibration, before, weights=weights),
                                             calibration, names), calibration, names, weights)
     col = {n: i for i, n in enumerate(calibration.score_names)}
