@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from capture2face.calibration import PROTOCOL, ActorCalibration, StepFit
+from capture2face.calibration.learn import explained_away
 from capture2face.calibration.protocol import step_amounts, target_matrix
 from capture2face.calibration.segment import Run, align, find_runs
 from capture2face.calibration.solve import MAX_WEIGHT, step_weights
@@ -81,7 +82,9 @@ def _calibration() -> ActorCalibration:
         rest_scores=f32(rng.uniform(size=52)), score_names=["_neutral", *ARKIT_NAMES[:51]],
         pose_model=f32(rng.normal(size=(13, 30))), basis=f32(rng.normal(size=(1, 30))),
         basis_steps=["brows_up"], noise=f32([0.1]),
-        curves={"browInnerUp": {"source": "expressions", "gain": 1.1, "offset": -0.02, "steps": ["brows_up"]}},
+        curves={"browInnerUp": {"source": "expressions", "gain": 1.1, "offset": -0.02, "steps": ["brows_up"]},
+                "browDownLeft": {"source": "expressions", "gain": 1.0, "offset": 0.0, "steps": [],
+                                 "explained_by": {"brows_up": 0.2}}},
         warnings=["calibration: the take shows no 'frown'"])
 
 
@@ -97,9 +100,23 @@ def test_actor_json_round_trips_and_reads_edits(tmp_path):
     assert ActorCalibration.load(path).curves["browInnerUp"]["gain"] == 0.7
 
 
+def test_explained_away_takes_off_what_other_steps_raise():
+    cal = _calibration()  # browDownLeft: 0.2 of brows_up's weight is not a frown
+    names = cal.score_names
+    curves = np.zeros((3, len(names)), np.float32)
+    curves[:, names.index("browDownLeft")] = [0.5, 0.1, 0.9]
+    curves[:, names.index("browInnerUp")] = 0.4
+    out = explained_away(curves.copy(), cal, names, np.array([[1.0], [1.0], [0.0]]))
+    np.testing.assert_allclose(out[:, names.index("browDownLeft")], [0.3, 0.0, 0.9], atol=1e-6)
+    inner = names.index("browInnerUp")
+    np.testing.assert_array_equal(out[:, inner], curves[:, inner])  # no explained_by: as it was
+    assert explained_away(curves.copy(), cal, names, np.zeros((3, 0))).tolist() == curves.tolist()  # no weights
+
+
 @pytest.mark.parametrize("edit, message", [
     (lambda d: d.pop("format"), "not an actor calibration"),
     (lambda d: d["curves"]["browInnerUp"].update(steps=["smile"]), "names steps the calibration lacks"),
+    (lambda d: d["curves"]["browDownLeft"].update(explained_by={"look_up": 0.5}), "names steps the calibration lacks"),
     (lambda d: d["curves"]["browInnerUp"].update(source="guess"), "source must be"),
     (lambda d: d["rest"].update(landmarks=[[0, 0, 0]]), "not 478 landmarks"),
     (lambda d: d.pop("basis"), "damaged"),

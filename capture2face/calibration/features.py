@@ -97,7 +97,8 @@ _REGION_SCORES = {"brow": ("brow",), "eye": ("eye",), "jaw": ("jaw", "mouth"), "
                   "cheek": ("cheek", "mouth"), "nose": ("nose", "mouth"), "tongue": ("tongue",)}
 
 
-def _region(name: str) -> str:
+def curve_region(name: str) -> str:
+    """The region an ARKit curve moves (\"brow\", \"eye\", \"jaw\", \"mouth\", ...), by its name's start."""
     return next((r for r in _REGION_GROUPS if name.startswith(r)), "mouth")
 
 
@@ -106,7 +107,7 @@ def curve_mask(curves, score_names: list[str], score_columns: np.ndarray) -> np.
     n_lm = 3 * len(LANDMARKS)
     mask = np.zeros(n_lm + len(score_columns), bool)
     for name in curves:
-        region = _region(name)
+        region = curve_region(name)
         for g in _REGION_GROUPS[region]:
             mask[GROUPS[g]] = True
         starts = _REGION_SCORES[region]

@@ -16,8 +16,10 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from scipy.optimize import nnls
+from threadpoolctl import threadpool_limits
 
-from capture2face.calibration.features import curve_mask, frame_features, group_motion, pose_terms
+from capture2face.calibration.features import curve_mask, curve_region, frame_features, group_motion, pose_terms
 from capture2face.calibration.model import ActorCalibration, StepFit
 from capture2face.calibration.protocol import PROTOCOL, STEP_NAMES, Step, target_matrix
 from capture2face.calibration.segment import MATCH_WARN, activity, align, find_runs, idle_frames, weak_runs
@@ -26,6 +28,11 @@ from capture2face.maths.stats import pearson
 from capture2face.tracking.rest import ActorRest, actor_rest, aligned_rest, clip_rest
 
 MIN_NEUTRAL_FRAMES = 5
+# A step whose hold moves its regions' features less than this many times their RMS on the
+# take's idle frames is not learned: its basis row is the take's noise, which the mix then
+# uses to explain whatever its other rows miss (ICT-a's faint eyes_wide took weights of 1-1.7
+# in frowns and jaw drops).
+MIN_ROW_NOISE = 2.0
 OTHER_READING = 0.3  # a step's hold the tracker reads as another curve this high is named
 _CHUNK = 4096
 GAIN_BOUNDS, OFFSET_BOUNDS = (0.5, 3.0), (-0.3, 0.3)
@@ -38,6 +45,9 @@ TRACKER_R, TRACKER_GAIN_MAX, TRACKER_OFFSET_MAX = 0.7, 2.0, 0.1
 # A tracker's curve whose take gain falls in this range keeps its reading unchanged: the
 # smiles' gains of 1.06-1.13 on ICT takes raised their error past MediaPipe's raw score.
 TRACKER_KEEP = (0.8, 1.25)
+# The regions whose curves learn what other regions' steps raise (_fit_explained), and the
+# least share kept.
+EXPLAIN_REGIONS, EXPLAIN_MIN = ("brow", "eye"), 0.01
 POSE_ROUNDS = 4  # fits of the pose model, each on the idle frames of the one before
 
 
@@ -51,6 +61,7 @@ def _reading(scores: np.ndarray, rest_scores: np.ndarray, names: list[str]) -> n
     return np.clip((np.nan_to_num(scores) - rest) / (1.0 - rest), 0.0, 1.0)
 
 
+@threadpool_limits.wrap(limits=1, user_api="blas")  # small matrices: BLAS threads only wait on each other
 def calibrate(track, steps: tuple[Step, ...] = PROTOCOL, base_curves: np.ndarray | None = None) -> ActorCalibration:
     """Learn ``track`` (a tracked ROM take, :class:`~capture2face.tracking.track.Track`) as
     the protocol ``steps`` in order. A step the take does not show, or shows unlike itself,
@@ -97,6 +108,13 @@ def calibrate(track, steps: tuple[Step, ...] = PROTOCOL, base_curves: np.ndarray
                             "its curves keep the tracker's reading")
             continue
         run = found.get(k) or weak[k]
+        mask = curve_mask(step.targets, names, cols)
+        row = feats[run.hold_start:run.hold_stop].mean(0) * mask
+        if np.linalg.norm(row) < MIN_ROW_NOISE * np.sqrt(((feats[idle] * mask) ** 2).sum(1).mean()):
+            fits.append(StepFit(step.name, False))
+            warnings.append(f"calibration: '{step.name}' moves the face too little to learn (frames {run.start}-"
+                            f"{run.stop - 1}, within twice the take's noise): its curves keep the tracker's reading")
+            continue
         v = reading[run.hold_start:run.hold_stop].mean(0)
         match = float(targets[:, k] @ v / (np.linalg.norm(targets[:, k]) * max(np.linalg.norm(v), 1e-9)))
         if k in weak:
@@ -108,7 +126,7 @@ def calibrate(track, steps: tuple[Step, ...] = PROTOCOL, base_curves: np.ndarray
                             f"{names[int(np.argmax(v))]} {v.max():.2f}; check the take, or edit actor.json")
         fits.append(StepFit(step.name, True, (run.start, run.stop - 1), (run.hold_start, run.hold_stop - 1),
                             round(match, 3)))
-        rows.append(feats[run.hold_start:run.hold_stop].mean(0) * curve_mask(step.targets, names, cols))
+        rows.append(row)
         row_steps.append(step.name)
     basis = np.asarray(rows, np.float32).reshape(len(rows), feats.shape[1])
     calibration = ActorCalibration(
@@ -119,8 +137,10 @@ def calibrate(track, steps: tuple[Step, ...] = PROTOCOL, base_curves: np.ndarray
     if len(basis) and len(rest_frames):
         calibration.noise = np.percentile(step_weights(feats[rest_frames], basis), 90, axis=0).astype(np.float32)
     base = base_curves if base_curves is not None else reading
-    _fit_gains(calibration, feats, base, fits, rest_frames, steps)
-    _report_steps(calibration, track, base)
+    weights = _weights(feats, calibration) if len(basis) else np.zeros((len(feats), 0))  # the take's mix, once
+    _fit_gains(calibration, weights, base, fits, rest_frames, steps)
+    _fit_explained(calibration, track, weights, base, fits, steps, rest_frames)
+    _report_steps(calibration, track, base, weights)
     return calibration
 
 
@@ -153,7 +173,7 @@ def _curves(names: list[str], steps: tuple[Step, ...], found: list[str]) -> dict
     for name in names:
         shown = [s.name for s in steps if s.name in found and s.targets.get(name, 0.0) > 0.0]
         if shown:
-            out[name] = {"source": "expressions", "gain": 1.0, "offset": 0.0, "steps": shown}
+            out[name] = {"source": "expressions", "gain": 1.0, "offset": 0.0, "steps": shown, "explained_by": {}}
     return out
 
 
@@ -171,7 +191,7 @@ def _mix(calibration: ActorCalibration, weights: np.ndarray) -> np.ndarray:
     return weights @ target_matrix(calibration.score_names, tuple(steps[n] for n in calibration.basis_steps)).T
 
 
-def _fit_gains(calibration: ActorCalibration, feats: np.ndarray, base: np.ndarray, fits: list[StepFit],
+def _fit_gains(calibration: ActorCalibration, weights: np.ndarray, base: np.ndarray, fits: list[StepFit],
                rest_frames: np.ndarray, steps: tuple[Step, ...]) -> None:
     """Each curve's source (:data:`TRACKER_R`), gain and offset: its reading (the tracker's
     ``base`` (F, S) curves, or the expressions' mix) over the take's holds (each step's
@@ -187,7 +207,7 @@ def _fit_gains(calibration: ActorCalibration, feats: np.ndarray, base: np.ndarra
     shows = goal > 0.0  # the frames of the holds of the steps that show each curve, and idle ones
     shows[len(held):] = True
     col = {n: i for i, n in enumerate(calibration.score_names)}
-    mix = _mix(calibration, _weights(feats[frames], calibration))
+    mix = _mix(calibration, weights[frames])
     for name, c in calibration.curves.items():
         use = shows[:, col[name]]
         y = goal[use, col[name]]
@@ -209,16 +229,51 @@ def _fit_gains(calibration: ActorCalibration, feats: np.ndarray, base: np.ndarra
         c["offset"] = round(float(np.clip(offset, *OFFSET_BOUNDS)), 4)
 
 
+def _fit_explained(calibration: ActorCalibration, track, weights: np.ndarray, base: np.ndarray,
+                   fits: list[StepFit], steps: tuple[Step, ...], rest_frames: np.ndarray) -> None:
+    """Each brow and eye curve's ``explained_by``: how much of it, as calibrated, the take's
+    steps of other regions raise (non-negative least squares of the curve over the take's
+    holds and idle frames on its own target and those steps' weights). On ICT takes looking
+    up reads as a frown and a smile as a blink; those steps' weights come from other
+    regions' landmarks, so a clip's frown or blink does not raise them."""
+    if not len(calibration.basis):
+        return
+    names = calibration.score_names
+    found = [(f, s) for f, s in zip(fits, steps) if f.found]
+    goal = np.zeros((track.n_frames, len(names)))
+    use, moving = np.zeros(track.n_frames, bool), np.zeros(track.n_frames, bool)
+    targets = target_matrix(names, tuple(s for _, s in found))  # (S, K)
+    for k, (f, _) in enumerate(found):
+        goal[f.hold[0]:f.hold[1] + 1] = targets[:, k]
+        use[f.hold[0]:f.hold[1] + 1] = True
+        moving[f.frames[0]:f.frames[1] + 1] = True
+    use[rest_frames[~moving[rest_frames]]] = True
+    curves = tracker_adjusted(calibrated_curves(track, calibration, base, weights=weights), calibration, names)
+    weights = weights[use]
+    by_name = {s.name: s for s in PROTOCOL}
+    col = {n: i for i, n in enumerate(names)}
+    for name, c in calibration.curves.items():
+        region = curve_region(name)
+        if region not in EXPLAIN_REGIONS:
+            continue
+        others = [k for k, st in enumerate(calibration.basis_steps)
+                  if all(curve_region(t) != region for t in by_name[st].targets)]
+        coef, _ = nnls(np.concatenate([goal[use, col[name], None], weights[:, others]], 1), curves[use, col[name]])
+        c["explained_by"] = {calibration.basis_steps[k]: round(float(b), 4)
+                             for k, b in zip(others, coef[1:]) if b >= EXPLAIN_MIN}
+
+
 def _line(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     """(gain, offset) of the least-squares line from (N,) ``x`` to ``y``."""
     (gain, offset), *_ = np.linalg.lstsq(np.stack([x, np.ones_like(x)], 1), y, rcond=None)
     return float(gain), float(offset)
 
 
-def _report_steps(calibration: ActorCalibration, track, before: np.ndarray) -> None:
+def _report_steps(calibration: ActorCalibration, track, before: np.ndarray, weights: np.ndarray) -> None:
     """Each found step's before/after: its curves' mean over the hold, uncalibrated and calibrated."""
-    after = tracker_adjusted(calibrated_curves(track, calibration, before, aligned=False), calibration,
-                             list(track.blendshape_names))
+    names = list(track.blendshape_names)
+    after = explained_away(tracker_adjusted(calibrated_curves(track, calibration, before, weights=weights),
+                                            calibration, names), calibration, names, weights)
     col = {n: i for i, n in enumerate(calibration.score_names)}
     by_name = {s.name: s for s in PROTOCOL}
     for fit in calibration.steps:
@@ -238,27 +293,61 @@ def calibration_rest(calibration: ActorCalibration, track=None) -> ActorRest:
     return rest if track is None else aligned_rest(rest, track.landmarks_head, track.presence)
 
 
-def calibrated_curves(track, calibration: ActorCalibration, base: np.ndarray, aligned: bool = True) -> np.ndarray:
-    """(F, S) float32: ``base`` (F, S) curves with each curve from the actor's expressions
-    replaced by the calibration's (before the caller's filter), each frame read against the
-    take's rest laid onto the clip's head coordinates (a clip's own rest is its calmest
-    frames, which on a clip that frowns throughout is a frown), less the pose model's
-    shift. ``aligned``: False when the track is the take itself."""
-    out = np.array(base, np.float32, copy=True)
-    if not calibration.curves or not len(calibration.basis) or list(track.blendshape_names) != calibration.score_names:
-        return out
+def _applies(track, calibration: ActorCalibration) -> bool:
+    return bool(calibration.curves) and len(calibration.basis) > 0 and \
+        list(track.blendshape_names) == calibration.score_names
+
+
+def clip_weights(track, calibration: ActorCalibration, aligned: bool = True) -> np.ndarray:
+    """(F, K) each found step's weight in each frame of ``track`` (K = 0 where the calibration
+    does not apply), each frame read against the take's rest laid onto the clip's head
+    coordinates (a clip's own rest is its calmest frames, which on a clip that frowns
+    throughout is a frown), less the pose model's shift. ``aligned``: False when the track
+    is the take itself."""
+    if not _applies(track, calibration):
+        return np.zeros((track.n_frames, 0))
     rest = calibration_rest(calibration, track if aligned else None)
     cols = _score_columns(calibration.score_names)
-    col = {n: i for i, n in enumerate(calibration.score_names)}
+    out = np.empty((track.n_frames, len(calibration.basis)))
     for s in range(0, track.n_frames, _CHUNK):
         span = slice(s, min(s + _CHUNK, track.n_frames))
         feats = frame_features(track.landmarks_head, track.blendshapes, rest.landmarks, rest.scores, cols, span)
         feats -= pose_terms(np.asarray(track.head_pose[span])) @ calibration.pose_model
-        mix = _mix(calibration, _weights(feats, calibration))
-        for name, c in calibration.curves.items():
-            if c["source"] == "expressions":
-                out[span, col[name]] = np.clip(c["gain"] * mix[:, col[name]] + c["offset"], 0.0, 1.0)
+        out[span] = _weights(feats, calibration)
     return out
+
+
+def calibrated_curves(track, calibration: ActorCalibration, base: np.ndarray, aligned: bool = True,
+                      weights: np.ndarray | None = None) -> np.ndarray:
+    """(F, S) float32: ``base`` (F, S) curves with each curve from the actor's expressions
+    replaced by the calibration's mix of ``weights`` (:func:`clip_weights`, computed when
+    None), before the caller's filter."""
+    out = np.array(base, np.float32, copy=True)
+    if not _applies(track, calibration):
+        return out
+    weights = clip_weights(track, calibration, aligned) if weights is None else weights
+    col = {n: i for i, n in enumerate(calibration.score_names)}
+    mix = _mix(calibration, weights)
+    for name, c in calibration.curves.items():
+        if c["source"] == "expressions":
+            out[:, col[name]] = np.clip(c["gain"] * mix[:, col[name]] + c["offset"], 0.0, 1.0)
+    return out
+
+
+def explained_away(curves: np.ndarray, calibration: ActorCalibration, names: list[str],
+                   weights: np.ndarray) -> np.ndarray:
+    """(F, S) ``curves`` less what each curve's ``explained_by`` steps raise (their weights
+    (F, K), :func:`clip_weights`, times the learned share), clipped to [0, 1] (in place)."""
+    if weights.shape[1] != len(calibration.basis_steps):
+        return curves
+    col = {n: i for i, n in enumerate(names)}
+    k = {n: i for i, n in enumerate(calibration.basis_steps)}
+    for name, c in calibration.curves.items():
+        shares = c.get("explained_by") or {}
+        if shares and name in col:
+            raised = sum(b * weights[:, k[s]] for s, b in shares.items())
+            curves[:, col[name]] = np.clip(curves[:, col[name]] - raised, 0.0, 1.0)
+    return curves
 
 
 def tracker_adjusted(curves: np.ndarray, calibration: ActorCalibration, names: list[str]) -> np.ndarray:
@@ -271,4 +360,5 @@ def tracker_adjusted(curves: np.ndarray, calibration: ActorCalibration, names: l
     return curves
 
 
-__all__ = ["STEP_NAMES", "calibrate", "calibrated_curves", "calibration_rest", "tracker_adjusted"]
+__all__ = ["STEP_NAMES", "calibrate", "calibrated_curves", "calibration_rest", "clip_weights", "explained_away",
+           "tracker_adjusted"]

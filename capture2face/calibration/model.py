@@ -60,10 +60,11 @@ class ActorCalibration:
         basis_steps: K names of the steps the basis rows belong to.
         noise: (K,) float32 each step's weight that the take's idle frames reach (its 90th
             percentile there): weights below it are the tracker's noise.
-        curves: ARKit name -> {"source", "gain", "offset", "steps"}: the calibrated curve
-            is ``clip(gain * x + offset, 0, 1)``, ``x`` the tracker's own curve (source
-            "tracker") or the mix ``sum_k w_k target_k`` of the actor's expressions that
-            show it ("expressions").
+        curves: ARKit name -> {"source", "gain", "offset", "steps", "explained_by"}: the
+            calibrated curve is ``clip(gain * x + offset, 0, 1)``, ``x`` the tracker's own
+            curve (source "tracker") or the mix ``sum_k w_k target_k`` of the actor's
+            expressions that show it ("expressions"), less ``sum_j b_j w_j`` over
+            ``explained_by`` (step -> b: what other regions' steps raise of it).
         warnings: what the take lacked or showed badly.
     """
 
@@ -121,7 +122,9 @@ class ActorCalibration:
                              s.get("match"), dict(s.get("before", {})), dict(s.get("after", {})))
                      for s in data["steps"]]
             curves = {str(k): {"source": str(v.get("source", "expressions")), "gain": float(v["gain"]),
-                               "offset": float(v["offset"]), "steps": list(v["steps"])}
+                               "offset": float(v["offset"]), "steps": list(v["steps"]),
+                               **({"explained_by": {str(s): float(b) for s, b in v["explained_by"].items()}}
+                                  if "explained_by" in v else {})}
                       for k, v in data["curves"].items()}
             out = cls(source=str(data.get("source", "")), fps=float(data.get("fps", 30.0)), steps=steps,
                       rest_face=np.asarray(data["rest"]["face"], np.float32),
@@ -139,7 +142,7 @@ class ActorCalibration:
         if out.rest_landmarks.shape != (478, 3) or out.rest_face.shape != (478, 3):
             raise CaptureError(f"{where}: a damaged actor calibration (its rest is not 478 landmarks)")
         for name, c in out.curves.items():
-            unknown = [s for s in c["steps"] if s not in out.basis_steps]
+            unknown = [s for s in (*c["steps"], *c.get("explained_by", {})) if s not in out.basis_steps]
             if unknown:
                 raise CaptureError(f"{where}: curve {name} names steps the calibration lacks: {', '.join(unknown)}")
         return out

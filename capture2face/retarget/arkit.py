@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 
 from capture2face.calibration.attach import track_calibration
-from capture2face.calibration.learn import calibrate, calibrated_curves, tracker_adjusted
+from capture2face.calibration.learn import calibrate, calibrated_curves, clip_weights, explained_away, tracker_adjusted
 from capture2face.maths.stats import pearson
 from capture2face.tracking.filtering import OneEuro, one_euro
 from capture2face.tracking.rest import GEOMETRY_PAIRS, ActorRest, actor_rest, pair_distances
@@ -146,7 +146,8 @@ def arkit_curves(track, rest: ActorRest | None = None) -> np.ndarray:
     calibration = track_calibration(track)
     from_calibration = {}  # column -> its calibrated curve (F,)
     if calibration is not None and calibration.curves:
-        mixed = calibrated_curves(track, calibration, np.zeros(raw.shape, np.float32))
+        weights = clip_weights(track, calibration)
+        mixed = calibrated_curves(track, calibration, np.zeros(raw.shape, np.float32), weights=weights)
         from_calibration = {names.index(n): mixed[:, names.index(n)] for n, c in calibration.curves.items()
                             if n in names and c["source"] == "expressions"}
     # A few columns at a time: each curve is calibrated and filtered on its own, so this is
@@ -164,7 +165,10 @@ def arkit_curves(track, rest: ActorRest | None = None) -> np.ndarray:
             elif c in geometric:
                 curves[:, j] = geometric[c]
         out[:, c0:cols.stop] = np.clip(one_euro(curves, times, SCORE_FILTER), 0.0, 1.0)
-    return out if calibration is None else tracker_adjusted(out, calibration, names)
+    if calibration is None:
+        return out
+    out = tracker_adjusted(out, calibration, names)
+    return out if not calibration.curves else explained_away(out, calibration, names, weights)
 
 
 def calibrate_take(track):
