@@ -108,7 +108,8 @@ def _levels_and_wrinkles(results: list[dict]) -> str:
 
 
 def table(results: list[dict]) -> str:
-    """A plain-text (Markdown) table: clip x measure, ``r / gain`` (direct in brackets)."""
+    """A plain-text (Markdown) table: clip x measure, ``r / gain`` (direct in brackets;
+    ``r / gain = range gain`` where judged at the head's own range)."""
     head = "| clip | " + " | ".join(MEASURES) + " |"
     lines = [head, "|" + "---|" * (len(MEASURES) + 1)]
     for res in results:
@@ -119,7 +120,8 @@ def table(results: list[dict]) -> str:
                 cells.append("left out")
                 continue
             mark = "" if not m["judged"] else (" ✓" if m["faithful"] else " ✗")
-            cells.append(f"{m['r']:.2f} / {m['gain']:.2f}{mark} ({m['direct_r']:.2f} / {m['direct_gain']:.2f})"
+            own = f" = {m['range_gain']:.2f}" if "range_gain" in m else ""
+            cells.append(f"{m['r']:.2f} / {m['gain']:.2f}{own}{mark} ({m['direct_r']:.2f} / {m['direct_gain']:.2f})"
                          if m["judged"] else f"— ({m['range']:.3f})")
         lines.append(f"| {res['clip']} | " + " | ".join(cells) + " |")
     extra = wrinkle_table(results)
