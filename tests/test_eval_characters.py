@@ -52,6 +52,23 @@ def test_goals_met_follows_the_issues_thresholds():
     assert "fidelity" not in characters.goals_met({"shading": shading, "fidelity": {"judged": 0, "faithful": 0}})
 
 
+def test_goals_leave_out_what_no_morph_moves_and_a_darkening_the_tracker_cannot_place():
+    """A visemes-only head's brows and eyes (its posed ranges ~0) are not judged, its mouth
+    and darkening are; a face judged on its posed landmarks (the tracker cannot read it) has
+    no darkening goal: its discs would lie where the tracker guesses."""
+    shading = {"mouth_open_r": 0.98, "mouth_open_gain": 0.9, "eyes_r": 0.15, "eyes_gain": 0.16,
+               "brows_r": -0.4, "brows_gain": 0.2, "darkening_p95_mean": 0.02}
+    posed = {"mouth_open_r": 0.99, "mouth_open_range_gain": 0.9, "brows_r": 0.3, "brows_range_gain": 0.7,
+             "eyes_r": 0.9, "eyes_range_gain": 1.0, "mouth_open_range": 1.0, "brows_range": 0.0002,
+             "eyes_range": 0.0007}
+    fid = {"judged": 0, "faithful": 0}
+    met = characters.goals_met({"shading": shading, "fidelity": fid, "posed": posed})
+    assert met == {"mouth_open": True, "darkening": True}
+    posed.update(eyes_range=0.6)
+    met = characters.goals_met({"shading": shading, "fidelity": fid, "posed": posed, "follow_by": characters.POSED})
+    assert met == {"mouth_open": True, "eyes": True}
+
+
 def test_hair_hidden_leaves_out_the_overlays_only(avatar):
     """The check render's rig: every triangle of the overlays (hair and lash cards, glasses)
     gone, the rest kept as it was; a rig without overlays (the built-in avatar) has no check

@@ -83,6 +83,7 @@ FOLLOW_GOALS = {"mouth_open": (0.85, 0.7), "eyes": (0.8, 0.7), "brows": (0.75, 0
 DARKENING_GOAL = 0.03
 TRACKED = "tracked back"  # row["follow_by"]: the figures the goals judge (or POSED)
 FIDELITY_GOAL = 0.9
+NO_MOTION = 0.05  # a feature whose morphs move it under this share of the avatar's range is not judged
 #: sRGB base colour of every character in skin.mp4 (where the darkening is read): one mid skin
 #: tone for all, near the built-in avatar's (215 165 144): the tone curve darkens a dark skin more
 #: for the same shading (Rocketbox 4.5 % in its own tone, 1.9 % in this).
@@ -249,17 +250,28 @@ def goals_met(row: dict) -> dict[str, bool]:
     :data:`FIDELITY_GOAL`) a character's figures meet (fidelity: only where judged). The
     mouth, eyes and brows are judged on ``row["follow_by"]``'s figures: tracked back (the
     default), or the posed landmarks (r, and the gain in the character's range) where the
-    tracker cannot read the face; a feature none of its morphs moves is not judged."""
+    tracker cannot read the face; a feature none of its morphs moves is not judged (a
+    visemes-only head's brows and eyes), nor the darkening where the tracker cannot read
+    the face (its discs would lie where it guesses)."""
     sh, fid = row["shading"], row["fidelity"]
+    tracked = row.get("follow_by", TRACKED) == TRACKED
     out = {}
     for k, (r, g) in FOLLOW_GOALS.items():
         got_r, got_gain = follow_figures(row, k)
-        if np.isfinite(got_r) or row.get("follow_by", TRACKED) == TRACKED:
+        if moves(row, k) and (np.isfinite(got_r) or tracked):
             out[k] = bool(got_r >= r and got_gain >= g)
-    out["darkening"] = bool(sh["darkening_p95_mean"] <= DARKENING_GOAL)
+    if tracked:
+        out["darkening"] = bool(sh["darkening_p95_mean"] <= DARKENING_GOAL)
     if fid["judged"]:
         out["fidelity"] = bool(fid["faithful"] >= FIDELITY_GOAL * fid["judged"])
     return out
+
+
+def moves(row: dict, feature: str) -> bool:
+    """False where none of the character's morphs moves ``feature``: its posed range under
+    :data:`NO_MOTION` of the built-in avatar's (a viseme grazes the brows by 0.0002)."""
+    posed = row.get("posed") or {}
+    return posed.get(f"{feature}_range", 1.0) >= NO_MOTION
 
 
 def follow_figures(row: dict, feature: str) -> tuple[float, float]:
@@ -355,8 +367,10 @@ def table(rows: list[dict]) -> str:
         for k in ("mouth_open", "brows", "eyes"):
             r_, g_ = follow_figures(r, k)
             by = " (posed)" if r.get("follow_by") == POSED else ""
-            cells.append(f"{r_:.2f} / {g_:.2f}{by}{_mark(met.get(k))}" if np.isfinite(r_) else "no morph moves it")
-        cells.append(f"{sh['darkening_p95_mean']:.1%}{_mark(met['darkening'])}")
+            cells.append(f"{r_:.2f} / {g_:.2f}{by}{_mark(met.get(k))}" if np.isfinite(r_) and moves(r, k)
+                         else "no morph moves it")
+        dark = f"{sh['darkening_p95_mean']:.1%}"
+        cells.append(f"{dark}{_mark(met['darkening'])}" if "darkening" in met else f"({dark})")
         bare = r["shading_hair_hidden"]
         cells.append(" / ".join(f"{bare[k + '_r']:.2f} / {bare[k + '_gain']:.2f}" for k in ("brows", "eyes")))
         lines.append(f"| {r['name']} | " + " | ".join(cells) + " |")
