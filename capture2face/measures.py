@@ -167,29 +167,57 @@ MIN_REACH = 0.5
 OWN_RANGE_BELOW = 0.8
 
 
+#: A human's lowering of each brow measure (IOD: ICT-FaceKit's generic neutral, ict-a.glb,
+#: lowers them 0.019 and 0.017 at its morphs at 1, read as :func:`lowering_reach` reads them):
+#: a head whose brows lower under :data:`OWN_RANGE_BELOW` of it is judged at its own range
+#: below the actor's rest (:meth:`ClipFidelity._own_range_source`).
+HUMAN_LOWERING: dict[str, float] = {"brow_right": 0.018, "brow_left": 0.018}
+
+
 def measure_reach(rig) -> dict[str, float]:
     """{measure: the share of a human's reach (:data:`HUMAN_REACH`)} that the morphs its
     landmarks solve (:func:`~capture2face.rig.arkit_names.solved_morphs`) make, each at 1 or,
     on a head of another convention, at each ARKit curve's recipe at 1 (a head with landmarks
     placed from its morphs: its recipes alone). Empty where not checked: rigs with face bones
     (which move the face without morphs) and rigs without landmarks."""
-    if getattr(rig, "landmark_faces", None) is None or drive_mode(rig) != "arkit":
+    change = _reach_changes(rig)
+    if change is None:
         return {}
-    poses = np.eye(rig.n_morphs, dtype=np.float32)[sorted(solved_morphs(rig))]
-    if not arkit_morphs(rig.morph_names):
-        poses = np.concatenate([poses, convention_weights(list(ARKIT_NAMES), np.eye(len(ARKIT_NAMES), dtype=np.float32),
-                                                          rig.morph_names)])
-    if not len(poses):
-        return {}
-    rest = _rest_distances(rig)
-    moved = _distances(rig_landmark_points(rig, np.broadcast_to(rig.bone_rest, (len(poses),) + rig.bone_rest.shape),
-                                           poses, MEASURED))
-    change = _normalise(moved, rest) - _normalise(rest[None], rest)
     out = {}
     for k, (name, (way, human)) in enumerate(HUMAN_REACH.items()):
         reach = {"up": change[:, k].max(), "down": -change[:, k].min(), "either": np.abs(change[:, k]).max()}[way]
         out[name] = max(float(reach), 0.0) / human
     return out
+
+
+def lowering_reach(rig) -> dict[str, float]:
+    """{brow measure: the share of a human's lowering (:data:`HUMAN_LOWERING`)} its solved
+    morphs make at 1, as :func:`measure_reach`: a Ready Player Me head's ``browDown`` lowers
+    its inner brow (landmarks 107, 336) 0.06 IOD but its mid brow (105, 334, the measure's)
+    0.002, where a human's lowers both 0.02. Empty where :func:`measure_reach` is."""
+    change = _reach_changes(rig)
+    if change is None:
+        return {}
+    names = list(MEASURES)
+    return {name: max(float(-change[:, names.index(name)].min()), 0.0) / human
+            for name, human in HUMAN_LOWERING.items()}
+
+
+def _reach_changes(rig) -> np.ndarray | None:
+    """(P, 6) the :data:`MEASURES`' change from rest at each pose :func:`measure_reach`
+    reads, or None where it reads none."""
+    if getattr(rig, "landmark_faces", None) is None or drive_mode(rig) != "arkit":
+        return None
+    poses = np.eye(rig.n_morphs, dtype=np.float32)[sorted(solved_morphs(rig))]
+    if not arkit_morphs(rig.morph_names):
+        poses = np.concatenate([poses, convention_weights(list(ARKIT_NAMES), np.eye(len(ARKIT_NAMES), dtype=np.float32),
+                                                          rig.morph_names)])
+    if not len(poses):
+        return None
+    rest = _rest_distances(rig)
+    moved = _distances(rig_landmark_points(rig, np.broadcast_to(rig.bone_rest, (len(poses),) + rig.bone_rest.shape),
+                                           poses, MEASURED))
+    return _normalise(moved, rest) - _normalise(rest[None], rest)
 
 
 def reach_faults(rig, reach: dict[str, float] | None = None) -> dict[str, str]:
@@ -422,6 +450,10 @@ class ClipFidelity:
         reach: {measure: share of a human's reach} (:func:`measure_reach`): a mouth or brow
             measure under :data:`OWN_RANGE_BELOW` is judged at the head's own range
             (``range_gain``); empty: every measure judged at the actor's amplitude.
+        lowering: {brow measure: share of a human's lowering} (:func:`lowering_reach`): one
+            under :data:`OWN_RANGE_BELOW` is judged against the actor's motion at the head's
+            own range, its lowering below the actor's rest (``source_rest``) scaled by it
+            (``range_r``, ``range_gain``).
         scores: (T, S) the tracker's scores, names in ``score_names``: which frames are the
             actor's rest (:func:`rest_frames`), whether the brows ever lower; None: no
             level or wrinkle checks.
@@ -450,6 +482,7 @@ class ClipFidelity:
     wrinkles: np.ndarray | None = None
     source_rest: np.ndarray | None = None
     reach: dict[str, float] = field(default_factory=dict)
+    lowering: dict[str, float] = field(default_factory=dict)
 
     def figures(self) -> dict:
         """Per measure r, gain, source range, judged and faithful for the character and
@@ -572,7 +605,14 @@ class ClipFidelity:
             entry = {"range": round(rng, 4), "judged": rng >= limit, "r": round(r, 3), "gain": round(g, 3)}
             share = 1.0 if name in EYE_MEASURES else self.reach.get(name, 1.0)
             scale = 1.0 / share if share < OWN_RANGE_BELOW else 1.0  # judged at the head's own range
-            if scale != 1.0:
+            own = self._own_range_source(k, name, share)
+            if own is not None:  # a head that lowers its brows less than a human: judged at that range
+                src, scale = own, 1.0
+                r, g = compare(src, self.character[:, k])
+                dr, dg = compare(src, self.direct[:, k])
+                entry.update(lowering_reach=round(self.lowering[name], 3), range_r=round(r, 3),
+                             range_gain=round(g, 3))
+            elif scale != 1.0:
                 entry.update(reach=round(share, 3), range_gain=round(g * scale, 3))
             entry.update(faithful=faithful(r, g * scale), direct_r=round(dr, 3), direct_gain=round(dg, 3),
                          direct_faithful=faithful(dr, dg * scale))
@@ -587,6 +627,17 @@ class ClipFidelity:
                 if self.curves is not None:
                     counts["not_worse_than_curves"] += not_worse(r, g * scale, cr, cg * scale)
         return measures, counts
+
+    def _own_range_source(self, k: int, name: str, share: float) -> np.ndarray | None:
+        """(T,) the actor's measure ``k`` at the head's own range where its brows lower under
+        :data:`OWN_RANGE_BELOW` of a human's: the motion below the actor's rest times that
+        share, above it times its raise's share (where also under); None elsewhere."""
+        down = self.lowering.get(name, 1.0)
+        if down >= OWN_RANGE_BELOW or self.source_rest is None:
+            return None
+        up = share if share < OWN_RANGE_BELOW else 1.0
+        d = self.source[:, k] - self.source_rest[k]
+        return self.source_rest[k] + up * np.maximum(d, 0.0) + down * np.minimum(d, 0.0)
 
 
 def clip_fidelity(track, animation, rig, name: str = "") -> ClipFidelity:
@@ -617,6 +668,7 @@ def clip_fidelity(track, animation, rig, name: str = "") -> ClipFidelity:
                         arkit=np.asarray(arkit[keep], np.float64), arkit_names=names, arkit_source=which,
                         gaze=gaze, gaze_scores=gaze_scores, curves=curves,
                         left_out={**reach_faults(rig, reach), **landmark_faults(rig)}, reach=reach,
+                        lowering=lowering_reach(rig),
                         scores=scores[keep].astype(np.float64), score_names=list(track.blendshape_names),
                         character_rest=character_rest_measures(rig), wrinkles=_kept(wrinkle_series(animation), keep),
                         source_rest=source_rest_measures(track, source))

@@ -357,6 +357,30 @@ def test_a_measure_is_judged_at_the_head_s_own_range_where_it_reaches_less_than_
     assert own["mouth_open"]["gain"] == human["mouth_open"]["gain"] and "range_gain" not in own["mouth_width"]
     assert own["eye_right"] == human["eye_right"]
 
+
+def test_brows_that_lower_less_than_a_human_s_are_judged_at_their_own_lowering():
+    """A Ready Player Me head's browDown lowers its inner brow, hardly its mid brow (the
+    measure's): brows that rise with the actor and lower at 0.4 of it are faithful there,
+    judged against the actor's motion below its rest times 0.4; a head that lowers them as a
+    human does is judged as before."""
+    from capture2face.measures import ClipFidelity
+
+    t = np.linspace(0, 4 * np.pi, 200)
+    src = np.tile(0.05 * np.sin(t)[:, None], (1, 6))
+    src[:, 4:] = 1.0
+    head = src.copy()
+    head[:, 2:4] = np.where(src[:, 2:4] > 0, 1.0, 0.4) * src[:, 2:4]
+
+    def judged(lowering):
+        f = ClipFidelity(name="x", times=t, source=src, character=head, direct=head, arkit=np.zeros((200, 0)),
+                         arkit_names=[], arkit_source="tracker", source_rest=np.zeros(6), lowering=lowering)
+        return f.figures()["measures"]
+
+    human, own = judged({}), judged({"brow_right": 0.4, "brow_left": 1.0})
+    assert not human["brow_right"]["faithful"] and own["brow_right"]["faithful"]
+    assert abs(own["brow_right"]["range_gain"] - 1.0) < 1e-6 and own["brow_right"]["range_r"] > 0.999
+    assert own["brow_right"]["gain"] == human["brow_right"]["gain"] and own["brow_left"] == human["brow_left"]
+
 @pytest.mark.slow
 def test_a_viseme_head_opens_its_mouth_as_far_as_the_actor(tmp_path):
     """Landmark fidelity on a real clip: the visemes-only head's mouth follows the actor's

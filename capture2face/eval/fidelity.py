@@ -109,7 +109,8 @@ def _levels_and_wrinkles(results: list[dict]) -> str:
 
 def table(results: list[dict]) -> str:
     """A plain-text (Markdown) table: clip x measure, ``r / gain`` (direct in brackets;
-    ``r / gain = range gain`` where judged at the head's own range)."""
+    ``r / gain = range gain`` where judged at the head's own range, ``= range r / range
+    gain`` where the brows' lowering is too)."""
     head = "| clip | " + " | ".join(MEASURES) + " |"
     lines = [head, "|" + "---|" * (len(MEASURES) + 1)]
     for res in results:
@@ -121,6 +122,8 @@ def table(results: list[dict]) -> str:
                 continue
             mark = "" if not m["judged"] else (" ✓" if m["faithful"] else " ✗")
             own = f" = {m['range_gain']:.2f}" if "range_gain" in m else ""
+            if "range_r" in m:  # brows judged at their own lowering range
+                own = f" = {m['range_r']:.2f} / {m['range_gain']:.2f}"
             cells.append(f"{m['r']:.2f} / {m['gain']:.2f}{own}{mark} ({m['direct_r']:.2f} / {m['direct_gain']:.2f})"
                          if m["judged"] else f"— ({m['range']:.3f})")
         lines.append(f"| {res['clip']} | " + " | ".join(cells) + " |")

@@ -416,6 +416,8 @@ def _solve_arkit_weights(track, rest: ActorRest, rig, landmarks: np.ndarray, pri
                           np.where(np.isin(landmarks, EYE_CONTOURS), options.arkit_eye_share,
                                    options.arkit_network_share))
     ranged = range_targets(solve, landmarks, network.network.source_neutral) if options.arkit_own_range else None
+    if ranged is not None and ranged.weights is not None:
+        point_weights[ranged.rows] *= ranged.weights  # a brow of another shape: its mid pair leads
     windows = frame_windows(track.n_frames, options.window_frames, options.window_overlap)
     weights = np.zeros_like(prior)
     weights[:, solve.fixed] = prior[:, solve.fixed]

@@ -51,6 +51,22 @@ RATIO_BOUNDS = (0.25, 4.0)
 #: smile of other morphs (docs/characters.md).
 WIDTH_PAIR, WIDTH_RATIO_MAX = 9, 1.15
 
+#: Each brow's measured pair (its mid brow against the eye's outer corner, as the fidelity
+#: measures and the tracked-back brows read it) and its inner and outer pairs.
+BROW_SIDES = {10: (11, 12), 13: (14, 15)}
+#: A head whose brow morphs raise its inner or outer brow this many times more than its mid
+#: brow, each against a human's, has brows of another shape: a Ready Player Me's
+#: ``browInnerUp`` raises its inner brow 2.7-3.2 times a human's and its outer brow raise its
+#: mid 0.85-1.15 times (2.5-3.8 apart; an ICT scan's 0.98-1.07 each). Each pair scaled by its
+#: own morph's ratio, the three targets disagree (the actor's inner brow asks ``browInnerUp``
+#: at 1 where its mid brow asks for a third of what that raises), and the solve, splitting the
+#: difference, followed the mid brow at r 0.82-0.89 (docs/characters.md). Where such a head's
+#: full raise (every morph that raises the mid brow, together) passes :data:`BROW_RATIO_MAX`
+#: of a human's, the inner and outer pairs weigh :data:`BROW_SIDE_WEIGHT` of a pair and the
+#: mid pair follows the actor's at :data:`BROW_RATIO_MAX` (as the mouth's width: the head's
+#: style past a human's is not passed through whole).
+BROW_SHAPE_RATIO, BROW_SIDE_WEIGHT, BROW_RATIO_MAX = 2.0, 0.5, 1.15
+
 
 @dataclass
 class RangeTargets:
@@ -65,6 +81,9 @@ class RangeTargets:
         gain: (R, 2) the character's range over a human's, (up, down).
         actor_rest: (R,) each pair's separation on the actor's neutral.
         scale: the character's IOD over the actor's.
+        weights: (R,) each ranged pair's weight in the solve against an expression pair's
+            (below 1 for a brow's inner and outer pairs where its shape differs from a
+            human's, :data:`BROW_SHAPE_RATIO`).
     """
 
     rows: np.ndarray
@@ -74,6 +93,7 @@ class RangeTargets:
     gain: np.ndarray
     actor_rest: np.ndarray
     scale: float
+    weights: np.ndarray | None = None
 
     def apply(self, model_points: np.ndarray, actor: np.ndarray, fixed: np.ndarray) -> np.ndarray:
         """``model_points`` (k, N + K, 3) with the ranged components set from ``actor`` (k, N, 3),
@@ -133,10 +153,37 @@ def range_targets(solve: MorphSolve, landmarks: np.ndarray, actor_neutral: np.nd
         gain = np.maximum(gain, mixed)
     width = np.asarray(present)[keep] == WIDTH_PAIR
     gain[width] = np.minimum(gain[width], WIDTH_RATIO_MAX)
+    weights = brow_shape(gain, np.asarray(present)[keep], full_raise(solve, components, iod)[keep] / reference[:, 0])
     ends = solve.pairs[keep]
     return RangeTargets(
         rows=n + keep, components=components[keep], ends=ends,
         rest=rest[n + keep, components[keep]], gain=gain,
         actor_rest=np.linalg.norm(actor_neutral[ends[:, 0]] - actor_neutral[ends[:, 1]], axis=-1),
-        scale=iod / actor_iod,
+        scale=iod / actor_iod, weights=weights,
     )
+
+
+def full_raise(solve: MorphSolve, components: np.ndarray, iod: float) -> np.ndarray:
+    """(K,) IOD: how far each of the solve's pairs (its ``components`` (K,)) grows with every
+    solved morph that grows it at 1 together (a brow's inner and outer raise)."""
+    n = len(solve.model.rest) - len(solve.pairs)
+    rows = solve.model.matrix[3 * n + 3 * np.arange(len(solve.pairs)) + components, solve.model.n_free_vars:] / iod
+    return np.maximum(rows, 0.0).sum(1)
+
+
+def brow_shape(gain: np.ndarray, pairs: np.ndarray, raise_ratio: np.ndarray) -> np.ndarray:
+    """(R,) the ranged pairs' weights (:data:`BROW_SHAPE_RATIO`): 1, or on a head whose brows
+    differ from a human's in shape and rise further (``raise_ratio`` (R,): each pair's full
+    raise over a human's) :data:`BROW_SIDE_WEIGHT` for that brow's inner and outer pairs, its
+    mid pair's rise (``gain`` (R, 2), updated) then :data:`BROW_RATIO_MAX`. ``pairs``: (R,)
+    rows of EXPRESSION_PAIRS."""
+    weights = np.ones(len(pairs))
+    row = {int(p): k for k, p in enumerate(pairs)}
+    for mid, sides in BROW_SIDES.items():
+        if mid not in row or not all(s in row for s in sides):
+            continue
+        m, others = row[mid], [row[s] for s in sides]
+        if gain[others, 0].max() > BROW_SHAPE_RATIO * gain[m, 0] and raise_ratio[m] > BROW_RATIO_MAX:
+            weights[others] = BROW_SIDE_WEIGHT
+            gain[m, 0] = BROW_RATIO_MAX
+    return weights
