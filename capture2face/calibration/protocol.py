@@ -67,18 +67,18 @@ PROTOCOL: tuple[Step, ...] = (
     Step("cheek_puff", "Puff the cheeks out", {"cheekPuff": 1.0}),
     Step("sneer", "Sneer: wrinkle the nose", _both("noseSneer")),
     # Combined steps: two expressions that, made together, move a face's landmarks (and a
-    # tracker's scores) other than the sum of their own steps; without them a smile meeting
-    # a look up read as a frown on ICT heads, and a smile's raised cheeks as a blink.
+    # tracker's scores) other than the sum of their own steps (on ICT heads a smile meeting
+    # a look up reads as a frown, a smile's raised cheeks as a blink). A frown with a squint
+    # was tried and left out: it halved ict-a seed 1's browDown r (docs/calibration.md).
     Step("smile_squint", "Smile broadly and squint, cheeks pushed up",
          {**_both("mouthSmile"), **_both("cheekSquint"), **_both("eyeSquint")}),
     Step("smile_look_up", "Smile broadly and look up, head still",
          {**_both("mouthSmile"), **_both("cheekSquint", 0.5), **_both("eyeLookUp")}),
-    Step("frown_squint", "Frown and squint together", {**_both("browDown"), **_both("eyeSquint")}),
 )
 STEP_NAMES = tuple(s.name for s in PROTOCOL)
 
 # Timing of a take, seconds: the neutral at the start, then per step: ease in, hold, ease
-# out, neutral. About 46 s for the 30 steps (the synthetic take; a real take may differ).
+# out, neutral. About 45 s for the 29 steps (the synthetic take; a real take may differ).
 LEAD_NEUTRAL, EASE, HOLD, GAP = 1.5, 0.2, 0.7, 0.4
 
 
