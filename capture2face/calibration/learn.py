@@ -256,19 +256,11 @@ def _fit_explained(calibration: ActorCalibration, track, weights: np.ndarray, ba
         region = curve_region(name)
         if region not in EXPLAIN_REGIONS:
             continue
-        others = [k for k, st in enumerate(calibration.basis_steps) if _explains(by_name[st], name, region)]
+        others = [k for k, st in enumerate(calibration.basis_steps)
+                  if all(curve_region(t) != region for t in by_name[st].targets)]
         coef, _ = nnls(np.concatenate([goal[use, col[name], None], weights[:, others]], 1), curves[use, col[name]])
         c["explained_by"] = {calibration.basis_steps[k]: round(float(b), 4)
                              for k, b in zip(others, coef[1:]) if b >= EXPLAIN_MIN}
-
-
-def _explains(step: Step, name: str, region: str) -> bool:
-    """Whether ``step`` may explain away some of curve ``name`` (of ``region``): a step of
-    other regions only, or a combined step (a smile with a look up) that does not show the
-    curve and moves another region too: its weight comes from that region's landmarks as
-    well, so the curve's own expression alone does not raise it."""
-    regions = {curve_region(t) for t in step.targets}
-    return name not in step.targets and bool(regions - {region})
 
 
 def _line(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:

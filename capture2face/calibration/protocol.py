@@ -66,19 +66,11 @@ PROTOCOL: tuple[Step, ...] = (
     Step("chin_up", "Push the lower lip and chin up (a pout)", {"mouthShrugLower": 1.0, "mouthShrugUpper": 0.5}),
     Step("cheek_puff", "Puff the cheeks out", {"cheekPuff": 1.0}),
     Step("sneer", "Sneer: wrinkle the nose", _both("noseSneer")),
-    # Combined steps: two expressions that, made together, move a face's landmarks (and a
-    # tracker's scores) other than the sum of their own steps (on ICT heads a smile meeting
-    # a look up reads as a frown, a smile's raised cheeks as a blink). A frown with a squint
-    # was tried and left out: it halved ict-a seed 1's browDown r (docs/calibration.md).
-    Step("smile_squint", "Smile broadly and squint, cheeks pushed up",
-         {**_both("mouthSmile"), **_both("cheekSquint"), **_both("eyeSquint")}),
-    Step("smile_look_up", "Smile broadly and look up, head still",
-         {**_both("mouthSmile"), **_both("cheekSquint", 0.5), **_both("eyeLookUp")}),
 )
 STEP_NAMES = tuple(s.name for s in PROTOCOL)
 
 # Timing of a take, seconds: the neutral at the start, then per step: ease in, hold, ease
-# out, neutral. About 45 s for the 29 steps (the synthetic take; a real take may differ).
+# out, neutral. About 42 s for the 27 steps (the synthetic take; a real take may differ).
 LEAD_NEUTRAL, EASE, HOLD, GAP = 1.5, 0.2, 0.7, 0.4
 
 
