@@ -148,9 +148,11 @@ def test_goals_judge_the_posed_figures_where_the_tracker_cannot_read_the_face():
              "brows_r": nan, "brows_range_gain": nan}
     row = {"shading": shading, "posed": posed, "fidelity": {"judged": 0, "faithful": 0},
            "follow_by": characters.POSED}
-    assert characters.goals_met(row) == {"mouth_open": True, "eyes": True, "darkening": True}
+    # no darkening goal: its discs would lie where the tracker guesses on a face it cannot read
+    assert characters.goals_met(row) == {"mouth_open": True, "eyes": True}
     row["follow_by"] = characters.TRACKED
-    assert characters.goals_met(row)["mouth_open"] is False
+    met = characters.goals_met(row)
+    assert met["mouth_open"] is False and met["darkening"] is True
 
 
 def test_the_landmark_check_at_load_judges_convention_heads_by_their_presets(godette_performs):
