@@ -38,9 +38,8 @@ from capture2face.errors import CaptureError
 from capture2face.maths.stats import pearson
 from capture2face.rig.arkit_names import GAZE_SCORES, arkit_morphs, arkit_weights, drive_mode, solved_morphs
 from capture2face.rig.face_rig import landmark_points, landmark_support
-from capture2face.rig.morph_conventions import convention_weights
+from capture2face.rig.morph_conventions import recipe_poses
 from capture2face.topology import (
-    ARKIT_NAMES,
     BROW_HEIGHT_PAIRS,
     IOD_PAIR,
     LIDS_LEFT,
@@ -180,14 +179,7 @@ def measure_reach(rig) -> dict[str, float]:
     on a head of another convention, at each ARKit curve's recipe at 1 (a head with landmarks
     placed from its morphs: its recipes alone). Empty where not checked: rigs with face bones
     (which move the face without morphs) and rigs without landmarks."""
-    change = _reach_changes(rig)
-    if change is None:
-        return {}
-    out = {}
-    for k, (name, (way, human)) in enumerate(HUMAN_REACH.items()):
-        reach = {"up": change[:, k].max(), "down": -change[:, k].min(), "either": np.abs(change[:, k]).max()}[way]
-        out[name] = max(float(reach), 0.0) / human
-    return out
+    return reaches(rig)[0]
 
 
 def lowering_reach(rig) -> dict[str, float]:
@@ -195,12 +187,22 @@ def lowering_reach(rig) -> dict[str, float]:
     morphs make at 1, as :func:`measure_reach`: a Ready Player Me head's ``browDown`` lowers
     its inner brow (landmarks 107, 336) 0.06 IOD but its mid brow (105, 334, the measure's)
     0.002, where a human's lowers both 0.02. Empty where :func:`measure_reach` is."""
+    return reaches(rig)[1]
+
+
+def reaches(rig) -> tuple[dict[str, float], dict[str, float]]:
+    """(:func:`measure_reach`, :func:`lowering_reach`) of ``rig``, its morphs posed once."""
     change = _reach_changes(rig)
     if change is None:
-        return {}
+        return {}, {}
+    reach = {}
+    for k, (name, (way, human)) in enumerate(HUMAN_REACH.items()):
+        most = {"up": change[:, k].max(), "down": -change[:, k].min(), "either": np.abs(change[:, k]).max()}[way]
+        reach[name] = max(float(most), 0.0) / human
     names = list(MEASURES)
-    return {name: max(float(-change[:, names.index(name)].min()), 0.0) / human
-            for name, human in HUMAN_LOWERING.items()}
+    lowering = {name: max(float(-change[:, names.index(name)].min()), 0.0) / human
+                for name, human in HUMAN_LOWERING.items()}
+    return reach, lowering
 
 
 def _reach_changes(rig) -> np.ndarray | None:
@@ -210,8 +212,7 @@ def _reach_changes(rig) -> np.ndarray | None:
         return None
     poses = np.eye(rig.n_morphs, dtype=np.float32)[sorted(solved_morphs(rig))]
     if not arkit_morphs(rig.morph_names):
-        poses = np.concatenate([poses, convention_weights(list(ARKIT_NAMES), np.eye(len(ARKIT_NAMES), dtype=np.float32),
-                                                          rig.morph_names)])
+        poses = np.concatenate([poses, recipe_poses(rig.morph_names)])
     if not len(poses):
         return None
     rest = _rest_distances(rig)
@@ -643,7 +644,7 @@ class ClipFidelity:
 def clip_fidelity(track, animation, rig, name: str = "") -> ClipFidelity:
     """The measures of one retargeted clip (its ``Track``, ``Animation`` and character)."""
     keep = np.asarray(track.presence, bool)
-    reach = measure_reach(rig)
+    reach, lowering = reaches(rig)
     source = source_measures(track)
     character = character_measures(rig, animation.bone_positions, animation.blend_weights)
     scores = np.asarray(track.blendshapes)
@@ -668,7 +669,7 @@ def clip_fidelity(track, animation, rig, name: str = "") -> ClipFidelity:
                         arkit=np.asarray(arkit[keep], np.float64), arkit_names=names, arkit_source=which,
                         gaze=gaze, gaze_scores=gaze_scores, curves=curves,
                         left_out={**reach_faults(rig, reach), **landmark_faults(rig)}, reach=reach,
-                        lowering=lowering_reach(rig),
+                        lowering=lowering,
                         scores=scores[keep].astype(np.float64), score_names=list(track.blendshape_names),
                         character_rest=character_rest_measures(rig), wrinkles=_kept(wrinkle_series(animation), keep),
                         source_rest=source_rest_measures(track, source))

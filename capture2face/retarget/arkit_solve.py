@@ -36,9 +36,8 @@ from capture2face.maths.rotations import similarity
 from capture2face.retarget.solve import LinearRigModel
 from capture2face.rig.arkit_names import arkit_morphs
 from capture2face.rig.feature_points import landmark_basis
-from capture2face.rig.morph_conventions import convention_channels, convention_recipes, convention_weights
+from capture2face.rig.morph_conventions import convention_channels, convention_recipes, recipe_poses
 from capture2face.topology import (
-    ARKIT_NAMES,
     BROW_HEIGHT_PAIRS,
     BROWS,
     EYE_LEFT,
@@ -220,8 +219,7 @@ def morph_solve(rig, landmarks: np.ndarray, min_motion: float, across: float = 1
     pairs = ANTAGONISTS + opposed_lid_pairs(named, deltas[:, np.isin(landmarks, EYE_CONTOURS)])
     out.antagonists = antagonist_unknowns(named, solved, out.model.n_free_vars, pairs)
     if not arkit_morphs(rig.morph_names):
-        recipes = convention_weights(list(ARKIT_NAMES), np.eye(len(ARKIT_NAMES), dtype=np.float32), rig.morph_names)
-        out.full_poses = recipes[:, solved]
+        out.full_poses = recipe_poses(rig.morph_names)[:, solved]
         out.twins = recipe_twins(rig.morph_names, out.fixed, solved)
     return out
 

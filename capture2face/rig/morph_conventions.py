@@ -228,6 +228,12 @@ def convention_weights(arkit_names: list[str], arkit_curves: np.ndarray, morph_n
     return np.clip(out, 0.0, 1.0)
 
 
+def recipe_poses(morph_names: list[str]) -> np.ndarray:
+    """(52, M) float32 the head's morph weights at each ARKit curve alone at 1 (rows in
+    :data:`~capture2face.topology.ARKIT_NAMES` order): what each curve's recipe makes."""
+    return convention_weights(list(ARKIT_NAMES), np.eye(len(ARKIT_NAMES), dtype=np.float32), morph_names)
+
+
 def convention_channels(morph_names: list[str]) -> dict[int, tuple[str, ...]]:
     """{morph index: the ARKit curves that alone turn it on} of every morph :data:`RECIPES`
     knows with a recipe other than ``"0"`` (``viseme_aa``: ``jawOpen``; Rocketbox's
@@ -238,8 +244,9 @@ def convention_channels(morph_names: list[str]) -> dict[int, tuple[str, ...]]:
     live = [m for m, (conv, name) in known.items() if parse_recipe(RECIPES[conv][name])]
     if not live:
         return {}
-    alone = convention_weights(list(ARKIT_NAMES), np.eye(len(ARKIT_NAMES), dtype=np.float32), morph_names)
+    alone = recipe_poses(morph_names)
     return {m: tuple(ARKIT_NAMES[k] for k in np.flatnonzero(alone[:, m] > 0)) for m in live}
+
 
 def convention_recipes(morph_names: list[str]) -> dict[int, str]:
     """{morph index: its recipe} of every morph :data:`RECIPES` knows (Rocketbox's teeth
