@@ -301,10 +301,12 @@ def _sheet_rows(clip, track: Track, frames: dict, kept: dict, close: dict) -> li
 def _title(name: str, clip, row: dict) -> list[str]:
     fid, sh, bare = row["fidelity"], row["shading"], row["shading_hair_hidden"]
     by = row.get("follow_by", TRACKED)
-    figures = ", ".join(f"{label} r {r:.2f} g {g:.2f}" if np.isfinite(r) else f"{label}: no morph moves them"
-                        for label, (r, g) in (("mouth", follow_figures(row, "mouth_open")),
-                                              ("brows", follow_figures(row, "brows")),
-                                              ("eyes", follow_figures(row, "eyes"))))
+    parts = []
+    for label, k in (("mouth", "mouth_open"), ("brows", "brows"), ("eyes", "eyes")):
+        r, g = follow_figures(row, k)
+        parts.append(f"{label} r {r:.2f} g {g:.2f}" if np.isfinite(r) and moves(row, k)
+                     else f"{label}: no morph moves them")
+    figures = ", ".join(parts)
     return [f"{name} on {Path(clip).name}: landmarks {row['landmarks']}, fidelity {fid['faithful']}/{fid['judged']}",
             f"{by}: {figures}, dark {sh['darkening_p95_mean']:.1%}; hair hidden: brows r {bare['brows_r']:.2f} "
             f"g {bare['brows_gain']:.2f}, eyes r {bare['eyes_r']:.2f} g {bare['eyes_gain']:.2f}"]
