@@ -182,26 +182,35 @@ def target_weights(gltf: dict, node: int, n_targets: int, weights: dict[str, np.
 
 
 
+def _look_at(gltf: dict) -> tuple[str, dict] | None:
+    """What turns the gaze ("bone" or "expression") and the lookAt settings that hold its
+    range tables: VRM 0.x ``firstPerson`` (``lookAtTypeName`` "Bone" / "BlendShape"), VRM 1.0
+    ``lookAt`` (``type`` "bone" / "expression"); None where the file is no VRM."""
+    version = vrm_version(gltf)
+    if version == "0":
+        settings = gltf["extensions"]["VRM"].get("firstPerson") or {}
+        kind = str(settings.get("lookAtTypeName") or "Bone").lower()
+        return ("expression" if kind == "blendshape" else kind), settings
+    if version == "1":
+        settings = gltf["extensions"]["VRMC_vrm"].get("lookAt") or {}
+        return str(settings.get("type") or "bone").lower(), settings
+    return None
+
+
 def eye_bone_nodes(gltf: dict) -> tuple[int, int] | None:
     """The nodes of the humanoid's ``rightEye`` and ``leftEye`` (the character's own right
     first, as ``FaceRig.eye_centres``); None where the file is no VRM, lacks either, or
     says its gaze turns its look expressions instead (VRM 0.x ``firstPerson.lookAtTypeName``
     "BlendShape", VRM 1.0 ``lookAt.type`` "expression": they turn it, not the bones)."""
-    version = vrm_version(gltf)
-    if version == "0":
-        vrm = gltf["extensions"]["VRM"]
-        look = str((vrm.get("firstPerson") or {}).get("lookAtTypeName") or "Bone")
-        human = (vrm.get("humanoid") or {}).get("humanBones") or []
+    look = _look_at(gltf)
+    if look is None or look[0] != "bone":
+        return None
+    if vrm_version(gltf) == "0":
+        human = (gltf["extensions"]["VRM"].get("humanoid") or {}).get("humanBones") or []
         bones = {str(b.get("bone")): b.get("node") for b in human if isinstance(b, dict)}
-    elif version == "1":
-        vrm = gltf["extensions"]["VRMC_vrm"]
-        look = str((vrm.get("lookAt") or {}).get("type") or "bone")
-        human = (vrm.get("humanoid") or {}).get("humanBones") or {}
-        bones = {str(k): (v or {}).get("node") for k, v in human.items() if isinstance(v, dict)}
     else:
-        return None
-    if look.lower() != "bone":
-        return None
+        human = (gltf["extensions"]["VRMC_vrm"].get("humanoid") or {}).get("humanBones") or {}
+        bones = {str(k): (v or {}).get("node") for k, v in human.items() if isinstance(v, dict)}
     right, left = bones.get("rightEye"), bones.get("leftEye")
     return None if right is None or left is None else (int(right), int(left))
 
@@ -280,19 +289,14 @@ def look_ranges(gltf: dict) -> np.ndarray | None:
     starts at 0.05, times its ``yRange`` 7.1: 0.36): a gaze straight ahead turns no look
     preset, where UniVRM's would flick the eyes by 0.36 from side to side as the gaze
     crosses the middle."""
-    version = vrm_version(gltf)
-    if version == "0":
-        fp = gltf["extensions"]["VRM"].get("firstPerson") or {}
-        if str(fp.get("lookAtTypeName") or "Bone").lower() != "blendshape":
-            return None
-        rows = [_vrm0_map(fp.get(k)) for k in ("lookAtHorizontalOuter", "lookAtVerticalDown", "lookAtVerticalUp")]
-    elif version == "1":
-        look = gltf["extensions"]["VRMC_vrm"].get("lookAt") or {}
-        if str(look.get("type") or "bone").lower() != "expression":
-            return None
-        rows = [_vrm1_map(look.get(k)) for k in ("rangeMapHorizontalOuter", "rangeMapVerticalDown",
-                                                 "rangeMapVerticalUp")]
-    else:
+    look = _look_at(gltf)
+    if look is None or look[0] != "expression":
         return None
+    settings = look[1]
+    if vrm_version(gltf) == "0":
+        keys, table = ("lookAtHorizontalOuter", "lookAtVerticalDown", "lookAtVerticalUp"), _vrm0_map
+    else:
+        keys, table = ("rangeMapHorizontalOuter", "rangeMapVerticalDown", "rangeMapVerticalUp"), _vrm1_map
+    rows = [table(settings.get(k)) for k in keys]
     rows = np.stack(rows)
     return np.clip(rows - rows[:, :1], 0.0, 1.0).astype(np.float32)
