@@ -11,6 +11,7 @@ from capture2face.measures import landmark_faults
 from capture2face.rig.avatar import default_avatar
 from capture2face.rig.face_rig import landmark_points
 from capture2face.topology import EYE_LEFT, EYE_RIGHT, LID_LOWER_LEFT
+from tests.helpers import shared_character
 
 
 @pytest.fixture(scope="module")
@@ -50,3 +51,19 @@ def test_no_mirror_image_on_an_asymmetric_head_or_where_both_eyes_pass(cast):
     good = rig.landmark_faces
     f, _, _ = mirrored_eyes(rig, good, bary, rig.landmark_vertices)
     np.testing.assert_array_equal(f, good)
+
+
+@pytest.mark.slow
+def test_the_xr_heads_left_eye_is_on_its_lids(tmp_path, monkeypatch):
+    """Ready Player Me's XR head: its left eye's lids pass the load-time check (its blink
+    closed 386-374 to 0.73 of their rest distance), its outer corner 263 sits at the mirror
+    image of 33 (0.05 IOD in front of it, on the upper lid, before)."""
+    from capture2face.character.load import load_character
+
+    monkeypatch.setenv("CAPTURE2FACE_CACHE", str(tmp_path))
+    rig = load_character(shared_character("rpm_male_xr_template_arkit52.glb"))
+    assert rig.landmark_source == "tracker front view" and not landmark_faults(rig)
+    pts = landmark_points(rig, np.asarray(rig.vertices, np.float64))
+    mid = 0.5 * (pts[33, 0] + pts[263, 0])
+    corner = pts[33] * np.array([-1.0, 1.0, 1.0]) + np.array([2.0 * mid, 0.0, 0.0])
+    assert np.abs(corner - pts[263]).max() < 0.01 * rig.interocular()
