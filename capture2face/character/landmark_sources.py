@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from capture2face.character.landmarks import SurfaceLandmarks, find_surface_landmarks
+from capture2face.character.mirror_eyes import mirrored_eyes
 from capture2face.character.morph_landmarks import morph_landmarks
 from capture2face.errors import CaptureError
 from capture2face.rig.face_rig import FaceRig
@@ -31,7 +32,9 @@ def with_landmarks(rig: FaceRig) -> FaceRig:
         except CaptureError as exc:
             reasons.append(str(exc).removeprefix(f"character '{rig.name}': "))
             continue
-        if source != TRACKER:
+        if source == TRACKER:  # an eye cast off its lids takes the other's mirror image
+            found = SurfaceLandmarks(*mirrored_eyes(rig, found.faces, found.bary, found.vertices))
+        else:
             log.info("character '%s': %s; its landmarks are placed from what its morphs move", rig.name, reasons[0])
         return rig.replace(landmark_faces=found.faces, landmark_bary=found.bary, landmark_vertices=found.vertices,
                            landmark_source=source)
