@@ -295,6 +295,23 @@ def test_rocketbox_teeth_follow_the_solved_jaw_and_its_brows_have_antagonists():
     assert {("RbrowUp_h", "RbrowDown_h"), ("RbrowUp_h", "RRbrowDown_h"), ("LLbrowUp_h", "LLbrowDown_h")} <= pairs
 
 
+def test_rocketbox_lids_are_fitted_along_their_opening_and_only_the_lips_in_full():
+    """Rocketbox's lids are 0.085-0.096 inter-ocular distances apart at rest (an RPM's or ICT
+    head's 0.10-0.15): each lid pair is fitted along its opening, its slide across scaled
+    like any head's (fitted in full they held its eye gain at 0.75-0.77 on d12); the inner
+    lips, 0.03-0.063 apart on every shared head, are fitted in full."""
+    from capture2face.character.load import load_character
+    from capture2face.retarget.arkit_solve import EXPRESSION_PAIRS
+
+    rig = load_character(shared_character("valid_rocketbox_Black_M_2_Busi.glb"))
+    solve, landmarks = _solve_of(rig)
+    held = {tuple(int(landmarks[i]) for i in pair): bool(np.allclose(frame, np.eye(3)))
+            for pair, frame in zip(solve.pairs, solve.pair_frames)}
+    lids, lips = [tuple(map(int, p)) for p in EXPRESSION_PAIRS[:6]], [tuple(map(int, p)) for p in EXPRESSION_PAIRS[6:9]]
+    assert not any(held[p] for p in lids)
+    assert all(held[p] for p in lips)
+
+
 def _lid_closure(rig, side: str) -> float:
     """How far the rig's blink of ``side`` closes its measured lid pair: the distance at 1
     over the distance at rest."""
