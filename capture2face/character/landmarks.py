@@ -170,9 +170,10 @@ def lids_on_margin(rig: FaceRig, out: SurfaceLandmarks) -> SurfaceLandmarks:
     margin: each onto the skin vertex its blink moves furthest within its own strip of the
     lid (half the spacing of the contour's landmarks either side of it, an eye's width
     above and below), the front-most of equally far ones. The margin travels furthest in a
-    blink, and the tracker reads the upper lid there; a landmark on the crease above it (a
-    fold the front view sees over the lid) hardly moves. Kept only where the pair then
-    passes the check; else that eye's landmarks stay as they were."""
+    blink and is the lid the eye's measures mean (where the other eye's landmarks sit); a
+    landmark on the crease above it (a fold the front view sees over the lid) hardly moves.
+    Kept only where the pair then passes the check; else that eye's landmarks stay as they
+    were."""
     def placed_on(lms: SurfaceLandmarks) -> FaceRig:
         return rig.replace(landmark_faces=lms.faces, landmark_bary=lms.bary, landmark_vertices=lms.vertices)
 
