@@ -359,3 +359,41 @@ def test_pair_frames_weigh_a_pair_along_its_rest_direction():
     across = np.cross(rest[0], [1.0, 0.0, 0.0])  # a slide across the first pair
     assert np.linalg.norm(t[0] @ across) == pytest.approx(0.1 * np.linalg.norm(across))
     np.testing.assert_array_equal(t[2], np.eye(3))
+
+
+def test_steady_points_keep_their_weight_where_the_rig_falls_short():
+    """A point whose target the rig cannot reach (a head's mouth at a smile wider than its
+    morphs make) leaves a large residual; the reliability passes read it as a noisy point
+    and hand the morph to the others and the prior. Held ``steady`` (at least the mean
+    reliability), it keeps pulling: the morph goes further towards it."""
+    from capture2face.retarget.driver import solve_windows
+    from capture2face.retarget.windows import frame_windows
+
+    frames = 60
+    # One morph: the "width" point (row 0) moves 1 cm at 1, but its target asks 3 cm (out of
+    # reach); four contour points move 0.3 cm and stay where they are; five still points.
+    matrix = np.zeros((3 * 10, 1))
+    matrix[0, 0] = 1.0
+    matrix[3:15:3, 0] = 0.3
+    model = LinearRigModel(rest=np.zeros((10, 3)), matrix=matrix, free_bones=np.zeros(0, np.int64),
+                           morphs=np.array([0]))
+    target = np.zeros((frames, 10, 3))
+    target[:, 0, 0] = 3.0 * (np.arange(frames) >= 10)  # held most of the clip, as d0's smile
+
+    class Mapped:
+        windows = frame_windows(frames, 1000, 100)
+
+        def read(self, w):
+            return target[w.start:w.stop]
+
+    weights = np.array([30.0] + [1.0] * 9)
+    opts = RetargetOptions()
+    prior = np.zeros((frames, 1))
+
+    def solved(steady):
+        (_, x), = solve_windows(Mapped(), model, weights, opts, None, prior=prior, prior_strength=np.array([0.1]),
+                                steady=steady)
+        return float(x[30:, 0].mean())
+
+    loose, held = solved(None), solved(np.array([0]))
+    assert loose < 0.2 and held > 0.8  # 0.02 and 1.0

@@ -22,7 +22,11 @@ triangle, barycentric).
   there are the same points of the rest mesh.
 * **Lids on their own lids**: cast at rest (the eyes are open); where a pair then fails the
   load-time check (:func:`capture2face.measures.landmark_faults`: eyeBlink must close it
-  by half), that eye's lids are cast again with the eyes opened by ``eyeWide``.
+  by half), that eye's lids are cast again with the eyes opened by ``eyeWide``; where it
+  still fails, that eye's upper-lid landmarks are moved onto the lid's margin, the skin its
+  blink moves furthest under each (:func:`lids_on_margin`; Rocketbox's right eye: the
+  tracker put 159 on the crease above the lid, 0.2 cm high and 0.4 cm in front, where the
+  blink moves the skin 0.18 cm of the margin's 0.85). Kept only where the pair then passes.
 """
 
 from __future__ import annotations
@@ -37,7 +41,7 @@ from capture2face.measures import landmark_faults
 from capture2face.render import FrameState, Renderer, RenderOptions
 from capture2face.rig.arkit_names import arkit_weights
 from capture2face.rig.deform import deform
-from capture2face.rig.face_rig import FaceRig
+from capture2face.rig.face_rig import FaceRig, landmark_points
 from capture2face.runtime.log import log
 from capture2face.topology import (
     ARKIT_NAMES,
@@ -74,6 +78,9 @@ OPENED_VIEWS = (
     (("eyeWideLeft", "eyeWideRight"), {"eye_right": EYELIDS_RIGHT, "eye_left": EYELIDS_LEFT}, (1.0,), False,
      "eyes opened by eyeWide (eyelids)"),
 )
+# The eyes' upper-lid contours (MediaPipe) by the measure of their opening, and the blink
+# that closes them: the lids re-placed onto their margin (lids_on_margin).
+UPPER_LIDS = {"eye_right": (LID_UPPER_RIGHT, "eyeBlinkRight"), "eye_left": (LID_UPPER_LEFT, "eyeBlinkLeft")}
 # Shifts (px) of each tracked view: the landmarks are the median over them (_steady_landmarks).
 JITTER_PX = tuple((dx, dy) for dx in (-1.0, -0.5, 0.0, 0.5, 1.0) for dy in (-1.0, -0.5, 0.0, 0.5, 1.0))
 # Search radius (px) around a landmark for triangles to land on.
@@ -154,6 +161,51 @@ def find_surface_landmarks(rig: FaceRig) -> SurfaceLandmarks:
                 if todo:
                     _recast(rig, out, _tracked_view(renderer, landmarker, rig, pose, weight * opens),
                             fov, [r for rows in todo.values() for r in rows], what)
+    return lids_on_margin(rig, out)
+
+
+def lids_on_margin(rig: FaceRig, out: SurfaceLandmarks) -> SurfaceLandmarks:
+    """``out`` (in place) with the upper-lid landmarks of each eye whose pair fails the
+    load-time check (:func:`capture2face.measures.landmark_faults`) moved onto the lid's
+    margin: each onto the skin vertex its blink moves furthest within its own strip of the
+    lid (half the spacing of the contour's landmarks either side of it, an eye's width
+    above and below), the front-most of equally far ones. The margin travels furthest in a
+    blink and is the lid the eye's measures mean (where the other eye's landmarks sit); a
+    landmark on the crease above it (a fold the front view sees over the lid) hardly moves.
+    Kept only where the pair then passes the check; else that eye's landmarks stay as they
+    were."""
+    def placed_on(lms: SurfaceLandmarks) -> FaceRig:
+        return rig.replace(landmark_faces=lms.faces, landmark_bary=lms.bary, landmark_vertices=lms.vertices)
+
+    faults = landmark_faults(placed_on(out))
+    verts = np.asarray(rig.vertices, np.float64)
+    overlay = np.zeros(rig.n_vertices, bool) if rig.overlay_vertices is None else np.asarray(rig.overlay_vertices)
+    skin = np.isin(np.asarray(rig.material), SKIN_CODES) & ~overlay
+    for measure, (rows, blink) in UPPER_LIDS.items():
+        rows = np.array(rows)
+        placed = rows[out.vertices[rows] >= 0]
+        if measure not in faults or len(placed) < 2:
+            continue
+        travel = np.linalg.norm(np.einsum("m,mvc->vc", pose_weights(rig, [blink]), rig.morph_positions,
+                                          dtype=np.float64), axis=1)
+        travel = np.where(skin, travel, 0.0)
+        at = landmark_points(placed_on(out), verts, placed)  # (K, 3) where they are now
+        width = float(np.ptp(at[:, 0]))
+        half = 0.5 * width / (len(placed) - 1)
+        strip = (np.abs(verts[:, 0] - at[:, None, 0]) <= half) & (np.abs(verts[:, 1] - at[:, None, 1]) <= width)
+        score = np.where(strip & (travel > 0), travel + 1e-6 * verts[:, 2], -np.inf)  # (K, V)
+        best = np.argmax(score, axis=1)
+        ok = np.isfinite(score[np.arange(len(placed)), best])
+        moved = SurfaceLandmarks(out.faces.copy(), out.bary.copy(), out.vertices.copy())
+        moved.faces[placed[ok]] = best[ok, None]
+        moved.bary[placed[ok]] = (1.0, 0.0, 0.0)
+        moved.vertices[placed[ok]] = best[ok]
+        if measure in landmark_faults(placed_on(moved)):
+            continue
+        log.info("character '%s': its %s upper-lid landmarks moved onto the lid's margin (the front view put "
+                 "them where %s hardly moves)", rig.name, measure.removeprefix("eye_"), blink)
+        out.faces[placed], out.bary[placed], out.vertices[placed] = (moved.faces[placed], moved.bary[placed],
+                                                                     moved.vertices[placed])
     return out
 
 

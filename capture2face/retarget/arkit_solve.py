@@ -107,8 +107,11 @@ EXPRESSION_PAIRS = np.array([
 ])
 
 
-#: Inter-ocular distances: a pair closer at rest is fitted in full (:func:`pair_frames`).
-MIN_PAIR_SEPARATION = 0.1
+#: Inter-ocular distances: a pair closer at rest is fitted in full (:func:`pair_frames`):
+#: the inner lips, 0.03-0.063 apart on the shared heads. Open lids are 0.085 (Rocketbox) to
+#: 0.147 apart: at 0.1 Rocketbox's lids were fitted in full, their sideways and depth slide
+#: held its lid separations back (eye gain 0.75-0.77 on d12, 0.89-1.02 framed).
+MIN_PAIR_SEPARATION = 0.075
 
 
 @dataclass

@@ -205,7 +205,7 @@ def _joint_solver(model, options: RetargetOptions, landmark_weights, morph_ridge
 
 def solve_windows(mapped, model, point_weights: np.ndarray, options: RetargetOptions, neutral: int | None,
                   prior: np.ndarray | None = None, prior_strength: np.ndarray | None = None,
-                  antagonists: np.ndarray | None = None):
+                  antagonists: np.ndarray | None = None, steady: np.ndarray | None = None):
     """Yield (window, x (k, n)) for every window of ``mapped``: the joint solve of the
     :class:`~capture2face.retarget.solve.LinearRigModel`'s unknowns, after the reliability
     passes (which fit without the prior).
@@ -217,6 +217,8 @@ def solve_windows(mapped, model, point_weights: np.ndarray, options: RetargetOpt
         prior: (F, n) values the unknowns are pulled towards with ``prior_strength`` (n,).
         antagonists: (P, 2) unknowns whose co-activation the final solve penalises
             (``options.arkit_antagonist``).
+        steady: feature points whose reliability is at least the mean's (1): targets
+            whose residual is the character's shortfall, not the tracker's noise.
     """
     prior_w = np.asarray(point_weights, np.float64)
     lw = prior_w
@@ -231,7 +233,10 @@ def solve_windows(mapped, model, point_weights: np.ndarray, options: RetargetOpt
             for w in mapped.windows:
                 pts = mapped.read(w)
                 r2.add(_residual2(model, solver.solve(pts, pin=w.pin(neutral))[w.own], pts[w.own]))
-            lw = prior_w * _reliability(r2.median(), options.reweight_floor)
+            reliability = _reliability(r2.median(), options.reweight_floor)
+            if steady is not None:
+                reliability[steady] = np.maximum(reliability[steady], 1.0)
+            lw = prior_w * reliability
     solver = _joint_solver(model, options, lw, options.morph_ridge, options.sparsity, prior_strength, antagonists)
     for w in mapped.windows:
         yield w, solver.solve(mapped.read(w), pin=w.pin(neutral),
@@ -429,11 +434,24 @@ def _solve_arkit_weights(track, rest: ActorRest, rig, landmarks: np.ndarray, pri
     with MappedPoints(track.landmarks_head, network, landmarks, windows, 1 + options.reweight_iterations) as mapped:
         for w, x in solve_windows(CurveShifted(mapped, solve, prior, ranged), solve.model, point_weights, options,
                                   rest.single_frame, prior=prior_x, prior_strength=strength,
-                                  antagonists=solve.antagonists):
+                                  antagonists=solve.antagonists, steady=_steady_pairs(rig, ranged)):
             weights[w.start:w.stop, solved] += (w.fade[:, None] * x[:, nf:]).astype(np.float32)
     if solve.twins is not None and len(solve.twins):
         weights[:, solve.twins[:, 0]] = weights[:, solve.twins[:, 1]]
     return weights
+
+
+def _steady_pairs(rig, ranged) -> np.ndarray | None:
+    """The model's points whose reliability the solve holds at least at the mean's: on a
+    head of another convention, the ranged pairs (:mod:`~capture2face.retarget.ranges`).
+    Their targets are the actor's own separations at the head's range; a residual there is
+    how far the head falls short (Rocketbox's mouth at d0's held wide smile, 1.5 cm), and
+    down-weighting it as a noisy point handed the mouth to the recipes, which the strong
+    ``convention_prior`` holds (d0 mouth width gain 0.45, the pair's weight 30 -> 0.4).
+    ARKit heads keep the reweighting as it was (their weak prior; not measured there)."""
+    if ranged is None or arkit_morphs(rig.morph_names):
+        return None
+    return np.asarray(ranged.rows)
 
 
 def _gaze(track, rest: ActorRest, options: RetargetOptions) -> np.ndarray | None:
