@@ -92,13 +92,12 @@ def calibrate(track, steps: tuple[Step, ...] = PROTOCOL, base_curves: np.ndarray
 
     reading = _reading(np.asarray(track.blendshapes, np.float64), rest.scores, names)
     targets = target_matrix(names, steps)  # (S, K)
-    sim = np.zeros((len(runs), len(steps)))
-    for i, run in enumerate(runs):
-        v = reading[run.hold_start:run.hold_stop].mean(0)
-        sim[i] = (targets.T @ v) / (np.linalg.norm(targets, axis=0) * max(np.linalg.norm(v), 1e-9))
-    pairs = {k: i for i, k in align(sim)} if len(runs) else {}
-    found = {k: runs[i] for k, i in pairs.items()}
-    weak = weak_runs(act, found, len(steps), fps, valid) if found else {}
+    found, weak = _find_steps(reading, targets, act, runs, fps, valid)
+    # The head's effect again, now on the holds as well as the idle frames (each hold's own
+    # constant its step's row): the idle frames alone span little of the take's head motion,
+    # so their fit extrapolated differently from take to take.
+    pose_model = _joint_pose(raw, terms, idle, [found.get(k) or weak[k] for k in sorted({*found, *weak})])
+    feats = raw - terms @ pose_model
 
     fits, rows, row_steps, warnings = [], [], [], []
     for k, step in enumerate(steps):
@@ -144,6 +143,21 @@ def calibrate(track, steps: tuple[Step, ...] = PROTOCOL, base_curves: np.ndarray
     return calibration
 
 
+def _find_steps(reading: np.ndarray, targets: np.ndarray, act: np.ndarray, runs: list, fps: float,
+                valid: np.ndarray) -> tuple[dict, dict]:
+    """(found, weak): step index -> its run, the runs laid onto the steps' order by the
+    tracker's reading (F, S) of each against the steps' ``targets`` (S, K)
+    (:func:`~capture2face.calibration.segment.align`), and the faint steps looked for where
+    the order puts them (:func:`~capture2face.calibration.segment.weak_runs`)."""
+    sim = np.zeros((len(runs), targets.shape[1]))
+    for i, run in enumerate(runs):
+        v = reading[run.hold_start:run.hold_stop].mean(0)
+        sim[i] = (targets.T @ v) / (np.linalg.norm(targets, axis=0) * max(np.linalg.norm(v), 1e-9))
+    pairs = {k: i for i, k in align(sim)} if len(runs) else {}
+    found = {k: runs[i] for k, i in pairs.items()}
+    return found, (weak_runs(act, found, targets.shape[1], fps, valid) if found else {})
+
+
 def _neutral_rest(track, idle: np.ndarray, runs: list) -> ActorRest:
     """The take's rest: each region's calmest frames (:func:`~capture2face.tracking.rest.clip_rest`)
     among its idle frames before the first step (the protocol opens on the neutral), or
@@ -165,6 +179,20 @@ def _pose_model(raw: np.ndarray, terms: np.ndarray, valid: np.ndarray) -> tuple[
         model, *_ = np.linalg.lstsq(terms[idle], raw[idle], rcond=None)
         idle = idle_frames(group_motion(raw - terms @ model), valid)
     return model, idle
+
+
+def _joint_pose(raw: np.ndarray, terms: np.ndarray, idle: np.ndarray, holds: list) -> np.ndarray:
+    """(P, D) the pose model (:func:`_pose_model`) fitted by least squares on the take's
+    ``idle`` frames and the ``holds`` of its steps (runs) together, each hold with a constant
+    of its own (the step's change, fitted with it and dropped)."""
+    frames = np.concatenate([idle] + [np.arange(h.hold_start, h.hold_stop) for h in holds])
+    onehot = np.zeros((len(frames), len(holds)))
+    at = len(idle)
+    for j, h in enumerate(holds):
+        onehot[at:at + h.hold_stop - h.hold_start, j] = 1.0
+        at += h.hold_stop - h.hold_start
+    coef, *_ = np.linalg.lstsq(np.concatenate([terms[frames], onehot], 1), raw[frames], rcond=None)
+    return coef[:terms.shape[1]]
 
 
 def _curves(names: list[str], steps: tuple[Step, ...], found: list[str]) -> dict[str, dict]:
