@@ -19,10 +19,17 @@ import numpy as np
 from scipy.optimize import nnls
 from threadpoolctl import threadpool_limits
 
-from capture2face.calibration.features import curve_mask, curve_region, frame_features, group_motion, pose_terms
+from capture2face.calibration.features import (
+    curve_groups,
+    curve_mask,
+    curve_region,
+    frame_features,
+    group_motion,
+    pose_terms,
+)
 from capture2face.calibration.model import ActorCalibration, StepFit
 from capture2face.calibration.protocol import PROTOCOL, STEP_NAMES, Step, target_matrix
-from capture2face.calibration.segment import MATCH_WARN, activity, align, find_runs, idle_frames, weak_runs
+from capture2face.calibration.segment import MATCH_WARN, activity, align, find_runs, idle_frames, own_hold, weak_runs
 from capture2face.calibration.solve import step_weights
 from capture2face.maths.stats import pearson
 from capture2face.tracking.rest import ActorRest, actor_rest, aligned_rest, clip_rest
@@ -93,6 +100,7 @@ def calibrate(track, steps: tuple[Step, ...] = PROTOCOL, base_curves: np.ndarray
     reading = _reading(np.asarray(track.blendshapes, np.float64), rest.scores, names)
     targets = target_matrix(names, steps)  # (S, K)
     found, weak = _find_steps(reading, targets, act, runs, fps, valid)
+    found, weak = (_own_holds(d, steps, group_motion(feats), idle, fps) for d in (found, weak))
     # The head's effect again, now on the holds as well as the idle frames (each hold's own
     # constant its step's row): the idle frames alone span little of the take's head motion,
     # so their fit extrapolated differently from take to take.
@@ -156,6 +164,13 @@ def _find_steps(reading: np.ndarray, targets: np.ndarray, act: np.ndarray, runs:
     pairs = {k: i for i, k in align(sim)} if len(runs) else {}
     found = {k: runs[i] for k, i in pairs.items()}
     return found, (weak_runs(act, found, targets.shape[1], fps, valid) if found else {})
+
+
+def _own_holds(runs: dict, steps: tuple[Step, ...], motion: np.ndarray, idle: np.ndarray, fps: float) -> dict:
+    """step index -> its run with the hold found on the step's own landmark groups
+    (:func:`~capture2face.calibration.segment.own_hold`; ``motion`` (F, G) the take's group
+    motion): a frown's run that merged into the lids' closing was held where the lids moved."""
+    return {k: own_hold(r, activity(motion[:, curve_groups(steps[k].targets)], idle, fps)) for k, r in runs.items()}
 
 
 def _neutral_rest(track, idle: np.ndarray, runs: list) -> ActorRest:
