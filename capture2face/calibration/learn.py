@@ -109,32 +109,13 @@ def calibrate(track, steps: tuple[Step, ...] = PROTOCOL, base_curves: np.ndarray
 
     fits, rows, row_steps, warnings = [], [], [], []
     for k, step in enumerate(steps):
-        if k not in found and k not in weak:
-            fits.append(StepFit(step.name, False))
-            warnings.append(f"calibration: the take shows no '{step.name}' ({step.instruction.lower()}): "
-                            "its curves keep the tracker's reading")
-            continue
-        run = found.get(k) or weak[k]
-        mask = curve_mask(step.targets, names, cols)
-        row = feats[run.hold_start:run.hold_stop].mean(0) * mask
-        if np.linalg.norm(row) < MIN_ROW_NOISE * np.sqrt(((feats[idle] * mask) ** 2).sum(1).mean()):
-            fits.append(StepFit(step.name, False))
-            warnings.append(f"calibration: '{step.name}' moves the face too little to learn (frames {run.start}-"
-                            f"{run.stop - 1}, within twice the take's noise): its curves keep the tracker's reading")
-            continue
-        v = reading[run.hold_start:run.hold_stop].mean(0)
-        match = float(targets[:, k] @ v / (np.linalg.norm(targets[:, k]) * max(np.linalg.norm(v), 1e-9)))
-        if k in weak:
-            warnings.append(f"calibration: '{step.name}' shows faintly (frames {run.start}-{run.stop - 1}, found by "
-                            "its place in the order); check the take, or edit actor.json")
-        elif match < MATCH_WARN and v.max() >= OTHER_READING and targets[int(np.argmax(v)), k] == 0.0:
-            # Read as another expression (not merely unread: MediaPipe scores no cheek puff).
-            warnings.append(f"calibration: '{step.name}' (frames {run.start}-{run.stop - 1}) reads as "
-                            f"{names[int(np.argmax(v))]} {v.max():.2f}; check the take, or edit actor.json")
-        fits.append(StepFit(step.name, True, (run.start, run.stop - 1), (run.hold_start, run.hold_stop - 1),
-                            round(match, 3)))
-        rows.append(row)
-        row_steps.append(step.name)
+        fit, row, warning = _learn_step(k, step, found.get(k) or weak.get(k), k in weak, feats, idle, reading,
+                                        targets, names, cols)
+        fits.append(fit)
+        warnings += [warning] if warning else []
+        if row is not None:
+            rows.append(row)
+            row_steps.append(step.name)
     basis = np.asarray(rows, np.float32).reshape(len(rows), feats.shape[1])
     calibration = ActorCalibration(
         source=str(track.source), fps=fps, steps=fits, rest_face=rest.face, rest_landmarks=rest.landmarks,
@@ -149,6 +130,41 @@ def calibrate(track, steps: tuple[Step, ...] = PROTOCOL, base_curves: np.ndarray
     _fit_explained(calibration, track, weights, base, fits, steps, rest_frames)
     _report_steps(calibration, track, base, weights)
     return calibration
+
+
+def _learn_step(k: int, step: Step, run, faint: bool, feats: np.ndarray, idle: np.ndarray, reading: np.ndarray,
+                targets: np.ndarray, names: list[str], cols: np.ndarray) -> tuple[StepFit, np.ndarray | None, str]:
+    """(fit, its basis row or None, a warning or "") of protocol step ``k`` found as ``run``
+    (None: not found; ``faint``: found by its place in the order only): the mean of
+    ``feats`` (F, D) over its hold, on its curves' regions."""
+    if run is None:
+        return StepFit(step.name, False), None, (f"calibration: the take shows no '{step.name}' "
+                                                 f"({step.instruction.lower()}): its curves keep the tracker's reading")
+    frames = f"frames {run.start}-{run.stop - 1}"
+    mask = curve_mask(step.targets, names, cols)
+    row = feats[run.hold_start:run.hold_stop].mean(0) * mask
+    if np.linalg.norm(row) < MIN_ROW_NOISE * np.sqrt(((feats[idle] * mask) ** 2).sum(1).mean()):
+        return StepFit(step.name, False), None, (f"calibration: '{step.name}' moves the face too little to learn "
+                                                 f"({frames}, within twice the take's noise): its curves keep the "
+                                                 "tracker's reading")
+    v = reading[run.hold_start:run.hold_stop].mean(0)
+    match = float(targets[:, k] @ v / (np.linalg.norm(targets[:, k]) * max(np.linalg.norm(v), 1e-9)))
+    if faint and match < MATCH_WARN:
+        # Faint and unread: on synthetic takes such holds were mostly another step's return
+        # (a frown the light hid, found on the brows' way down from the raise: browDown r -0.37).
+        return StepFit(step.name, False), None, (f"calibration: '{step.name}' shows too faintly to learn ({frames}, "
+                                                 "found by its place in the order, and the tracker does not read "
+                                                 "it as itself): its curves keep the tracker's reading")
+    warning = ""
+    if faint:
+        warning = (f"calibration: '{step.name}' shows faintly ({frames}, found by its place in the order); check "
+                   "the take, or edit actor.json")
+    elif match < MATCH_WARN and v.max() >= OTHER_READING and targets[int(np.argmax(v)), k] == 0.0:
+        # Read as another expression (not merely unread: MediaPipe scores no cheek puff).
+        warning = (f"calibration: '{step.name}' ({frames}) reads as {names[int(np.argmax(v))]} {v.max():.2f}; "
+                   "check the take, or edit actor.json")
+    fit = StepFit(step.name, True, (run.start, run.stop - 1), (run.hold_start, run.hold_stop - 1), round(match, 3))
+    return fit, row, warning
 
 
 def _find_steps(reading: np.ndarray, targets: np.ndarray, act: np.ndarray, runs: list, fps: float,
