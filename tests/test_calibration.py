@@ -10,7 +10,7 @@ import pytest
 from capture2face.calibration import PROTOCOL, ActorCalibration, StepFit
 from capture2face.calibration.learn import explained_away
 from capture2face.calibration.protocol import step_amounts, target_matrix
-from capture2face.calibration.segment import Run, align, find_runs
+from capture2face.calibration.segment import Run, align, find_runs, own_hold
 from capture2face.calibration.solve import MAX_WEIGHT, step_weights
 from capture2face.errors import CaptureError
 from capture2face.topology import ARKIT_NAMES
@@ -57,6 +57,59 @@ def test_find_runs_one_per_expression_with_its_hold():
     valid = np.ones(300, bool)
     valid[150:270] = False
     assert len(find_runs(act, fps, valid)) == 2
+
+
+def test_own_hold_is_the_longest_plateau_of_the_steps_own_groups():
+    own = np.full(100, 1.0)
+    own[10:14] = 9.0  # the previous step's return, brief (the run began on it)
+    own[30:55] = 8.0  # the step's own hold
+    own[60:70] = 3.0
+    run = Run(5, 80, 10, 14)  # held where the largest group peaked
+    assert own_hold(run, own) == Run(5, 80, 30, 55)
+    assert own_hold(run, np.zeros(100)) == run  # its groups never move: as found
+
+
+def test_the_pose_model_is_fitted_on_the_holds_too():
+    """Idle frames that span little of the head's motion leave the pose model undetermined;
+    the holds' frames (each with its own constant, the step's row) determine it."""
+    from capture2face.calibration.learn import _joint_pose
+
+    rng = np.random.default_rng(2)
+    frames, n_terms = 400, 4
+    terms = np.concatenate([rng.normal(size=(frames, n_terms - 1)), np.ones((frames, 1))], 1)
+    terms[:100, :-1] *= 0.01  # the idle frames: the head almost still
+    true = rng.normal(size=(n_terms, 6))
+    holds = [Run(100 + 60 * j, 160 + 60 * j, 110 + 60 * j, 150 + 60 * j) for j in range(5)]
+    rows = rng.normal(size=(5, 6))
+    raw = terms @ true + 0.01 * rng.normal(size=(frames, 6))
+    for h, row in zip(holds, rows):
+        raw[h.hold_start:h.hold_stop] += row
+    model = _joint_pose(raw, terms, np.arange(100), holds)
+    np.testing.assert_allclose(model, true, atol=0.02)
+
+
+def test_a_faint_step_the_tracker_does_not_read_is_not_learned():
+    from capture2face.calibration.features import LANDMARKS, curve_mask
+    from capture2face.calibration.learn import _learn_step
+
+    names = ["_neutral", *ARKIT_NAMES]
+    cols = np.arange(1, len(names))
+    step = PROTOCOL[[s.name for s in PROTOCOL].index("frown")]
+    targets = target_matrix(names, PROTOCOL)
+    k = PROTOCOL.index(step)
+    feats = np.zeros((100, 3 * len(LANDMARKS) + len(cols)))
+    feats[40:60] = 0.3 * curve_mask(step.targets, names, cols)  # the brows move, well above the noise
+    feats[:20] += 0.001
+    reading = np.zeros((100, len(names)))
+    run = Run(35, 65, 40, 60)
+    fit, row, warning = _learn_step(k, step, run, True, feats, np.arange(20), reading, targets, names, cols)
+    assert not fit.found and row is None and "too faintly to learn" in warning
+    reading[40:60, names.index("browDownLeft")] = reading[40:60, names.index("browDownRight")] = 0.4
+    fit, row, warning = _learn_step(k, step, run, True, feats, np.arange(20), reading, targets, names, cols)
+    assert fit.found and row is not None and "shows faintly" in warning  # read as itself: learned, named
+    fit, row, warning = _learn_step(k, step, run, False, feats, np.arange(20), np.zeros_like(reading), targets,
+                                    names, cols)
+    assert fit.found and row is not None and warning == ""  # a clear run the tracker cannot read: learned
 
 
 def test_step_weights_recover_a_bounded_mix():

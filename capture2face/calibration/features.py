@@ -102,6 +102,13 @@ def curve_region(name: str) -> str:
     return next((r for r in _REGION_GROUPS if name.startswith(r)), "mouth")
 
 
+def curve_groups(curves) -> np.ndarray:
+    """The indices into :data:`GROUPS` (and :func:`group_motion`'s columns) of the landmark
+    groups the regions of ``curves`` (ARKit names) move."""
+    wanted = {g for name in curves for g in _REGION_GROUPS[curve_region(name)]}
+    return np.array([i for i, g in enumerate(GROUPS) if g in wanted], int)
+
+
 def curve_mask(curves, score_names: list[str], score_columns: np.ndarray) -> np.ndarray:
     """(D,) bool the features of the regions ``curves`` (ARKit names) move."""
     n_lm = 3 * len(LANDMARKS)

@@ -19,10 +19,17 @@ import numpy as np
 from scipy.optimize import nnls
 from threadpoolctl import threadpool_limits
 
-from capture2face.calibration.features import curve_mask, curve_region, frame_features, group_motion, pose_terms
+from capture2face.calibration.features import (
+    curve_groups,
+    curve_mask,
+    curve_region,
+    frame_features,
+    group_motion,
+    pose_terms,
+)
 from capture2face.calibration.model import ActorCalibration, StepFit
 from capture2face.calibration.protocol import PROTOCOL, STEP_NAMES, Step, target_matrix
-from capture2face.calibration.segment import MATCH_WARN, activity, align, find_runs, idle_frames, weak_runs
+from capture2face.calibration.segment import MATCH_WARN, activity, align, find_runs, idle_frames, own_hold, weak_runs
 from capture2face.calibration.solve import step_weights
 from capture2face.maths.stats import pearson
 from capture2face.tracking.rest import ActorRest, actor_rest, aligned_rest, clip_rest
@@ -92,42 +99,23 @@ def calibrate(track, steps: tuple[Step, ...] = PROTOCOL, base_curves: np.ndarray
 
     reading = _reading(np.asarray(track.blendshapes, np.float64), rest.scores, names)
     targets = target_matrix(names, steps)  # (S, K)
-    sim = np.zeros((len(runs), len(steps)))
-    for i, run in enumerate(runs):
-        v = reading[run.hold_start:run.hold_stop].mean(0)
-        sim[i] = (targets.T @ v) / (np.linalg.norm(targets, axis=0) * max(np.linalg.norm(v), 1e-9))
-    pairs = {k: i for i, k in align(sim)} if len(runs) else {}
-    found = {k: runs[i] for k, i in pairs.items()}
-    weak = weak_runs(act, found, len(steps), fps, valid) if found else {}
+    found, weak = _find_steps(reading, targets, act, runs, fps, valid)
+    found, weak = (_own_holds(d, steps, group_motion(feats), idle, fps) for d in (found, weak))
+    # The head's effect again, now on the holds as well as the idle frames (each hold's own
+    # constant its step's row): the idle frames alone span little of the take's head motion,
+    # so their fit extrapolated differently from take to take.
+    pose_model = _joint_pose(raw, terms, idle, [found.get(k) or weak[k] for k in sorted({*found, *weak})])
+    feats = raw - terms @ pose_model
 
     fits, rows, row_steps, warnings = [], [], [], []
     for k, step in enumerate(steps):
-        if k not in found and k not in weak:
-            fits.append(StepFit(step.name, False))
-            warnings.append(f"calibration: the take shows no '{step.name}' ({step.instruction.lower()}): "
-                            "its curves keep the tracker's reading")
-            continue
-        run = found.get(k) or weak[k]
-        mask = curve_mask(step.targets, names, cols)
-        row = feats[run.hold_start:run.hold_stop].mean(0) * mask
-        if np.linalg.norm(row) < MIN_ROW_NOISE * np.sqrt(((feats[idle] * mask) ** 2).sum(1).mean()):
-            fits.append(StepFit(step.name, False))
-            warnings.append(f"calibration: '{step.name}' moves the face too little to learn (frames {run.start}-"
-                            f"{run.stop - 1}, within twice the take's noise): its curves keep the tracker's reading")
-            continue
-        v = reading[run.hold_start:run.hold_stop].mean(0)
-        match = float(targets[:, k] @ v / (np.linalg.norm(targets[:, k]) * max(np.linalg.norm(v), 1e-9)))
-        if k in weak:
-            warnings.append(f"calibration: '{step.name}' shows faintly (frames {run.start}-{run.stop - 1}, found by "
-                            "its place in the order); check the take, or edit actor.json")
-        elif match < MATCH_WARN and v.max() >= OTHER_READING and targets[int(np.argmax(v)), k] == 0.0:
-            # Read as another expression (not merely unread: MediaPipe scores no cheek puff).
-            warnings.append(f"calibration: '{step.name}' (frames {run.start}-{run.stop - 1}) reads as "
-                            f"{names[int(np.argmax(v))]} {v.max():.2f}; check the take, or edit actor.json")
-        fits.append(StepFit(step.name, True, (run.start, run.stop - 1), (run.hold_start, run.hold_stop - 1),
-                            round(match, 3)))
-        rows.append(row)
-        row_steps.append(step.name)
+        fit, row, warning = _learn_step(k, step, found.get(k) or weak.get(k), k in weak, feats, idle, reading,
+                                        targets, names, cols)
+        fits.append(fit)
+        warnings += [warning] if warning else []
+        if row is not None:
+            rows.append(row)
+            row_steps.append(step.name)
     basis = np.asarray(rows, np.float32).reshape(len(rows), feats.shape[1])
     calibration = ActorCalibration(
         source=str(track.source), fps=fps, steps=fits, rest_face=rest.face, rest_landmarks=rest.landmarks,
@@ -142,6 +130,63 @@ def calibrate(track, steps: tuple[Step, ...] = PROTOCOL, base_curves: np.ndarray
     _fit_explained(calibration, track, weights, base, fits, steps, rest_frames)
     _report_steps(calibration, track, base, weights)
     return calibration
+
+
+def _learn_step(k: int, step: Step, run, faint: bool, feats: np.ndarray, idle: np.ndarray, reading: np.ndarray,
+                targets: np.ndarray, names: list[str], cols: np.ndarray) -> tuple[StepFit, np.ndarray | None, str]:
+    """(fit, its basis row or None, a warning or "") of protocol step ``k`` found as ``run``
+    (None: not found; ``faint``: found by its place in the order only): the mean of
+    ``feats`` (F, D) over its hold, on its curves' regions."""
+    if run is None:
+        return StepFit(step.name, False), None, (f"calibration: the take shows no '{step.name}' "
+                                                 f"({step.instruction.lower()}): its curves keep the tracker's reading")
+    frames = f"frames {run.start}-{run.stop - 1}"
+    mask = curve_mask(step.targets, names, cols)
+    row = feats[run.hold_start:run.hold_stop].mean(0) * mask
+    if np.linalg.norm(row) < MIN_ROW_NOISE * np.sqrt(((feats[idle] * mask) ** 2).sum(1).mean()):
+        return StepFit(step.name, False), None, (f"calibration: '{step.name}' moves the face too little to learn "
+                                                 f"({frames}, within twice the take's noise): its curves keep the "
+                                                 "tracker's reading")
+    v = reading[run.hold_start:run.hold_stop].mean(0)
+    match = float(targets[:, k] @ v / (np.linalg.norm(targets[:, k]) * max(np.linalg.norm(v), 1e-9)))
+    if faint and match < MATCH_WARN:
+        # Faint and unread: on synthetic takes such holds were mostly another step's return
+        # (a frown the light hid, found on the brows' way down from the raise: browDown r -0.37).
+        return StepFit(step.name, False), None, (f"calibration: '{step.name}' shows too faintly to learn ({frames}, "
+                                                 "found by its place in the order, and the tracker does not read "
+                                                 "it as itself): its curves keep the tracker's reading")
+    warning = ""
+    if faint:
+        warning = (f"calibration: '{step.name}' shows faintly ({frames}, found by its place in the order); check "
+                   "the take, or edit actor.json")
+    elif match < MATCH_WARN and v.max() >= OTHER_READING and targets[int(np.argmax(v)), k] == 0.0:
+        # Read as another expression (not merely unread: MediaPipe scores no cheek puff).
+        warning = (f"calibration: '{step.name}' ({frames}) reads as {names[int(np.argmax(v))]} {v.max():.2f}; "
+                   "check the take, or edit actor.json")
+    fit = StepFit(step.name, True, (run.start, run.stop - 1), (run.hold_start, run.hold_stop - 1), round(match, 3))
+    return fit, row, warning
+
+
+def _find_steps(reading: np.ndarray, targets: np.ndarray, act: np.ndarray, runs: list, fps: float,
+                valid: np.ndarray) -> tuple[dict, dict]:
+    """(found, weak): step index -> its run, the runs laid onto the steps' order by the
+    tracker's reading (F, S) of each against the steps' ``targets`` (S, K)
+    (:func:`~capture2face.calibration.segment.align`), and the faint steps looked for where
+    the order puts them (:func:`~capture2face.calibration.segment.weak_runs`)."""
+    sim = np.zeros((len(runs), targets.shape[1]))
+    for i, run in enumerate(runs):
+        v = reading[run.hold_start:run.hold_stop].mean(0)
+        sim[i] = (targets.T @ v) / (np.linalg.norm(targets, axis=0) * max(np.linalg.norm(v), 1e-9))
+    pairs = {k: i for i, k in align(sim)} if len(runs) else {}
+    found = {k: runs[i] for k, i in pairs.items()}
+    return found, (weak_runs(act, found, targets.shape[1], fps, valid) if found else {})
+
+
+def _own_holds(runs: dict, steps: tuple[Step, ...], motion: np.ndarray, idle: np.ndarray, fps: float) -> dict:
+    """step index -> its run with the hold found on the step's own landmark groups
+    (:func:`~capture2face.calibration.segment.own_hold`; ``motion`` (F, G) the take's group
+    motion): a frown's run that merged into the lids' closing was held where the lids moved."""
+    return {k: own_hold(r, activity(motion[:, curve_groups(steps[k].targets)], idle, fps)) for k, r in runs.items()}
 
 
 def _neutral_rest(track, idle: np.ndarray, runs: list) -> ActorRest:
@@ -165,6 +210,20 @@ def _pose_model(raw: np.ndarray, terms: np.ndarray, valid: np.ndarray) -> tuple[
         model, *_ = np.linalg.lstsq(terms[idle], raw[idle], rcond=None)
         idle = idle_frames(group_motion(raw - terms @ model), valid)
     return model, idle
+
+
+def _joint_pose(raw: np.ndarray, terms: np.ndarray, idle: np.ndarray, holds: list) -> np.ndarray:
+    """(P, D) the pose model (:func:`_pose_model`) fitted by least squares on the take's
+    ``idle`` frames and the ``holds`` of its steps (runs) together, each hold with a constant
+    of its own (the step's change, fitted with it and dropped)."""
+    frames = np.concatenate([idle] + [np.arange(h.hold_start, h.hold_stop) for h in holds])
+    onehot = np.zeros((len(frames), len(holds)))
+    at = len(idle)
+    for j, h in enumerate(holds):
+        onehot[at:at + h.hold_stop - h.hold_start, j] = 1.0
+        at += h.hold_stop - h.hold_start
+    coef, *_ = np.linalg.lstsq(np.concatenate([terms[frames], onehot], 1), raw[frames], rcond=None)
+    return coef[:terms.shape[1]]
 
 
 def _curves(names: list[str], steps: tuple[Step, ...], found: list[str]) -> dict[str, dict]:

@@ -133,6 +133,23 @@ def weak_runs(act: np.ndarray, found: dict[int, Run], n_steps: int, fps: float, 
     return out
 
 
+def own_hold(run: Run, own: np.ndarray) -> Run:
+    """``run`` with its hold found again on ``own`` (F,), the activity of the step's own
+    landmark groups only (:func:`activity` of their columns): the longest stretch of the
+    run's frames that stays at or above :data:`HOLD_SHARE` of its peak there. A run's hold
+    is otherwise where the largest group peaks, which on a run that merges into the next
+    step's onset (a frown's return meeting the lids' closing) is the next step's motion;
+    and a run that begins with the previous step's return peaks there briefly."""
+    part = own[run.start:run.stop]
+    if not len(part) or part.max() <= 0.0:
+        return run
+    high = np.concatenate([[False], part >= HOLD_SHARE * part.max(), [False]])
+    edges = np.flatnonzero(np.diff(high.astype(np.int8)))
+    starts, stops = edges[::2], edges[1::2]
+    j = int(np.argmax(stops - starts))
+    return Run(run.start, run.stop, run.start + int(starts[j]), run.start + int(stops[j]))
+
+
 def _around(values: np.ndarray, peak: int, floor: float) -> tuple[int, int]:
     """(start, stop) of the frames around ``peak`` whose values stay at or above ``floor``."""
     below = values < floor
