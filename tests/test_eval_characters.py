@@ -140,6 +140,10 @@ def test_gallery_on_the_sample_clip(tmp_path):
         # the darkening read in the frames drawn with a flat base colour; avatar.mp4's beside it
         assert (out / name / "skin.mp4").is_file() and row["shading"]["darkening_read_in"] == "skin.mp4"
         assert np.isfinite(row["shading"]["darkening_p95_mean_avatar"])
+        # where and when: each disc's darkest frames, and the morphs and curves behind the darkest disc
+        assert set(row["shading"]["darkening_frames"]) == {"cheek_right", "cheek_left", "chin"}
+        cause = row["darkening_cause"]
+        assert cause["frames"] == [f for f, _ in row["shading"]["darkening_frames"][cause["disc"]]]
         sheet = cv2.imread(str(out / f"{name}.png"))
         band = max(12, int(cell * LABEL_BAND))
         assert sheet.shape[1] == 6 * cell + 7 * GAP
