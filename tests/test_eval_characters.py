@@ -52,6 +52,30 @@ def test_goals_met_follows_the_issues_thresholds():
     assert "fidelity" not in characters.goals_met({"shading": shading, "fidelity": {"judged": 0, "faithful": 0}})
 
 
+def test_darkening_cause_names_the_darkest_disc_its_frames_and_the_weights_then():
+    """The disc with the highest p95, its darkest frames, and over them the mean weight of
+    the most-weighted morphs beside the actor's curves (a solve that sets a morph the actor
+    does not show stands out)."""
+    from types import SimpleNamespace
+
+    weights = np.zeros((6, 3), np.float32)
+    weights[[2, 3], 0] = 0.8  # mouthSmileLeft in the dark frames
+    weights[[2, 3], 2] = 1.0  # a shrug the actor does not show
+    weights[0, 1] = 0.5  # outside the dark frames
+    curves = np.zeros((6, 2), np.float32)
+    curves[[2, 3], 1] = 0.6
+    anim = SimpleNamespace(blend_names=["mouthSmileLeft", "jawOpen", "mouthShrugUpper"], blend_weights=weights,
+                           arkit_names=["jawOpen", "mouthSmileLeft"], arkit_weights=curves)
+    figures = {"darkening_p95": {"cheek_right": 0.01, "cheek_left": 0.05, "chin": 0.02},
+               "darkening_frames": {"cheek_right": [[0, 0.02]], "cheek_left": [[3, 0.07], [2, 0.06]],
+                                    "chin": [[5, 0.03]]}}
+    got = characters.darkening_cause(anim, figures, top=2)
+    assert got == {"disc": "cheek_left", "frames": [3, 2], "morphs": {"mouthShrugUpper": 1.0, "mouthSmileLeft": 0.8},
+                   "curves": {"mouthSmileLeft": 0.6}}
+    anim.arkit_weights = None  # a file written before the curves existed
+    assert characters.darkening_cause(anim, figures)["curves"] == {}
+
+
 def test_goals_leave_out_what_no_morph_moves_and_a_darkening_the_tracker_cannot_place():
     """A visemes-only head's brows and eyes (its posed ranges ~0) are not judged, its mouth
     and darkening are; a face judged on its posed landmarks (the tracker cannot read it) has
@@ -116,6 +140,10 @@ def test_gallery_on_the_sample_clip(tmp_path):
         # the darkening read in the frames drawn with a flat base colour; avatar.mp4's beside it
         assert (out / name / "skin.mp4").is_file() and row["shading"]["darkening_read_in"] == "skin.mp4"
         assert np.isfinite(row["shading"]["darkening_p95_mean_avatar"])
+        # where and when: each disc's darkest frames, and the morphs and curves behind the darkest disc
+        assert set(row["shading"]["darkening_frames"]) == {"cheek_right", "cheek_left", "chin"}
+        cause = row["darkening_cause"]
+        assert cause["frames"] == [f for f, _ in row["shading"]["darkening_frames"][cause["disc"]]]
         sheet = cv2.imread(str(out / f"{name}.png"))
         band = max(12, int(cell * LABEL_BAND))
         assert sheet.shape[1] == 6 * cell + 7 * GAP

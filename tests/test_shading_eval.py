@@ -96,3 +96,20 @@ def test_a_beard_sliding_under_a_disc_is_no_darkening_in_the_flat_colour_video(t
 def test_a_folder_without_avatar_video_is_refused(tmp_path):
     with pytest.raises(CaptureError, match="avatar.mp4 and track.npz"):
         shading.shading_of(tmp_path)
+
+
+def test_darkest_frames_name_where_and_when_the_p95_comes_from():
+    """Each disc names its darkest frames, darkest first, with their darkening; frames
+    without a face (NaN) are never named; the p95 is among the named frames' values."""
+    b = np.full((100, 3), 100.0)
+    b[[40, 41, 42, 43, 44, 45, 46, 47, 48, 49], 0] = np.linspace(95, 86, 10)  # a smile: 5-14 % darker
+    b[7, 1] = 90.0
+    b[8, 1] = np.nan
+    per_frame = shading.frame_darkening(b)
+    got = shading.darkest_frames(per_frame, n=4)
+    assert list(got) == list(shading.PATCHES)
+    assert [f for f, _ in got["cheek_right"]] == [49, 48, 47, 46]
+    np.testing.assert_allclose([d for _, d in got["cheek_right"]], [0.14, 0.13, 0.12, 0.11], atol=1e-4)
+    assert got["cheek_left"][0] == [7, 0.1] and 8 not in [f for f, _ in got["cheek_left"]]
+    p95 = shading.darkening(b)[0]
+    assert got["cheek_right"][-1][1] <= p95 + 0.02 and np.isclose(p95, np.nanpercentile(per_frame[:, 0], 95))

@@ -17,7 +17,8 @@ exported into ``DIR/<name>/`` (a ``run`` folder without compare.mp4 and report),
   a fringe over the brows hides them from the tracker, not from the viewer). The darkening
   is read in skin.mp4, the same frames drawn again with the base colour one flat tone
   (:data:`FLAT_SKIN`), so that a beard or painted shadow sliding under a disc is not taken
-  for a shading fault.
+  for a shading fault. ``darkening_cause`` says where and when it comes from: the darkest
+  disc, its darkest frames, and the morphs and ARKit curves then.
 
 A character that cannot be loaded or driven gets a row with its one-line refusal; one
 that fails later gets its error; neither stops the others.
@@ -232,6 +233,7 @@ def perform(spec, clip, track: Track, out_dir: Path, size: int, cell: int, progr
     row = {"landmarks": int(np.count_nonzero(np.asarray(rig.landmark_vertices) >= 0)),
            "fidelity": _fidelity(track, animation, rig, name)}
     row["shading"] = shading.shading_of(folder, progress=progress, skin_video=folder / "skin.mp4")
+    row["darkening_cause"] = darkening_cause(animation, row["shading"])
     row["posed"] = _posed(track, animation, rig)
     # A face the tracker could not read (its landmarks from its morphs) cannot be tracked back.
     row["follow_by"] = POSED if rig.landmark_source == MORPHS and row["posed"] else TRACKED
@@ -243,6 +245,23 @@ def perform(spec, clip, track: Track, out_dir: Path, size: int, cell: int, progr
     write_image(sheet, row["sheet"])
     row["seconds"] = round(time.perf_counter() - t0, 1)
     return row
+
+
+def darkening_cause(animation, figures: dict, top: int = 6) -> dict:
+    """Where and when the darkening comes from: the disc with the highest p95 in
+    ``figures`` (:func:`~.shading.shading_of`), its darkest frames, and over those frames the
+    mean weight of the ``top`` most-weighted morphs beside the clip's ARKit curves (what
+    the solve set against what the actor showed)."""
+    disc = max(figures["darkening_p95"], key=figures["darkening_p95"].get)
+    frames = [f for f, _ in figures["darkening_frames"][disc]]
+    out = {"disc": disc, "frames": frames, "morphs": {}, "curves": {}}
+    for key, names, weights in (("morphs", animation.blend_names, animation.blend_weights),
+                                ("curves", animation.arkit_names, animation.arkit_weights)):
+        if weights is None or not frames or not len(names):
+            continue
+        mean = np.asarray(weights, np.float64)[frames].mean(0)
+        out[key] = {names[k]: round(float(mean[k]), 3) for k in np.argsort(-mean, kind="stable")[:top] if mean[k] > 0}
+    return out
 
 
 def goals_met(row: dict) -> dict[str, bool]:

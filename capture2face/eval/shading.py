@@ -22,7 +22,8 @@ discs found in avatar.mp4: a tracked landmark slides a little over the character
 surface as the face moves, and on a textured head the disc then takes in more or less of
 a beard, a goatee or painted-in shadow (Ready Player Me's goatee: the chin's figure 11 %
 in avatar.mp4, 1.8 % with the colour flat), which is no shading fault. avatar.mp4's own
-figure is kept beside it (``darkening_p95_mean_avatar``).
+figure is kept beside it (``darkening_p95_mean_avatar``). ``darkening_frames`` names each
+disc's darkest frames (where and when its p95 comes from).
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ PATCHES = {"cheek_right": 205, "cheek_left": 425, "chin": 199}
 PATCH_RADIUS_IOD = 0.08
 BRIGHTNESS_GOAL = 0.03  # p95 darkening from the disc's median frame, mean over the discs
 MOUTH_R_GOAL = 0.85
+DARKEST_FRAMES = 8  # frames named per disc in the figures: its p95 is read among them (1 in 20 frames)
 #: What the tracked-back video is compared on: name -> the measure columns averaged.
 FEATURES = {"mouth_open": [list(MEASURES).index("mouth_open")], "brows": BROW_COLUMNS,
             "eyes": [list(MEASURES).index(e) for e in EYE_MEASURES]}
@@ -85,11 +87,28 @@ def darkening(brightness: np.ndarray, rotations: np.ndarray | None = None) -> np
     """(P,) the 95th percentile over frames of ``max(0, 1 - b / median(b))`` per patch of
     ``brightness`` (F, P), with what is linear in the head's ``rotations`` (F, 3, 3) taken
     out first when given."""
+    return np.nanpercentile(frame_darkening(brightness, rotations), 95, axis=0)
+
+
+def frame_darkening(brightness: np.ndarray, rotations: np.ndarray | None = None) -> np.ndarray:
+    """(F, P) each frame's ``max(0, 1 - b / median(b))`` per patch (NaN without a face): what
+    :func:`darkening` takes the 95th percentile of."""
     b = np.asarray(brightness, np.float64)
     if rotations is not None:
         b = b - _lighting(b, rotations)
-    rel = np.clip(1.0 - b / np.nanmedian(b, axis=0), 0.0, None)
-    return np.nanpercentile(rel, 95, axis=0)
+    return np.clip(1.0 - b / np.nanmedian(b, axis=0), 0.0, None)
+
+
+def darkest_frames(per_frame: np.ndarray, n: int = DARKEST_FRAMES) -> dict[str, list[list]]:
+    """Disc name -> ``[[frame, darkening], ...]``: its ``n`` darkest frames of
+    :func:`frame_darkening` ``per_frame`` (F, P), darkest first; where and when a p95 comes
+    from (frames without a face are never named)."""
+    out = {}
+    for k, name in enumerate(PATCHES):
+        column = np.nan_to_num(per_frame[:, k], nan=-1.0)
+        order = np.argsort(-column, kind="stable")[:n]
+        out[name] = [[int(f), round(float(column[f]), 4)] for f in order if column[f] >= 0]
+    return out
 
 
 def _lighting(brightness: np.ndarray, rotations: np.ndarray) -> np.ndarray:
@@ -120,8 +139,9 @@ def shading_of(run_dir: str | os.PathLike, progress: bool = False, skin_video: s
     actor = Track.load(source)
     n = min(actor.n_frames, seen.n_frames)
     rotations = rotation_part(np.asarray(actor.head_pose)[:n])
-    seen_dark = read_darkening(video, seen, rotations)
-    dark = seen_dark if skin_video is None else read_darkening(skin_video, seen, rotations)
+    seen_frames = read_frame_darkening(video, seen, rotations)
+    per_frame = seen_frames if skin_video is None else read_frame_darkening(skin_video, seen, rotations)
+    seen_dark, dark = (np.nanpercentile(d, 95, axis=0) for d in (seen_frames, per_frame))
     follows = feature_follow(source_measures(actor)[:n], source_measures(seen)[:n])
     r = follows["mouth_open_r"]
     return {
@@ -131,6 +151,7 @@ def shading_of(run_dir: str | os.PathLike, progress: bool = False, skin_video: s
         "darkening_p95_mean": float(dark.mean()),
         "darkening_read_in": "avatar.mp4" if skin_video is None else Path(skin_video).name,
         "darkening_p95_mean_avatar": float(seen_dark.mean()),
+        "darkening_frames": darkest_frames(per_frame),
         **follows,
         "met": bool(dark.mean() <= BRIGHTNESS_GOAL and r >= MOUTH_R_GOAL),
     }
@@ -139,8 +160,12 @@ def shading_of(run_dir: str | os.PathLike, progress: bool = False, skin_video: s
 def read_darkening(video: str | os.PathLike, seen: Track, rotations: np.ndarray) -> np.ndarray:
     """(P,) :func:`darkening` of each disc of ``video``, placed where ``seen`` (the tracked
     avatar.mp4) has its landmarks, over the frames of ``rotations`` (F, 3, 3)."""
-    n = len(rotations)
-    return darkening(patch_brightness(video, seen)[:n], rotations)
+    return np.nanpercentile(read_frame_darkening(video, seen, rotations), 95, axis=0)
+
+
+def read_frame_darkening(video: str | os.PathLike, seen: Track, rotations: np.ndarray) -> np.ndarray:
+    """(F, P) :func:`frame_darkening` of each disc of ``video`` (as :func:`read_darkening`)."""
+    return frame_darkening(patch_brightness(video, seen)[:len(rotations)], rotations)
 
 
 def feature_follow(actor: np.ndarray, seen: np.ndarray) -> dict[str, float]:
