@@ -105,3 +105,21 @@ def test_calibration_doc_lists_the_protocol_in_order():
     found = re.findall(r"^\d+\. \*\*(\w+)\*\*", text, re.M)
     assert found == list(STEP_NAMES)
     assert (REPO / "docs" / "calibration_protocol.jpg").stat().st_size < 400_000
+
+
+def test_calibration_across_takes_counts_goals_over_every_take():
+    """The spread table: mean r [lowest, highest] / mean MAE over a performance's takes, a
+    goal met only where r >= 0.9 and the MAE is below MediaPipe's."""
+    sys.path.insert(0, os.fspath(REPO / "tools"))
+    try:
+        import calibration_across_takes as tool
+    finally:
+        sys.path.remove(os.fspath(REPO / "tools"))
+    good, bad = [0.95, 0.02, 0.05], [0.95, 0.06, 0.05]  # r met; the MAE below / above the raw score's
+    rows = {"perf|t1": {c: good for c in tool.GOALS}, "perf|t2": {c: bad for c in tool.GOALS}}
+    rows["perf|t2"]["browDownLeft"] = [0.35, 0.04, 0.05]  # MAE below, r not: not met
+    rows["perf|t2"]["jawOpen"] = [0.92, 0.01, 0.05]
+    assert tool.met(rows["perf|t1"]) == 8 and tool.met(rows["perf|t2"]) == 1
+    line = tool.table(rows).splitlines()[2]
+    assert line.startswith("| perf (t1, t2) |") and line.endswith("| 9 of 16 |")
+    assert "0.65 [0.35, 0.95] / 0.030" in line  # browDownLeft over the two takes
