@@ -116,7 +116,7 @@ def test_calibration_across_takes_counts_goals_over_every_take():
     finally:
         sys.path.remove(os.fspath(REPO / "tools"))
     good, bad = [0.95, 0.02, 0.05], [0.95, 0.06, 0.05]  # r met; the MAE below / above the raw score's
-    rows = {"perf|t1": {c: good for c in tool.GOALS}, "perf|t2": {c: bad for c in tool.GOALS}}
+    rows = {"perf|t1": dict.fromkeys(tool.GOALS, good), "perf|t2": dict.fromkeys(tool.GOALS, bad)}
     rows["perf|t2"]["browDownLeft"] = [0.35, 0.04, 0.05]  # MAE below, r not: not met
     rows["perf|t2"]["jawOpen"] = [0.92, 0.01, 0.05]
     assert tool.met(rows["perf|t1"]) == 8 and tool.met(rows["perf|t2"]) == 1
