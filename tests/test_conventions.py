@@ -22,6 +22,7 @@ from capture2face.rig.morph_conventions import (
     RULE_GROUP,
     apply_rules,
     convention_weights,
+    one_blink,
     parse_recipe,
 )
 from capture2face.topology import ARKIT_NAMES
@@ -128,6 +129,49 @@ def test_vrm_rules_binary_and_overrides():
     rules[1, RULE_BLINK] = 2  # blend: scaled by 1 - happy
     np.testing.assert_allclose(apply_rules(w, rules)[0, 3], 0.3 * 0.4, rtol=1e-5)
     assert apply_rules(w, None) is w
+
+
+def _eye_closing(w: np.ndarray) -> np.ndarray:
+    """(F, 2) each eye's closing of VRM0-ordered weights: the blink plus its own."""
+    return w[:, [5]] + w[:, [6, 7]]
+
+
+def test_one_eye_blinks_do_not_close_an_eye_twice():
+    """Godette's Blink_L / Blink_R are isBinary: the recipe's rest over the both-eyes blink
+    (one eye 0.6 more closed) was turned on at 1 on top of the blink, the lid went 1.4 of
+    its way, and a rest under half was lost (that eye as closed as the other)."""
+    rules = np.zeros((len(VRM0), 5), np.int8)
+    rules[[6, 7], RULE_BINARY] = 1
+    curves = np.concatenate([_curves(eyeBlinkLeft=1.0, eyeBlinkRight=0.4), _curves(eyeBlinkLeft=0.9, eyeBlinkRight=0.7),
+                             _curves(eyeBlinkLeft=1.0, eyeBlinkRight=1.0)])
+    recipes = convention_weights(ARKIT_NAMES, curves, VRM0)
+    before = _eye_closing(apply_rules(recipes, rules))
+    assert before[0, 0] > 1.3 and before[1, 0] == pytest.approx(0.7)  # what the rule alone made
+    after = _eye_closing(apply_rules(one_blink(recipes, VRM0, rules), rules))
+    assert after.max() <= 1.0 + 1e-6
+    np.testing.assert_allclose(after[0], [1.0, 0.0])  # a wink: the one-eye blink alone
+    np.testing.assert_allclose(after[1], [0.8, 0.8], atol=1e-6)  # under half apart: both eyes' mean
+    np.testing.assert_allclose(after[2], [1.0, 1.0])
+    # Continuous one-eye blinks: the blink takes what both share, each its own rest, once.
+    w = np.zeros((1, len(VRM0)), np.float32)
+    w[0, [5, 6, 7]] = 1.0, 1.0, 0.2
+    out = one_blink(w, VRM0)
+    np.testing.assert_allclose(out[0, [5, 6, 7]], [1.0, 0.0, 0.0])
+    assert one_blink(w, ["a", "blink"]) is w  # no one-eye blinks: unchanged
+
+
+@pytest.mark.slow
+def test_godette_closes_each_eye_at_most_once_on_a_real_clip():
+    """Godette on d3, where one eye closes ahead of the other: no frame closes a lid past
+    its blink at 1 (it reached 1.38 before)."""
+    from capture2face.character.load import load_character
+    from capture2face.pipeline import RunOptions, retarget_stage, track_stage
+
+    rig = load_character(shared_character("godette_vrm0_presets.vrm"))
+    w = retarget_stage(track_stage(shared_clip("d3.mp4"), RunOptions(), progress=False), rig).blend_weights
+    n = list(rig.morph_names)
+    closing = w[:, [n.index("blink")]] + w[:, [n.index("blink_l"), n.index("blink_r")]]
+    assert closing.max() <= 1.0 + 1e-6 and closing.max() > 0.8
 
 
 # ---- VRM files -----------------------------------------------------------------------------------------

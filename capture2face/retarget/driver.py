@@ -26,7 +26,7 @@ from capture2face.rig.arkit_names import MORPH_PLACED, arkit_morphs, arkit_weigh
 from capture2face.rig.avatar import close_lips
 from capture2face.rig.feature_points import feature_correspondence, feature_positions
 from capture2face.rig.look_at import look_weights
-from capture2face.rig.morph_conventions import apply_rules
+from capture2face.rig.morph_conventions import apply_rules, one_blink
 from capture2face.rig.open_fill import actor_opening, fill_opening, lips_round
 from capture2face.tracking.rest import REGIONS, ActorRest, actor_rest, landmark_regions
 
@@ -381,6 +381,8 @@ def _retarget_arkit(track, rest: ActorRest, rig, options: RetargetOptions) -> An
     landmarks = _skin_landmarks(rig)
     if options.solve_blend_weights and landmarks is not None and solved_morphs(rig):
         weights = _solve_arkit_weights(track, rest, rig, landmarks, weights, options)
+    if not arkit_morphs(rig.morph_names):  # a VRM's blink and one-eye blinks close each eye once
+        weights = one_blink(weights, rig.morph_names, rig.morph_rules)
     if rig.landmark_source == MORPH_PLACED and not arkit_morphs(rig.morph_names):  # its recipes at its own range
         weights = fill_opening(weights, rig, actor_opening(track.landmarks_head, rest.landmarks),
                                lips_round(list(track.blendshape_names), curves))
