@@ -160,6 +160,33 @@ def test_one_eye_blinks_do_not_close_an_eye_twice():
     assert one_blink(w, ["a", "blink"]) is w  # no one-eye blinks: unchanged
 
 
+def test_godette_s_lids_follow_the_actor_s_closing():
+    """Godette's only lid morphs are its blinks: where the actor's lids close (a squint, a
+    look down) more than the recipes close its eyes, each eye's own blink makes up the
+    rest, up to 1; a frame already closed that far keeps its weights."""
+    from capture2face.character.load import load_character
+    from capture2face.rig.lid_fill import actor_closing, fill_lids, morph_closings
+    from capture2face.topology import LIDS_LEFT, LIDS_RIGHT
+
+    rig = load_character(shared_character("godette_vrm0_presets.vrm"))
+    n = list(rig.morph_names)
+    closings = morph_closings(rig)
+    reach = closings[[n.index("blink_r"), n.index("blink_l")], [0, 1]]
+    assert (reach > 0.5).all() and closings[n.index("a")].max() < 0.01  # its blinks close, its vowels do not
+    w = np.zeros((3, len(n)), np.float32)
+    w[2, n.index("blink")] = 1.0
+    out = fill_lids(w, rig, np.array([[0.3, 0.0], [1.0, 1.0], [0.3, 0.3]]))
+    assert out[0, n.index("blink_r")] == pytest.approx(0.3 / reach[0], rel=1e-4) and out[0, n.index("blink_l")] == 0
+    assert out[1, n.index("blink_r")] == 1.0 and out[1, n.index("blink_l")] == 1.0  # at most 1
+    np.testing.assert_array_equal(out[2], w[2])  # already closed further
+    rest = np.zeros((478, 3))
+    rest[[LIDS_RIGHT[0], LIDS_LEFT[0]], 1] = 1.0
+    frames = np.repeat(rest[None], 2, 0)
+    frames[1, LIDS_RIGHT[0], 1] = 0.25  # the right lids three quarters closed
+    frames[1, LIDS_LEFT[0], 1] = 1.5  # the left eye wider than at rest: no closing
+    np.testing.assert_allclose(actor_closing(frames, rest), [[0.0, 0.0], [0.75, 0.0]])
+
+
 @pytest.mark.slow
 def test_godette_closes_each_eye_at_most_once_on_a_real_clip():
     """Godette on d3, where one eye closes ahead of the other: no frame closes a lid past
