@@ -87,6 +87,17 @@ def test_lip_shapes_pick_their_viseme():
     assert _weights(VRM0, jawOpen=1.0, mouthSmileLeft=0.6, mouthSmileRight=0.6)["fun"] == 0.0  # speech wins
 
 
+
+def test_a_vrm_smile_spreads_its_mouth_with_i():
+    """A VRM's feelings hardly widen its mouth (Godette's Fun 0.016 IOD, Joy none; its I
+    0.076): a closed smile spreads it with I as a stretch does; open, the smile stays A's /
+    E's, and a viseme head's I keeps to the stretch."""
+    smile = _weights(VRM0, mouthSmileLeft=0.8, mouthSmileRight=0.8)
+    assert smile["i"] == pytest.approx(0.8) and smile["fun"] == pytest.approx(0.8)
+    assert _weights(VRM1, mouthStretchLeft=0.6, mouthStretchRight=0.6)["ih"] == pytest.approx(0.6)
+    assert _weights(VRM0, jawOpen=1.0, mouthSmileLeft=0.8, mouthSmileRight=0.8)["i"] == 0.0
+    assert _weights(VISEMES, mouthSmileLeft=0.8, mouthSmileRight=0.8)["viseme_I"] == 0.0
+
 def test_blinks_keep_their_side_and_give_way_to_a_both_eyes_blink():
     assert _weights(["blink_l", "blink_r"], eyeBlinkLeft=1.0) == {"blink_l": 1.0, "blink_r": 0.0}
     both = _weights(VRM0, eyeBlinkLeft=1.0, eyeBlinkRight=1.0)

@@ -87,7 +87,9 @@ _BLINK_R = "eyeBlinkRight - blinkBoth*has({both})"
 def _vrm(a, i, u, e, o, joy, angry, sorrow, fun, surprised, blink, blink_l, blink_r, neutral, look) -> dict:
     """A VRM preset set by its names (VRM 0.x and 1.0 name the same presets differently)."""
     return {
-        a: _OPEN, i: _SPREAD_CLOSED, u: "mouthPucker", e: _SPREAD_OPEN, o: _ROUND_OR_WIDE,
+        # I spreads the mouth for a smile too: a VRM's feelings (Joy, Fun) hardly widen it
+        # (Godette's Fun 0.016 IOD, Joy none, its I 0.076; a human's smile 0.079).
+        a: _OPEN, i: "spread*~jawOpen", u: "mouthPucker", e: _SPREAD_OPEN, o: _ROUND_OR_WIDE,
         # The feelings that shape the mouth give way to speech (VRM 0.x has no override rules).
         joy: "duchenne*~jawOpen", angry: "0.5*browDown + 0.5*noseSneer", sorrow: "browInnerUp*~browOuterUp*~smile",
         fun: "smile*~jawOpen - duchenne*~jawOpen", surprised: "browOuterUp*eyeWide + 0.5*browOuterUp*jawOpen",
