@@ -22,6 +22,7 @@ from capture2face.rig.morph_conventions import (
     RULE_GROUP,
     apply_rules,
     convention_weights,
+    one_blink,
     parse_recipe,
 )
 from capture2face.topology import ARKIT_NAMES
@@ -86,6 +87,17 @@ def test_lip_shapes_pick_their_viseme():
     assert _weights(VRM0, jawOpen=1.0, mouthSmileLeft=0.6, mouthSmileRight=0.6)["fun"] == 0.0  # speech wins
 
 
+
+def test_a_vrm_smile_spreads_its_mouth_with_i():
+    """A VRM's feelings hardly widen its mouth (Godette's Fun 0.016 IOD, Joy none; its I
+    0.076): a closed smile spreads it with I as a stretch does; open, the smile stays A's /
+    E's, and a viseme head's I keeps to the stretch."""
+    smile = _weights(VRM0, mouthSmileLeft=0.8, mouthSmileRight=0.8)
+    assert smile["i"] == pytest.approx(0.8) and smile["fun"] == pytest.approx(0.8)
+    assert _weights(VRM1, mouthStretchLeft=0.6, mouthStretchRight=0.6)["ih"] == pytest.approx(0.6)
+    assert _weights(VRM0, jawOpen=1.0, mouthSmileLeft=0.8, mouthSmileRight=0.8)["i"] == 0.0
+    assert _weights(VISEMES, mouthSmileLeft=0.8, mouthSmileRight=0.8)["viseme_I"] == 0.0
+
 def test_blinks_keep_their_side_and_give_way_to_a_both_eyes_blink():
     assert _weights(["blink_l", "blink_r"], eyeBlinkLeft=1.0) == {"blink_l": 1.0, "blink_r": 0.0}
     both = _weights(VRM0, eyeBlinkLeft=1.0, eyeBlinkRight=1.0)
@@ -128,6 +140,76 @@ def test_vrm_rules_binary_and_overrides():
     rules[1, RULE_BLINK] = 2  # blend: scaled by 1 - happy
     np.testing.assert_allclose(apply_rules(w, rules)[0, 3], 0.3 * 0.4, rtol=1e-5)
     assert apply_rules(w, None) is w
+
+
+def _eye_closing(w: np.ndarray) -> np.ndarray:
+    """(F, 2) each eye's closing of VRM0-ordered weights: the blink plus its own."""
+    return w[:, [5]] + w[:, [6, 7]]
+
+
+def test_one_eye_blinks_do_not_close_an_eye_twice():
+    """Godette's Blink_L / Blink_R are isBinary: the recipe's rest over the both-eyes blink
+    (one eye 0.6 more closed) was turned on at 1 on top of the blink, the lid went 1.4 of
+    its way, and a rest under half was lost (that eye as closed as the other)."""
+    rules = np.zeros((len(VRM0), 5), np.int8)
+    rules[[6, 7], RULE_BINARY] = 1
+    curves = np.concatenate([_curves(eyeBlinkLeft=1.0, eyeBlinkRight=0.4), _curves(eyeBlinkLeft=0.9, eyeBlinkRight=0.7),
+                             _curves(eyeBlinkLeft=1.0, eyeBlinkRight=1.0)])
+    recipes = convention_weights(ARKIT_NAMES, curves, VRM0)
+    before = _eye_closing(apply_rules(recipes, rules))
+    assert before[0, 0] > 1.3 and before[1, 0] == pytest.approx(0.7)  # what the rule alone made
+    after = _eye_closing(apply_rules(one_blink(recipes, VRM0, rules), rules))
+    assert after.max() <= 1.0 + 1e-6
+    np.testing.assert_allclose(after[0], [1.0, 0.0])  # a wink: the one-eye blink alone
+    np.testing.assert_allclose(after[1], [0.8, 0.8], atol=1e-6)  # under half apart: both eyes' mean
+    np.testing.assert_allclose(after[2], [1.0, 1.0])
+    # Continuous one-eye blinks: the blink takes what both share, each its own rest, once.
+    w = np.zeros((1, len(VRM0)), np.float32)
+    w[0, [5, 6, 7]] = 1.0, 1.0, 0.2
+    out = one_blink(w, VRM0)
+    np.testing.assert_allclose(out[0, [5, 6, 7]], [1.0, 0.0, 0.0])
+    assert one_blink(w, ["a", "blink"]) is w  # no one-eye blinks: unchanged
+
+
+def test_godette_s_lids_follow_the_actor_s_closing():
+    """Godette's only lid morphs are its blinks: where the actor's lids close (a squint, a
+    look down) more than the recipes close its eyes, each eye's own blink makes up the
+    rest, up to 1; a frame already closed that far keeps its weights."""
+    from capture2face.character.load import load_character
+    from capture2face.rig.lid_fill import actor_closing, fill_lids, morph_closings
+    from capture2face.topology import LIDS_LEFT, LIDS_RIGHT
+
+    rig = load_character(shared_character("godette_vrm0_presets.vrm"))
+    n = list(rig.morph_names)
+    closings = morph_closings(rig)
+    reach = closings[[n.index("blink_r"), n.index("blink_l")], [0, 1]]
+    assert (reach > 0.5).all() and closings[n.index("a")].max() < 0.01  # its blinks close, its vowels do not
+    w = np.zeros((3, len(n)), np.float32)
+    w[2, n.index("blink")] = 1.0
+    out = fill_lids(w, rig, np.array([[0.3, 0.0], [1.0, 1.0], [0.3, 0.3]]))
+    assert out[0, n.index("blink_r")] == pytest.approx(0.3 / reach[0], rel=1e-4) and out[0, n.index("blink_l")] == 0
+    assert out[1, n.index("blink_r")] == 1.0 and out[1, n.index("blink_l")] == 1.0  # at most 1
+    np.testing.assert_array_equal(out[2], w[2])  # already closed further
+    rest = np.zeros((478, 3))
+    rest[[LIDS_RIGHT[0], LIDS_LEFT[0]], 1] = 1.0
+    frames = np.repeat(rest[None], 2, 0)
+    frames[1, LIDS_RIGHT[0], 1] = 0.25  # the right lids three quarters closed
+    frames[1, LIDS_LEFT[0], 1] = 1.5  # the left eye wider than at rest: no closing
+    np.testing.assert_allclose(actor_closing(frames, rest), [[0.0, 0.0], [0.75, 0.0]])
+
+
+@pytest.mark.slow
+def test_godette_closes_each_eye_at_most_once_on_a_real_clip():
+    """Godette on d3, where one eye closes ahead of the other: no frame closes a lid past
+    its blink at 1 (it reached 1.38 before)."""
+    from capture2face.character.load import load_character
+    from capture2face.pipeline import RunOptions, retarget_stage, track_stage
+
+    rig = load_character(shared_character("godette_vrm0_presets.vrm"))
+    w = retarget_stage(track_stage(shared_clip("d3.mp4"), RunOptions(), progress=False), rig).blend_weights
+    n = list(rig.morph_names)
+    closing = w[:, [n.index("blink")]] + w[:, [n.index("blink_l"), n.index("blink_r")]]
+    assert closing.max() <= 1.0 + 1e-6 and closing.max() > 0.8
 
 
 # ---- VRM files -----------------------------------------------------------------------------------------

@@ -25,8 +25,9 @@ from capture2face.rig import influences as inf
 from capture2face.rig.arkit_names import MORPH_PLACED, arkit_morphs, arkit_weights, drive_mode, solved_morphs
 from capture2face.rig.avatar import close_lips
 from capture2face.rig.feature_points import feature_correspondence, feature_positions
+from capture2face.rig.lid_fill import actor_closing, fill_lids
 from capture2face.rig.look_at import look_weights
-from capture2face.rig.morph_conventions import apply_rules
+from capture2face.rig.morph_conventions import apply_rules, one_blink
 from capture2face.rig.open_fill import actor_opening, fill_opening, lips_round
 from capture2face.tracking.rest import REGIONS, ActorRest, actor_rest, landmark_regions
 
@@ -386,6 +387,10 @@ def _retarget_arkit(track, rest: ActorRest, rig, options: RetargetOptions) -> An
                                lips_round(list(track.blendshape_names), curves))
     if rig.look_ranges is not None:  # a VRM's look presets turn by its own range tables
         weights = look_weights(weights, rig.morph_names, rig.look_ranges, _gaze(track, rest, options))
+    if rig.landmark_source == MORPH_PLACED and not arkit_morphs(rig.morph_names):  # lids at the actor's closing
+        weights = fill_lids(weights, rig, actor_closing(track.landmarks_head, rest.landmarks))
+    if not arkit_morphs(rig.morph_names):  # a VRM's blink and one-eye blinks close each eye once
+        weights = one_blink(weights, rig.morph_names, rig.morph_rules)
     weights = apply_rules(weights, rig.morph_rules)
     bones = np.repeat(rig.bone_rest[None].astype(np.float32), track.n_frames, 0)
     # Automatic feature points (character.auto_wrinkles) measure the influences where the

@@ -87,7 +87,9 @@ _BLINK_R = "eyeBlinkRight - blinkBoth*has({both})"
 def _vrm(a, i, u, e, o, joy, angry, sorrow, fun, surprised, blink, blink_l, blink_r, neutral, look) -> dict:
     """A VRM preset set by its names (VRM 0.x and 1.0 name the same presets differently)."""
     return {
-        a: _OPEN, i: _SPREAD_CLOSED, u: "mouthPucker", e: _SPREAD_OPEN, o: _ROUND_OR_WIDE,
+        # I spreads the mouth for a smile too: a VRM's feelings (Joy, Fun) hardly widen it
+        # (Godette's Fun 0.016 IOD, Joy none, its I 0.076; a human's smile 0.079).
+        a: _OPEN, i: "spread*~jawOpen", u: "mouthPucker", e: _SPREAD_OPEN, o: _ROUND_OR_WIDE,
         # The feelings that shape the mouth give way to speech (VRM 0.x has no override rules).
         joy: "duchenne*~jawOpen", angry: "0.5*browDown + 0.5*noseSneer", sorrow: "browInnerUp*~browOuterUp*~smile",
         fun: "smile*~jawOpen - duchenne*~jawOpen", surprised: "browOuterUp*eyeWide + 0.5*browOuterUp*jawOpen",
@@ -262,6 +264,37 @@ GROUPS = {
     RULE_LOOK_AT: ("lookup", "lookdown", "lookleft", "lookright"),
     RULE_MOUTH: ("aa", "ih", "ou", "ee", "oh", "a", "i", "u", "e", "o"),
 }
+
+
+#: A VRM head's both-eyes blink and its one-eye blinks (VRM 0.x and 1.0 names): the two
+#: close the same lid, so an eye's closing is the blink plus its own.
+BLINKS = (("blink", "blink_l", "blink_r"), ("blink", "blinkleft", "blinkright"))
+
+
+def one_blink(weights: np.ndarray, morph_names: list[str], rules: np.ndarray | None = None) -> np.ndarray:
+    """(F, M) weights whose blink and one-eye blinks close each eye at most once: they close
+    the same lid, and the recipes' one-eye rest, turned on at 1 by ``isBinary`` on top of
+    the blink, took Godette's lids 1.35-1.38 of their way on d3 and d6. Each eye's
+    closing (the blink plus its own, at most 1) is split: the blink takes what both eyes
+    share and each one-eye blink the rest; where the one-eye blinks are ``isBinary`` in
+    ``rules`` (M, 5) (Godette's: on above 0.5, so a rest under half was lost and one over
+    it closed the eye past full), the blink takes both eyes' mean, and a wink (one eye
+    closing at least half more than the other) its one-eye blink alone."""
+    known = {name.lower(): m for m, (_, name) in convention_morphs(morph_names).items()}
+    for both, left, right in BLINKS:
+        if not all(n in known for n in (both, left, right)):
+            continue
+        b, sides = known[both], [known[left], known[right]]
+        closing = np.minimum(weights[:, [b]] + weights[:, sides], 1.0)
+        weights = weights.copy()
+        if rules is not None and len(rules) and (np.asarray(rules)[sides, RULE_BINARY] > 0).all():
+            wink = closing - closing[:, ::-1] >= 0.5
+            weights[:, b] = np.where(wink.any(1), 0.0, closing.mean(1))
+            weights[:, sides] = wink
+        else:
+            weights[:, b] = closing.min(1)
+            weights[:, sides] = closing - closing.min(1, keepdims=True)
+    return weights
 
 
 def apply_rules(weights: np.ndarray, rules: np.ndarray | None) -> np.ndarray:
