@@ -62,6 +62,11 @@ POSE_ROUNDS = 4  # fits of the pose model, each on the idle frames of the one be
 # truth at ICT performances' rest); the frown's floor raised as well cost the frown (r 0.87 ->
 # 0.84 on ict-a seed 0).
 NOISE_PERCENTILE, NOISE_FULL_STEPS = 90.0, ("brows_up",)
+# The ridge on each pose term of the fit on the holds (relative to the term's spread over the
+# fitted frames and their count): the terms a take spans little (the rotation's squares and
+# products) otherwise extrapolate differently from take to take (browDown's lowest r over
+# three takes of ict-a seed 1 0.68 -> 0.76 with it).
+POSE_RIDGE = 0.1
 
 
 def _score_columns(names: list[str]) -> np.ndarray:
@@ -219,17 +224,26 @@ def _pose_model(raw: np.ndarray, terms: np.ndarray, valid: np.ndarray) -> tuple[
 
 
 def _joint_pose(raw: np.ndarray, terms: np.ndarray, idle: np.ndarray, holds: list) -> np.ndarray:
-    """(P, D) the pose model (:func:`_pose_model`) fitted by least squares on the take's
-    ``idle`` frames and the ``holds`` of its steps (runs) together, each hold with a constant
-    of its own (the step's change, fitted with it and dropped)."""
+    """(P, D) the pose model (:func:`_pose_model`) fitted on the take's ``idle`` frames and
+    the ``holds`` of its steps (runs) together, each hold with a constant of its own (the
+    step's change, fitted with it and dropped), each pose term (all but the last, the
+    constant) held back by a ridge of :data:`POSE_RIDGE` on its spread over those frames."""
     frames = np.concatenate([idle] + [np.arange(h.hold_start, h.hold_stop) for h in holds])
     onehot = np.zeros((len(frames), len(holds)))
     at = len(idle)
     for j, h in enumerate(holds):
         onehot[at:at + h.hold_stop - h.hold_start, j] = 1.0
         at += h.hold_stop - h.hold_start
-    coef, *_ = np.linalg.lstsq(np.concatenate([terms[frames], onehot], 1), raw[frames], rcond=None)
-    return coef[:terms.shape[1]]
+    t = terms[frames, :-1]
+    mean, spread = t.mean(0), np.maximum(t.std(0), 1e-9)
+    p = t.shape[1]
+    # The ridge as extra rows: sqrt(ridge * N) times each scaled term's coefficient -> 0.
+    x = np.concatenate([(t - mean) / spread, np.ones((len(frames), 1)), onehot], 1)
+    x = np.concatenate([x, np.sqrt(POSE_RIDGE * len(frames)) * np.eye(p, x.shape[1])])
+    y = np.concatenate([raw[frames], np.zeros((p, raw.shape[1]))])
+    coef, *_ = np.linalg.lstsq(x, y, rcond=None)
+    slope = coef[:p] / spread[:, None]
+    return np.concatenate([slope, coef[p:p + 1] - mean @ slope])
 
 
 def _noise_floor(idle_weights: np.ndarray, row_steps: list[str]) -> np.ndarray:
