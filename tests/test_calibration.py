@@ -69,11 +69,13 @@ def test_own_hold_is_the_longest_plateau_of_the_steps_own_groups():
     assert own_hold(run, np.zeros(100)) == run  # its groups never move: as found
 
 
-def test_the_pose_model_is_fitted_on_the_holds_too():
+def test_the_pose_model_is_fitted_on_the_holds_too(monkeypatch):
     """Idle frames that span little of the head's motion leave the pose model undetermined;
     the holds' frames (each with its own constant, the step's row) determine it."""
+    from capture2face.calibration import learn
     from capture2face.calibration.learn import _joint_pose
 
+    monkeypatch.setattr(learn, "POSE_RIDGE", 0.0)
     rng = np.random.default_rng(2)
     frames, n_terms = 400, 4
     terms = np.concatenate([rng.normal(size=(frames, n_terms - 1)), np.ones((frames, 1))], 1)
@@ -86,6 +88,21 @@ def test_the_pose_model_is_fitted_on_the_holds_too():
         raw[h.hold_start:h.hold_stop] += row
     model = _joint_pose(raw, terms, np.arange(100), holds)
     np.testing.assert_allclose(model, true, atol=0.02)
+    # With the ridge, each term is held back by its spread (1 / (1 + ridge) of its slope on
+    # these well-spanned terms); a term the frames do not span at all reads no effect.
+    monkeypatch.setattr(learn, "POSE_RIDGE", 0.1)
+    np.testing.assert_allclose(_joint_pose(raw, terms, np.arange(100), holds)[:-1], true[:-1] / 1.1, atol=0.05)
+    terms[:, 0] = 0.5
+    assert np.abs(_joint_pose(raw, terms, np.arange(100), holds)[0]).max() < 1e-6
+
+
+def test_the_brows_raise_takes_its_highest_idle_weight_as_its_floor():
+    """A clip's rest in another light reads as a little raise: the raise's floor is its
+    highest weight on the take's idle frames, the others' their 90th percentile."""
+    from capture2face.calibration.learn import _noise_floor
+
+    idle = np.tile(np.linspace(0.0, 1.0, 101)[:, None], (1, 2))
+    np.testing.assert_allclose(_noise_floor(idle, ["brows_up", "frown"]), [1.0, 0.9], atol=1e-6)
 
 
 def test_a_faint_step_the_tracker_does_not_read_is_not_learned():
