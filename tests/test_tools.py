@@ -123,3 +123,27 @@ def test_calibration_across_takes_counts_goals_over_every_take():
     line = tool.table(rows).splitlines()[2]
     assert line.startswith("| perf (t1, t2) |") and line.endswith("| 9 of 16 |")
     assert "0.65 [0.35, 0.95] / 0.030" in line  # browDownLeft over the two takes
+
+
+def test_morph_ranges_gives_p99_or_the_mean_over_frames():
+    """Each ARKit-named morph's solved weight beside its curve: p99 over the clip, or the
+    mean over ``--frames`` (one expression, as d18's grimace in docs/characters.md)."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    sys.path.insert(0, os.fspath(REPO / "tools"))
+    try:
+        import morph_ranges as tool
+    finally:
+        sys.path.remove(os.fspath(REPO / "tools"))
+    curve = np.linspace(0.0, 1.0, 101)
+    animation = SimpleNamespace(arkit_names=["jawOpen", "mouthShrugUpper"],
+                                arkit_weights=np.stack([curve, np.zeros(101)], 1),
+                                blend_names=["jawOpen", "mouthShrugUpper", "viseme_aa"],
+                                blend_weights=np.stack([curve / 2, np.ones(101), curve], 1))
+    rows = {n: (c, w) for n, c, w in tool.morph_ranges(None, animation)}
+    assert set(rows) == {"jawOpen", "mouthShrugUpper"}
+    assert rows["jawOpen"] == pytest.approx((0.99, 0.495)) and rows["mouthShrugUpper"] == (0.0, 1.0)
+    rows = {n: (c, w) for n, c, w in tool.morph_ranges(None, animation, ["jawOpen"], slice(10, 21))}
+    assert rows == {"jawOpen": pytest.approx((0.15, 0.075))}

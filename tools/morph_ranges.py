@@ -1,12 +1,13 @@
 """Each morph's solved weight against the clip's ARKit curve of the same name (docs/characters.md's
 per-morph tables): the 99th percentile of both over the clip.
 
-    python tools/morph_ranges.py [CLIP ...] --character FILE [--cache DIR] [--morphs NAME ...]
+    python tools/morph_ranges.py [CLIP ...] --character FILE [--cache DIR] [--morphs NAME ...] [--frames A:B]
 
 Each clip's track comes from tools/track_clips.py's cache (tracked there first when missing),
 then goes through ``pipeline.retarget_stage`` as in ``capture2face run``. A morph whose weight
 sits far above its curve where the actor never makes that face (``browDown`` against a brow
-raise) is the solve trading one morph against another.
+raise) is the solve trading one morph against another. ``--frames A:B`` gives the mean of both
+over frames A to B-1 instead (one expression: d18's grimace, 117:126).
 """
 
 from __future__ import annotations
@@ -17,8 +18,10 @@ import numpy as np
 from track_clips import cached_track, chosen_clips, clip_arguments
 
 
-def morph_ranges(track, animation, names: list[str] | None = None) -> list[tuple[str, float, float]]:
-    """(ARKit name, curve p99, solved weight p99) for each of the character's ARKit-named morphs."""
+def morph_ranges(track, animation, names: list[str] | None = None, frames: slice | None = None
+                 ) -> list[tuple[str, float, float]]:
+    """(ARKit name, curve p99, solved weight p99) for each of the character's ARKit-named morphs;
+    with ``frames``, the means over those frames."""
     from capture2face.rig.arkit_names import canonical_arkit
 
     curves = dict(zip(animation.arkit_names, np.asarray(animation.arkit_weights).T, strict=True))
@@ -27,8 +30,11 @@ def morph_ranges(track, animation, names: list[str] | None = None) -> list[tuple
         name = canonical_arkit(morph)
         if name is None or name not in curves or (names and name not in names) or name in rows:
             continue
-        rows[name] = (float(np.percentile(curves[name], 99)),
-                      float(np.percentile(np.asarray(animation.blend_weights)[:, m], 99)))
+        weight = np.asarray(animation.blend_weights)[:, m]
+        if frames is None:
+            rows[name] = (float(np.percentile(curves[name], 99)), float(np.percentile(weight, 99)))
+        else:
+            rows[name] = (float(np.mean(curves[name][frames])), float(np.mean(weight[frames])))
     return [(n, c, w) for n, (c, w) in sorted(rows.items())]
 
 
@@ -38,7 +44,9 @@ def main(argv: list[str] | None = None) -> int:
     clip_arguments(parser)
     parser.add_argument("--character", required=True, help="a .glb / .vrm / .gltf with ARKit-named morphs")
     parser.add_argument("--morphs", nargs="*", default=None, metavar="NAME", help="only these ARKit names")
+    parser.add_argument("--frames", default=None, metavar="A:B", help="means over frames A to B-1, not p99")
     args = parser.parse_args(argv)
+    frames = None if args.frames is None else slice(*(int(v) for v in args.frames.split(":")))
     clips, cache = chosen_clips(args)
 
     from capture2face.character.load import load_character
@@ -48,8 +56,9 @@ def main(argv: list[str] | None = None) -> int:
     for clip in clips:
         track = cached_track(clip, cache)
         animation = retarget_stage(track, rig)
-        print(f"{clip.stem}: morph | curve p99 | weight p99")
-        for name, curve, weight in morph_ranges(track, animation, args.morphs):
+        what = "p99" if frames is None else f"mean {args.frames}"
+        print(f"{clip.stem}: morph | curve {what} | weight {what}")
+        for name, curve, weight in morph_ranges(track, animation, args.morphs, frames):
             print(f"  {name} | {curve:.2f} | {weight:.2f}")
     return 0
 
