@@ -444,8 +444,9 @@ def _check_batch(options: Any, progress: bool, ray_address: str | None) -> None:
     # limits, the face model, a drivable character (the default avatar is), and the GL
     # context where the workers are local processes (a Ray worker may be another machine).
     # The default avatar too: built here once (then cached) rather than by every worker.
+    options.validate()
+    check_calibration(options.track)  # an actor.json loads, a take decodes: before a first avatar build
     check_shared(options, progress)
-    check_calibration(options.track)  # an actor.json loads, a take decodes
     if not ray_address:
         check_gl()
 
