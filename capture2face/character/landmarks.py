@@ -96,6 +96,17 @@ SKIN_CODES = (0,)  # FaceRig.material: the face's skin (not the rest of the head
 EYE_CODE = 1
 
 
+def overlay_mask(rig: FaceRig) -> np.ndarray:
+    """(V,) bool the rig's overlay vertices (hair and lash cards, beards, glasses); all False
+    where it has none."""
+    return np.zeros(rig.n_vertices, bool) if rig.overlay_vertices is None else np.asarray(rig.overlay_vertices)
+
+
+def skin_vertices(rig: FaceRig) -> np.ndarray:
+    """(V,) bool the face's skin (:data:`SKIN_CODES`), overlays left out: where landmarks go."""
+    return np.isin(np.asarray(rig.material), SKIN_CODES) & ~overlay_mask(rig)
+
+
 @dataclass
 class SurfaceLandmarks:
     """Each tracker landmark's point on the character's surface (L landmarks).
@@ -179,8 +190,7 @@ def lids_on_margin(rig: FaceRig, out: SurfaceLandmarks) -> SurfaceLandmarks:
 
     faults = landmark_faults(placed_on(out))
     verts = np.asarray(rig.vertices, np.float64)
-    overlay = np.zeros(rig.n_vertices, bool) if rig.overlay_vertices is None else np.asarray(rig.overlay_vertices)
-    skin = np.isin(np.asarray(rig.material), SKIN_CODES) & ~overlay
+    skin = skin_vertices(rig)
     for measure, (rows, blink) in UPPER_LIDS.items():
         rows = np.array(rows)
         placed = rows[out.vertices[rows] >= 0]
@@ -276,9 +286,8 @@ def _cast_view(rig: FaceRig, view: _View, fov_y_degrees: float) -> SurfaceLandma
     normals = view.normals[tris].sum(1) @ view.pose[:3, :3].T  # (T, 3) camera space
     facing = np.einsum("tc,tc->t", normals, -cam[tris].mean(1)) > 0
     facing &= np.isfinite(px[tris]).all((1, 2))
-    overlay = np.zeros(rig.n_vertices, bool) if rig.overlay_vertices is None else np.asarray(rig.overlay_vertices)
     mat = np.asarray(rig.material)
-    clean = facing & ~overlay[tris].any(1)
+    clean = facing & ~overlay_mask(rig)[tris].any(1)
     skin = clean & np.isin(mat[tris], SKIN_CODES).all(1)
     eyes = clean & (mat[tris] == EYE_CODE).all(1)
     faces = np.full((L, 3), -1, np.int32)
@@ -425,9 +434,8 @@ def cast_front(rig: FaceRig, points: np.ndarray) -> SurfaceLandmarks:
     depth = verts[:, 2].max() - verts[:, 2] + 1e3
     tris = np.asarray(rig.triangles, np.int64)
     facing = np.asarray(rig.normals, np.float64)[tris].sum(1)[:, 2] > 0
-    overlay = np.zeros(rig.n_vertices, bool) if rig.overlay_vertices is None else np.asarray(rig.overlay_vertices)
     mat = np.asarray(rig.material)
-    clean = facing & ~overlay[tris].any(1)
+    clean = facing & ~overlay_mask(rig)[tris].any(1)
     L = len(points)
     faces = np.full((L, 3), -1, np.int32)
     bary = np.zeros((L, 3), np.float32)

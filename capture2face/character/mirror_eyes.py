@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from capture2face.character.landmarks import skin_vertices
 from capture2face.measures import landmark_faults
 from capture2face.rig.face_rig import FaceRig, landmark_points
 from capture2face.runtime.log import log
@@ -34,8 +35,6 @@ EYES = {"eye_right": np.array(EYE_RIGHT), "eye_left": np.array(EYE_LEFT)}
 #: inter-ocular distances): the XR head's 0.0003 about the plane found in
 #: :data:`MIRROR_ROUNDS` rounds (0.008 about the midline landmarks' plane).
 MIRROR_TOL_IOD, MIRROR_ROUNDS = 0.005, 3
-#: Skin (``FaceRig.material``), as the landmarks are cast on it.
-SKIN_CODE = 0
 
 
 def mirrored_eyes(rig: FaceRig, faces: np.ndarray, bary: np.ndarray, vertices: np.ndarray
@@ -55,8 +54,7 @@ def mirrored_eyes(rig: FaceRig, faces: np.ndarray, bary: np.ndarray, vertices: n
     if (src < 0).any():
         return faces, bary, vertices
     verts = np.asarray(rig.vertices, np.float64)
-    overlay = np.zeros(rig.n_vertices, bool) if rig.overlay_vertices is None else np.asarray(rig.overlay_vertices)
-    skin = np.flatnonzero((np.asarray(rig.material) == SKIN_CODE) & ~overlay)
+    skin = np.flatnonzero(skin_vertices(rig))
     tree, at = cKDTree(verts[skin]), verts[src.ravel()]
     placed = rig.replace(landmark_faces=faces, landmark_bary=bary, landmark_vertices=vertices)
     mid = float(np.median(landmark_points(placed, verts, list(MIDLINE))[:, 0]))
