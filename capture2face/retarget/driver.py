@@ -387,10 +387,10 @@ def _retarget_arkit(track, rest: ActorRest, rig, options: RetargetOptions) -> An
                                lips_round(list(track.blendshape_names), curves))
     if rig.look_ranges is not None:  # a VRM's look presets turn by its own range tables
         weights = look_weights(weights, rig.morph_names, rig.look_ranges, _gaze(track, rest, options))
-    if rig.landmark_source == MORPH_PLACED and not arkit_morphs(rig.morph_names):  # lids at the actor's closing
-        weights = fill_lids(weights, rig, actor_closing(track.landmarks_head, rest.landmarks))
-    if not arkit_morphs(rig.morph_names):  # a VRM's blink and one-eye blinks close each eye once
-        weights = one_blink(weights, rig.morph_names, rig.morph_rules)
+    if not arkit_morphs(rig.morph_names):
+        if rig.landmark_source == MORPH_PLACED:  # lids at the actor's closing
+            weights = fill_lids(weights, rig, actor_closing(track.landmarks_head, rest.landmarks))
+        weights = one_blink(weights, rig.morph_names, rig.morph_rules)  # a VRM's blinks close each eye once
     weights = apply_rules(weights, rig.morph_rules)
     bones = np.repeat(rig.bone_rest[None].astype(np.float32), track.n_frames, 0)
     # Automatic feature points (character.auto_wrinkles) measure the influences where the

@@ -17,11 +17,8 @@ from __future__ import annotations
 import numpy as np
 
 from capture2face.rig.face_rig import FaceRig, landmark_points
+from capture2face.rig.morph_conventions import blink_morphs
 from capture2face.topology import LIDS_LEFT, LIDS_RIGHT
-
-#: Each eye's own blink, by name (VRM 0.x, VRM 1.0), in (right, left) order: the
-#: character's right eye is the tracker's ``LIDS_RIGHT``.
-EYE_BLINKS = (("blink_r", "blink_l"), ("blinkright", "blinkleft"))
 
 
 def actor_closing(landmarks_head: np.ndarray, rest: np.ndarray) -> np.ndarray:
@@ -50,10 +47,10 @@ def fill_lids(weights: np.ndarray, rig: FaceRig, closing: np.ndarray) -> np.ndar
     """(F, M) ``weights`` with each eye's own blink raised where that eye closes less than
     ``closing`` (F, 2) (:func:`actor_closing`); unchanged for a head without both one-eye
     blinks or whose blinks do not close its lids."""
-    names = [str(n).lower().rsplit(".", 1)[-1] for n in rig.morph_names]
-    sides = next(([names.index(s) for s in pair] for pair in EYE_BLINKS if all(s in names for s in pair)), None)
-    if sides is None:
+    found = blink_morphs(rig.morph_names)
+    if found is None:
         return weights
+    sides = [found[2], found[1]]  # (right, left): the character's right eye is the tracker's LIDS_RIGHT
     closings = morph_closings(rig)
     reach = closings[sides, [0, 1]]
     if (reach <= 0.1).any():

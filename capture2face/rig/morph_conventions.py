@@ -271,6 +271,14 @@ GROUPS = {
 BLINKS = (("blink", "blink_l", "blink_r"), ("blink", "blinkleft", "blinkright"))
 
 
+def blink_morphs(morph_names: list[str]) -> tuple[int | None, int, int] | None:
+    """(both, left, right) morph indices of a VRM's blink and one-eye blinks (:data:`BLINKS`;
+    ``both`` None where it has only the one-eye blinks), or None without both of those."""
+    known = {name.lower(): m for m, (_, name) in convention_morphs(morph_names).items()}
+    return next(((known.get(both), known[left], known[right]) for both, left, right in BLINKS
+                 if left in known and right in known), None)
+
+
 def one_blink(weights: np.ndarray, morph_names: list[str], rules: np.ndarray | None = None) -> np.ndarray:
     """(F, M) weights whose blink and one-eye blinks close each eye at most once: they close
     the same lid, and the recipes' one-eye rest, turned on at 1 by ``isBinary`` on top of
@@ -280,20 +288,19 @@ def one_blink(weights: np.ndarray, morph_names: list[str], rules: np.ndarray | N
     ``rules`` (M, 5) (Godette's: on above 0.5, so a rest under half was lost and one over
     it closed the eye past full), the blink takes both eyes' mean, and a wink (one eye
     closing at least half more than the other) its one-eye blink alone."""
-    known = {name.lower(): m for m, (_, name) in convention_morphs(morph_names).items()}
-    for both, left, right in BLINKS:
-        if not all(n in known for n in (both, left, right)):
-            continue
-        b, sides = known[both], [known[left], known[right]]
-        closing = np.minimum(weights[:, [b]] + weights[:, sides], 1.0)
-        weights = weights.copy()
-        if rules is not None and len(rules) and (np.asarray(rules)[sides, RULE_BINARY] > 0).all():
-            wink = closing - closing[:, ::-1] >= 0.5
-            weights[:, b] = np.where(wink.any(1), 0.0, closing.mean(1))
-            weights[:, sides] = wink
-        else:
-            weights[:, b] = closing.min(1)
-            weights[:, sides] = closing - closing.min(1, keepdims=True)
+    found = blink_morphs(morph_names)
+    if found is None or found[0] is None:
+        return weights
+    b, sides = found[0], list(found[1:])
+    closing = np.minimum(weights[:, [b]] + weights[:, sides], 1.0)
+    weights = weights.copy()
+    if rules is not None and len(rules) and (np.asarray(rules)[sides, RULE_BINARY] > 0).all():
+        wink = closing - closing[:, ::-1] >= 0.5
+        weights[:, b] = np.where(wink.any(1), 0.0, closing.mean(1))
+        weights[:, sides] = wink
+    else:
+        weights[:, b] = closing.min(1)
+        weights[:, sides] = closing - closing.min(1, keepdims=True)
     return weights
 
 
