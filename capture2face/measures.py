@@ -166,11 +166,21 @@ MIN_REACH = 0.5
 OWN_RANGE_BELOW = 0.8
 
 
-#: A human's lowering of each brow measure (IOD: ICT-FaceKit's generic neutral, ict-a.glb,
-#: lowers them 0.019 and 0.017 at its morphs at 1, read as :func:`lowering_reach` reads them):
-#: a head whose brows lower under :data:`OWN_RANGE_BELOW` of it is judged at its own range
-#: below the actor's rest (:meth:`ClipFidelity._own_range_source`).
-HUMAN_LOWERING: dict[str, float] = {"brow_right": 0.018, "brow_left": 0.018}
+#: A human's motion of each measure the other way from :data:`HUMAN_REACH`'s, or as well as it,
+#: read on ICT-FaceKit's generic neutral (ict-a.glb) at its morphs at 1 as :func:`reaches`
+#: reads them: below the rest, the brows' lowering (0.019 and 0.017 IOD), the mouth's narrowing
+#: (0.100) and the lids' closing (0.74 and 0.72 of their rest opening: ict-a's blink leaves the
+#: 3-D lid pair a quarter apart); above it, the lids' opening (eyeWide: 0.27 and 0.26). A head
+#: short of one of these under :data:`OWN_RANGE_BELOW` is judged at its own range that way
+#: (:meth:`ClipFidelity._own_range_source`): an anime head's presets widen its mouth but
+#: cannot narrow it (0.003), and no preset opens its lids past their rest.
+HUMAN_BELOW: dict[str, float] = {"brow_right": 0.018, "brow_left": 0.018, "mouth_width": 0.100,
+                                 "eye_right": 0.73, "eye_left": 0.73}
+HUMAN_ABOVE: dict[str, float] = {"eye_right": 0.26, "eye_left": 0.26}
+#: What the figures call each measure's motion below / above its rest (``<way>_reach``).
+BELOW_WAY = {"brow_right": "lowering", "brow_left": "lowering", "mouth_width": "narrowing",
+             "eye_right": "closing", "eye_left": "closing"}
+ABOVE_WAY = {"eye_right": "opening", "eye_left": "opening"}
 
 
 def measure_reach(rig) -> dict[str, float]:
@@ -183,26 +193,34 @@ def measure_reach(rig) -> dict[str, float]:
 
 
 def lowering_reach(rig) -> dict[str, float]:
-    """{brow measure: the share of a human's lowering (:data:`HUMAN_LOWERING`)} its solved
-    morphs make at 1, as :func:`measure_reach`: a Ready Player Me head's ``browDown`` lowers
-    its inner brow (landmarks 107, 336) 0.06 IOD but its mid brow (105, 334, the measure's)
-    0.002, where a human's lowers both 0.02. Empty where :func:`measure_reach` is."""
+    """{measure: the share of a human's motion below its rest (:data:`HUMAN_BELOW`)} its
+    solved morphs make at 1, as :func:`measure_reach`: a Ready Player Me head's ``browDown``
+    lowers its inner brow (landmarks 107, 336) 0.06 IOD but its mid brow (105, 334, the
+    measure's) 0.002, where a human's lowers both 0.02; Godette's presets narrow its mouth
+    0.003 IOD. Empty where :func:`measure_reach` is."""
     return reaches(rig)[1]
 
 
-def reaches(rig) -> tuple[dict[str, float], dict[str, float]]:
-    """(:func:`measure_reach`, :func:`lowering_reach`) of ``rig``, its morphs posed once."""
+def opening_reach(rig) -> dict[str, float]:
+    """{eye measure: the share of a human's opening past rest (:data:`HUMAN_ABOVE`)} its
+    solved morphs make at 1, as :func:`lowering_reach`."""
+    return reaches(rig)[2]
+
+
+def reaches(rig) -> tuple[dict[str, float], dict[str, float], dict[str, float]]:
+    """(:func:`measure_reach`, :func:`lowering_reach`, :func:`opening_reach`) of ``rig``, its
+    morphs posed once."""
     change = _reach_changes(rig)
     if change is None:
-        return {}, {}
+        return {}, {}, {}
     reach = {}
     for k, (name, (way, human)) in enumerate(HUMAN_REACH.items()):
         most = {"up": change[:, k].max(), "down": -change[:, k].min(), "either": np.abs(change[:, k]).max()}[way]
         reach[name] = max(float(most), 0.0) / human
     names = list(MEASURES)
-    lowering = {name: max(float(-change[:, names.index(name)].min()), 0.0) / human
-                for name, human in HUMAN_LOWERING.items()}
-    return reach, lowering
+    below = {name: max(float(-change[:, names.index(name)].min()), 0.0) / human for name, human in HUMAN_BELOW.items()}
+    above = {name: max(float(change[:, names.index(name)].max()), 0.0) / human for name, human in HUMAN_ABOVE.items()}
+    return reach, below, above
 
 
 def _reach_changes(rig) -> np.ndarray | None:
@@ -451,10 +469,13 @@ class ClipFidelity:
         reach: {measure: share of a human's reach} (:func:`measure_reach`): a mouth or brow
             measure under :data:`OWN_RANGE_BELOW` is judged at the head's own range
             (``range_gain``); empty: every measure judged at the actor's amplitude.
-        lowering: {brow measure: share of a human's lowering} (:func:`lowering_reach`): one
-            under :data:`OWN_RANGE_BELOW` is judged against the actor's motion at the head's
-            own range, its lowering below the actor's rest (``source_rest``) scaled by it
+        lowering: {measure: share of a human's motion below its rest} (:func:`lowering_reach`:
+            the brows' lowering, the mouth's narrowing, the lids' closing): one under
+            :data:`OWN_RANGE_BELOW` is judged against the actor's motion at the head's own
+            range, its motion below the actor's rest (``source_rest``) scaled by it
             (``range_r``, ``range_gain``).
+        opening: {eye measure: share of a human's opening past rest} (:func:`opening_reach`):
+            one under :data:`OWN_RANGE_BELOW` scales the actor's motion above its rest so.
         scores: (T, S) the tracker's scores, names in ``score_names``: which frames are the
             actor's rest (:func:`rest_frames`), whether the brows ever lower; None: no
             level or wrinkle checks.
@@ -484,6 +505,7 @@ class ClipFidelity:
     source_rest: np.ndarray | None = None
     reach: dict[str, float] = field(default_factory=dict)
     lowering: dict[str, float] = field(default_factory=dict)
+    opening: dict[str, float] = field(default_factory=dict)
 
     def figures(self) -> dict:
         """Per measure r, gain, source range, judged and faithful for the character and
@@ -607,12 +629,12 @@ class ClipFidelity:
             share = 1.0 if name in EYE_MEASURES else self.reach.get(name, 1.0)
             scale = 1.0 / share if share < OWN_RANGE_BELOW else 1.0  # judged at the head's own range
             own = self._own_range_source(k, name, share)
-            if own is not None:  # a head that lowers its brows less than a human: judged at that range
-                src, scale = own, 1.0
+            if own is not None:  # a head short of a human's motion below its rest (or past it): at its own range
+                src, scale, ways = own[0], 1.0, own[1]
                 r, g = compare(src, self.character[:, k])
                 dr, dg = compare(src, self.direct[:, k])
-                entry.update(lowering_reach=round(self.lowering[name], 3), range_r=round(r, 3),
-                             range_gain=round(g, 3))
+                entry.update({key: round(v, 3) for key, v in ways.items()})
+                entry.update(range_r=round(r, 3), range_gain=round(g, 3))
             elif scale != 1.0:
                 entry.update(reach=round(share, 3), range_gain=round(g * scale, 3))
             entry.update(faithful=faithful(r, g * scale), direct_r=round(dr, 3), direct_gain=round(dg, 3),
@@ -629,22 +651,33 @@ class ClipFidelity:
                     counts["not_worse_than_curves"] += not_worse(r, g * scale, cr, cg * scale)
         return measures, counts
 
-    def _own_range_source(self, k: int, name: str, share: float) -> np.ndarray | None:
-        """(T,) the actor's measure ``k`` at the head's own range where its brows lower under
-        :data:`OWN_RANGE_BELOW` of a human's: the motion below the actor's rest times that
-        share, above it times its raise's share (where also under); None elsewhere."""
+    def _own_range_source(self, k: int, name: str, share: float) -> tuple[np.ndarray, dict] | None:
+        """((T,) the actor's measure ``k`` at the head's own range, {way: share} of the ways
+        short) where the head moves it below its rest under :data:`OWN_RANGE_BELOW` of a
+        human's, or (the eyes) past its rest: the actor's motion below its rest times that
+        share, above it times the share that way (the raise's, the lids' opening) where also
+        under; None elsewhere. A head short only its main way (an anime mouth's opening) is
+        judged by its gain over that share (:meth:`_measure_figures`): the same where the
+        actor moves only that way."""
         down = self.lowering.get(name, 1.0)
-        if down >= OWN_RANGE_BELOW or self.source_rest is None:
+        up = self.opening.get(name, 1.0) if name in EYE_MEASURES else share
+        if (down >= OWN_RANGE_BELOW and (name not in EYE_MEASURES or up >= OWN_RANGE_BELOW)) \
+                or self.source_rest is None:
             return None
-        up = share if share < OWN_RANGE_BELOW else 1.0
+        ways = {}
+        if up < OWN_RANGE_BELOW:
+            ways[f"{ABOVE_WAY[name]}_reach" if name in EYE_MEASURES else "reach"] = up
+        if down < OWN_RANGE_BELOW:
+            ways[f"{BELOW_WAY[name]}_reach"] = down
+        up, down = min(up, 1.0) if up < OWN_RANGE_BELOW else 1.0, down if down < OWN_RANGE_BELOW else 1.0
         d = self.source[:, k] - self.source_rest[k]
-        return self.source_rest[k] + up * np.maximum(d, 0.0) + down * np.minimum(d, 0.0)
+        return self.source_rest[k] + up * np.maximum(d, 0.0) + down * np.minimum(d, 0.0), ways
 
 
 def clip_fidelity(track, animation, rig, name: str = "") -> ClipFidelity:
     """The measures of one retargeted clip (its ``Track``, ``Animation`` and character)."""
     keep = np.asarray(track.presence, bool)
-    reach, lowering = reaches(rig)
+    reach, lowering, opening = reaches(rig)
     source = source_measures(track)
     character = character_measures(rig, animation.bone_positions, animation.blend_weights)
     scores = np.asarray(track.blendshapes)
@@ -669,7 +702,7 @@ def clip_fidelity(track, animation, rig, name: str = "") -> ClipFidelity:
                         arkit=np.asarray(arkit[keep], np.float64), arkit_names=names, arkit_source=which,
                         gaze=gaze, gaze_scores=gaze_scores, curves=curves,
                         left_out={**reach_faults(rig, reach), **landmark_faults(rig)}, reach=reach,
-                        lowering=lowering,
+                        lowering=lowering, opening=opening,
                         scores=scores[keep].astype(np.float64), score_names=list(track.blendshape_names),
                         character_rest=character_rest_measures(rig), wrinkles=_kept(wrinkle_series(animation), keep),
                         source_rest=source_rest_measures(track, source))

@@ -555,6 +555,38 @@ def test_brows_that_lower_less_than_a_human_s_are_judged_at_their_own_lowering()
     assert abs(own["brow_right"]["range_gain"] - 1.0) < 1e-6 and own["brow_right"]["range_r"] > 0.999
     assert own["brow_right"]["gain"] == human["brow_right"]["gain"] and own["brow_left"] == human["brow_left"]
 
+
+def test_mouth_width_and_eyes_are_judged_at_the_head_s_own_range_each_way():
+    """A head whose mouth cannot narrow (Godette's presets: 0.003 IOD of a human's 0.100)
+    is judged against the actor's width with its narrowing scaled by that share; eyes that
+    cannot open past rest against the actor's opening so scaled, and lids that close 0.6 of
+    a human's against the actor's closing times 0.6. The raw r / gain stay beside; a head
+    that reaches a human's both ways is judged as before."""
+    from capture2face.measures import ClipFidelity
+
+    t = np.linspace(0, 4 * np.pi, 200)
+    wave = np.sin(t)
+    src = np.stack([0.1 * (1 + wave), 0.05 * wave, 0 * t, 0 * t, 1 + 0.4 * wave, 1 + 0.4 * wave], 1)
+    head = src.copy()
+    head[:, 1] = 0.05 * np.maximum(wave, 0.0)  # widens with the actor, never narrows
+    head[:, 4:] = 1 + 0.6 * 0.4 * np.minimum(wave, 0.0)[:, None]  # closes 0.6 as far, never opens
+
+    def judged(lowering, opening):
+        f = ClipFidelity(name="x", times=t, source=src, character=head, direct=head, arkit=np.zeros((200, 0)),
+                         arkit_names=[], arkit_source="tracker", source_rest=np.array([0, 0, 0, 0, 1, 1.0]),
+                         lowering=lowering, opening=opening)
+        return f.figures()["measures"]
+
+    human = judged({}, {})
+    own = judged({"mouth_width": 0.0, "eye_right": 0.6, "eye_left": 1.0}, {"eye_right": 0.0, "eye_left": 1.0})
+    assert not human["mouth_width"]["faithful"] and own["mouth_width"]["faithful"]
+    assert own["mouth_width"]["narrowing_reach"] == 0.0 and own["mouth_width"]["range_r"] > 0.999
+    assert own["mouth_width"]["r"] == human["mouth_width"]["r"]  # the raw figure kept
+    assert not human["eye_right"]["faithful"] and own["eye_right"]["faithful"]
+    assert own["eye_right"]["closing_reach"] == 0.6 and own["eye_right"]["opening_reach"] == 0.0
+    assert abs(own["eye_right"]["range_gain"] - 1.0) < 1e-6
+    assert own["eye_left"] == human["eye_left"] and own["mouth_open"] == human["mouth_open"]
+
 @pytest.mark.slow
 def test_a_viseme_head_opens_its_mouth_as_far_as_the_actor(tmp_path):
     """Landmark fidelity on a real clip: the visemes-only head's mouth follows the actor's
