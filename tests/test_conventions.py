@@ -590,34 +590,38 @@ def test_mouth_width_and_eyes_are_judged_at_the_head_s_own_range_each_way():
 
 def test_godette_s_vowels_follow_the_actor_s_opening_and_width():
     """Godette's ``A`` opens and widens its mouth, ``O`` opens it without widening, ``I``
-    widens it: the vowels are re-mixed per frame to the actor's opening and width, so a
-    mouth that opens as the actor's narrows opens with ``O`` (its width no longer rising
-    against the actor's) and a closed smile spreads with ``I``; a mouth at rest stays shut."""
+    widens it: the vowels are re-mixed per frame to the actor's opening (at the head's range:
+    its recipes at jawOpen 1 over a human's full opening) and width, so a mouth that opens as
+    the actor's narrows opens with ``O`` (its width no longer rising against the actor's)
+    and a closed smile spreads with ``E`` / ``I``; a mouth at rest stays shut."""
     from capture2face.character.load import load_character
-    from capture2face.rig.mouth_fill import actor_width, fill_mouth, morph_mouth
-    from capture2face.topology import IOD_PAIR, MOUTH_CORNERS
+    from capture2face.measures import HUMAN_REACH
+    from capture2face.rig.mouth_fill import HUMAN_FULL_OPEN_IOD, actor_mouth, fill_mouth, morph_mouth
+    from capture2face.topology import IOD_PAIR, LIP_GAP, MOUTH_CORNERS
 
+    assert HUMAN_REACH["mouth_open"][1] == HUMAN_FULL_OPEN_IOD  # the range the fidelity judges it at
     rig = load_character(shared_character("godette_vrm0_presets.vrm"))
     n = list(rig.morph_names)
     moves = morph_mouth(rig)
     assert moves[n.index("o"), 0] > moves[n.index("a"), 0] > 0.05 and abs(moves[n.index("o"), 1]) < 0.01
     assert moves[n.index("a"), 1] > 0.05 and moves[n.index("i"), 1] > 0.05
     w = np.zeros((3, len(n)), np.float32)
-    w[0, n.index("a")] = 0.8  # the recipes: the jaw's opening to A
-    share, width = np.array([0.8, 0.0, 0.0]), np.array([-0.03, 0.06, 0.0])
-    out = fill_mouth(w, rig, share, width)
-    full = moves[:, 0].max()
+    w[0, n.index("a")] = 1.0  # the recipes: the jaw's opening to A
+    actor = np.array([[0.2, -0.03], [0.0, 0.06], [0.0, 0.0]])  # IOD: open and narrower; a closed smile; rest
+    out = fill_mouth(w, rig, actor)
+    full = moves[n.index("a"), 0] + moves[n.index("o"), 0]  # its recipes at jawOpen 1
     got = out.astype(np.float64) @ moves
-    assert abs(got[0, 0] - 0.8 * full) < 0.01 and got[0, 1] < 0.5 * (w[0] @ moves)[1]  # open, hardly wider
+    assert abs(got[0, 0] - 0.2 * full / HUMAN_FULL_OPEN_IOD) < 0.01 and got[0, 1] < 0.5 * moves[n.index("a"), 1]
     assert out[0, n.index("o")] > out[0, n.index("a")]
-    assert got[1, 1] > 0.03 and got[1, 0] < 0.03  # a closed smile spreads (E, I), the lips hardly part
+    assert got[1, 1] > 0.03 and got[1, 0] < 0.03  # a closed smile spreads, the lips hardly part
     assert np.abs(out[2]).max() < 1e-6  # at rest
     rest = np.zeros((478, 3))
     rest[list(IOD_PAIR), 0] = [-1.0, 1.0]
     rest[list(MOUTH_CORNERS), 0] = [-0.4, 0.4]
+    rest[LIP_GAP[1], 1] = -0.02  # lips a little apart at the actor's rest: 0.01 IOD
     frames = np.repeat(rest[None], 2, 0)
     frames[1, MOUTH_CORNERS[1], 0] = 0.5  # 0.1 wider: 0.05 IOD
-    np.testing.assert_allclose(actor_width(frames, rest), [0.0, 0.05])
+    np.testing.assert_allclose(actor_mouth(frames, rest), [[0.01, 0.0], [0.01, 0.05]])
 
 @pytest.mark.slow
 def test_a_viseme_head_opens_its_mouth_as_far_as_the_actor(tmp_path):

@@ -28,7 +28,7 @@ from capture2face.rig.feature_points import feature_correspondence, feature_posi
 from capture2face.rig.lid_fill import actor_closing, fill_lids
 from capture2face.rig.look_at import look_weights
 from capture2face.rig.morph_conventions import apply_rules, one_blink
-from capture2face.rig.mouth_fill import actor_width, fill_mouth
+from capture2face.rig.mouth_fill import actor_mouth, fill_mouth
 from capture2face.rig.open_fill import actor_opening, fill_opening, lips_round
 from capture2face.tracking.rest import REGIONS, ActorRest, actor_rest, landmark_regions
 
@@ -386,7 +386,7 @@ def _retarget_arkit(track, rest: ActorRest, rig, options: RetargetOptions) -> An
     if rig.landmark_source == MORPH_PLACED and not arkit_morphs(rig.morph_names):  # its recipes at its own range
         opening = actor_opening(track.landmarks_head, rest.landmarks)
         weights = fill_opening(weights, rig, opening, lips_round(list(track.blendshape_names), curves))
-        weights = fill_mouth(weights, rig, opening, actor_width(track.landmarks_head, rest.landmarks))
+        weights = fill_mouth(weights, rig, actor_mouth(track.landmarks_head, rest.landmarks))
     if rig.look_ranges is not None:  # a VRM's look presets turn by its own range tables
         weights = look_weights(weights, rig.morph_names, rig.look_ranges, _gaze(track, rest, options))
     if not arkit_morphs(rig.morph_names):
