@@ -661,15 +661,13 @@ class ClipFidelity:
         actor moves only that way."""
         down = self.lowering.get(name, 1.0)
         up = self.opening.get(name, 1.0) if name in EYE_MEASURES else share
-        if (down >= OWN_RANGE_BELOW and (name not in EYE_MEASURES or up >= OWN_RANGE_BELOW)) \
-                or self.source_rest is None:
+        short_up = up < OWN_RANGE_BELOW and name in EYE_MEASURES  # other measures' raise alone: by its gain
+        if self.source_rest is None or not (down < OWN_RANGE_BELOW or short_up):
             return None
-        ways = {}
-        if up < OWN_RANGE_BELOW:
-            ways[f"{ABOVE_WAY[name]}_reach" if name in EYE_MEASURES else "reach"] = up
-        if down < OWN_RANGE_BELOW:
+        up, down = (u if u < OWN_RANGE_BELOW else 1.0 for u in (up, down))
+        ways = {"reach" if name not in EYE_MEASURES else f"{ABOVE_WAY[name]}_reach": up} if up < 1.0 else {}
+        if down < 1.0:
             ways[f"{BELOW_WAY[name]}_reach"] = down
-        up, down = min(up, 1.0) if up < OWN_RANGE_BELOW else 1.0, down if down < OWN_RANGE_BELOW else 1.0
         d = self.source[:, k] - self.source_rest[k]
         return self.source_rest[k] + up * np.maximum(d, 0.0) + down * np.minimum(d, 0.0), ways
 

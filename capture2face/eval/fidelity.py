@@ -110,7 +110,8 @@ def _levels_and_wrinkles(results: list[dict]) -> str:
 def table(results: list[dict]) -> str:
     """A plain-text (Markdown) table: clip x measure, ``r / gain`` (direct in brackets;
     ``r / gain = range gain`` where judged at the head's own range, ``= range r / range
-    gain`` where the brows' lowering is too)."""
+    gain`` where it is short the other way too: the brows' lowering, the mouth's narrowing,
+    the lids' closing or opening, :meth:`~capture2face.measures.ClipFidelity._own_range_source`)."""
     head = "| clip | " + " | ".join(MEASURES) + " |"
     lines = [head, "|" + "---|" * (len(MEASURES) + 1)]
     for res in results:
@@ -122,7 +123,7 @@ def table(results: list[dict]) -> str:
                 continue
             mark = "" if not m["judged"] else (" ✓" if m["faithful"] else " ✗")
             own = f" = {m['range_gain']:.2f}" if "range_gain" in m else ""
-            if "range_r" in m:  # brows judged at their own lowering range
+            if "range_r" in m:  # judged at its own range below (or past) its rest too
                 own = f" = {m['range_r']:.2f} / {m['range_gain']:.2f}"
             cells.append(f"{m['r']:.2f} / {m['gain']:.2f}{own}{mark} ({m['direct_r']:.2f} / {m['direct_gain']:.2f})"
                          if m["judged"] else f"— ({m['range']:.3f})")
