@@ -23,8 +23,10 @@ gives each of the 52 curves ARKit's meaning (0 at rest, 1 at the full pose):
   :data:`BLINK_GATE` of its rest, the closure fades out with it.
 * **a calibrated actor** (a track carrying a calibration from a range-of-motion take,
   :mod:`capture2face.calibration`): each curve the take showed is the calibration's: the
-  curve above with the take's gain and offset where the tracker read it well on the take,
-  else this actor's own expressions mixed to fit the frame; the others as above.
+  curve above with the take's gain and offset where the tracker read it well on the take
+  (jawOpen's lip gap averaged with its score, each on the take's line: they err on
+  different expressions), else this actor's own expressions mixed to fit the frame; the
+  others as above.
 * then all curves pass a zero-phase One Euro filter tuned for [0, 1] scores
   (:data:`SCORE_FILTER`) and are clipped to [0, 1].
 """
