@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from capture2face.calibration import PROTOCOL, ActorCalibration, StepFit
-from capture2face.calibration.learn import explained_away
+from capture2face.calibration.learn import explained_away, tracker_adjusted
 from capture2face.calibration.protocol import step_amounts, target_matrix
 from capture2face.calibration.segment import Run, align, find_runs, own_hold
 from capture2face.calibration.solve import MAX_WEIGHT, step_weights
@@ -154,7 +154,9 @@ def _calibration() -> ActorCalibration:
         basis_steps=["brows_up"], noise=f32([0.1]),
         curves={"browInnerUp": {"source": "expressions", "gain": 1.1, "offset": -0.02, "steps": ["brows_up"]},
                 "browDownLeft": {"source": "expressions", "gain": 1.0, "offset": 0.0, "steps": [],
-                                 "explained_by": {"brows_up": 0.2}}},
+                                 "explained_by": {"brows_up": 0.2}},
+                "jawOpen": {"source": "tracker", "gain": 1.0, "offset": 0.0, "steps": [],
+                            "score": {"share": 0.5, "gain": 1.2, "offset": -0.1}}},
         warnings=["calibration: the take shows no 'frown'"])
 
 
@@ -183,11 +185,26 @@ def test_explained_away_takes_off_what_other_steps_raise():
     assert explained_away(curves.copy(), cal, names, np.zeros((3, 0))).tolist() == curves.tolist()  # no weights
 
 
+def test_tracker_curve_averaged_with_its_score_where_given():
+    cal = _calibration()  # jawOpen: the geometry half, the score on its line (1.2 s - 0.1) half
+    names = cal.score_names
+    jaw = names.index("jawOpen")
+    curves = np.zeros((3, len(names)), np.float32)
+    curves[:, jaw] = [0.2, 0.5, 1.0]
+    out = tracker_adjusted(curves.copy(), cal, names, {"jawOpen": np.array([0.0, 0.25, 0.5])})
+    np.testing.assert_allclose(out[:, jaw], [0.1 - 0.05, 0.25 + 0.1, 0.5 + 0.25], atol=1e-6)
+    top = tracker_adjusted(curves.copy(), cal, names, {"jawOpen": np.ones(3)})[:, jaw]
+    assert top.max() == 1.0  # clipped to [0, 1]
+    # no score given (the curve alone, as before the share): its gain and offset only
+    np.testing.assert_allclose(tracker_adjusted(curves.copy(), cal, names)[:, jaw], curves[:, jaw], atol=1e-6)
+
+
 @pytest.mark.parametrize("edit, message", [
     (lambda d: d.pop("format"), "not an actor calibration"),
     (lambda d: d["curves"]["browInnerUp"].update(steps=["smile"]), "names steps the calibration lacks"),
     (lambda d: d["curves"]["browDownLeft"].update(explained_by={"look_up": 0.5}), "names steps the calibration lacks"),
     (lambda d: d["curves"]["browInnerUp"].update(source="guess"), "source must be"),
+    (lambda d: d["curves"]["jawOpen"]["score"].pop("share"), "damaged"),
     (lambda d: d["rest"].update(landmarks=[[0, 0, 0]]), "not 478 landmarks"),
     (lambda d: d.pop("basis"), "damaged"),
 ])

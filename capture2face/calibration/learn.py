@@ -52,6 +52,13 @@ TRACKER_R, TRACKER_GAIN_MAX, TRACKER_OFFSET_MAX = 0.7, 2.0, 0.1
 # A tracker's curve whose take gain falls in this range keeps its reading unchanged: the
 # smiles' gains of 1.06-1.13 on ICT takes raised their error past MediaPipe's raw score.
 TRACKER_KEEP = (0.8, 1.25)
+# A tracker's curve that is the face's geometry (``retarget.arkit.GEOMETRIC``) listed here is
+# averaged, at this share, with the tracker's own score on the take's line from it: the
+# lip gap reads a funnel, a raised upper lip or a lowered lower lip as the jaw and lips held
+# closed over an open jaw as none (ICT's funnel hold parts the lips and drops the chin 0.65
+# as far as its jaw hold), while MediaPipe's jawOpen score misses less of those (0.01-0.03
+# at the upper lip's hold) and errs elsewhere. jawOpen r 0.81-0.87 -> 0.84-0.90 across takes.
+SCORE_SHARE = {"jawOpen": 0.5}
 # The regions whose curves learn what other regions' steps raise (_fit_explained), and the
 # least share kept.
 EXPLAIN_REGIONS, EXPLAIN_MIN = ("brow", "eye"), 0.01
@@ -137,9 +144,10 @@ def calibrate(track, steps: tuple[Step, ...] = PROTOCOL, base_curves: np.ndarray
         calibration.noise = _noise_floor(step_weights(feats[rest_frames], basis), row_steps)
     base = base_curves if base_curves is not None else reading
     weights = _weights(feats, calibration) if len(basis) else np.zeros((len(feats), 0))  # the take's mix, once
-    _fit_gains(calibration, weights, base, fits, rest_frames, steps)
-    _fit_explained(calibration, track, weights, base, fits, steps, rest_frames)
-    _report_steps(calibration, track, base, weights)
+    _fit_gains(calibration, weights, base, fits, rest_frames, steps, reading)
+    scores = score_readings(calibration, names, reading)
+    _fit_explained(calibration, track, weights, base, fits, steps, rest_frames, scores)
+    _report_steps(calibration, track, base, weights, scores)
     return calibration
 
 
@@ -278,11 +286,12 @@ def _mix(calibration: ActorCalibration, weights: np.ndarray) -> np.ndarray:
 
 
 def _fit_gains(calibration: ActorCalibration, weights: np.ndarray, base: np.ndarray, fits: list[StepFit],
-               rest_frames: np.ndarray, steps: tuple[Step, ...]) -> None:
+               rest_frames: np.ndarray, steps: tuple[Step, ...], reading: np.ndarray) -> None:
     """Each curve's source (:data:`TRACKER_R`), gain and offset: its reading (the tracker's
     ``base`` (F, S) curves, or the expressions' mix) over the take's holds (each step's
     target) and idle frames (0) fitted by least squares, within :data:`GAIN_BOUNDS` and
-    :data:`OFFSET_BOUNDS`."""
+    :data:`OFFSET_BOUNDS`; for a tracker's curve in :data:`SCORE_SHARE`, its ``score``: the
+    same line from the take's scores calibrated to rest (``reading`` (F, S))."""
     if not len(calibration.basis):
         return
     found = [(f, s) for f, s in zip(fits, steps) if f.found]
@@ -313,10 +322,15 @@ def _fit_gains(calibration: ActorCalibration, weights: np.ndarray, base: np.ndar
             gain, offset = _line(mix[use, col[name]], y)
         c["gain"] = round(float(np.clip(gain, *GAIN_BOUNDS)), 4)
         c["offset"] = round(float(np.clip(offset, *OFFSET_BOUNDS)), 4)
+        if c["source"] == "tracker" and name in SCORE_SHARE:
+            gain, offset = _line(reading[frames[use], col[name]], y)
+            c["score"] = {"share": SCORE_SHARE[name], "gain": round(float(np.clip(gain, *GAIN_BOUNDS)), 4),
+                          "offset": round(float(np.clip(offset, *OFFSET_BOUNDS)), 4)}
 
 
 def _fit_explained(calibration: ActorCalibration, track, weights: np.ndarray, base: np.ndarray,
-                   fits: list[StepFit], steps: tuple[Step, ...], rest_frames: np.ndarray) -> None:
+                   fits: list[StepFit], steps: tuple[Step, ...], rest_frames: np.ndarray,
+                   scores: dict[str, np.ndarray]) -> None:
     """Each brow and eye curve's ``explained_by``: how much of it, as calibrated, the take's
     steps of other regions raise (non-negative least squares of the curve over the take's
     holds and idle frames on its own target and those steps' weights). On ICT takes looking
@@ -334,7 +348,7 @@ def _fit_explained(calibration: ActorCalibration, track, weights: np.ndarray, ba
         use[f.hold[0]:f.hold[1] + 1] = True
         moving[f.frames[0]:f.frames[1] + 1] = True
     use[rest_frames[~moving[rest_frames]]] = True
-    curves = tracker_adjusted(calibrated_curves(track, calibration, base, weights=weights), calibration, names)
+    curves = tracker_adjusted(calibrated_curves(track, calibration, base, weights=weights), calibration, names, scores)
     weights = weights[use]
     by_name = {s.name: s for s in PROTOCOL}
     col = {n: i for i, n in enumerate(names)}
@@ -355,11 +369,12 @@ def _line(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     return float(gain), float(offset)
 
 
-def _report_steps(calibration: ActorCalibration, track, before: np.ndarray, weights: np.ndarray) -> None:
+def _report_steps(calibration: ActorCalibration, track, before: np.ndarray, weights: np.ndarray,
+                  scores: dict[str, np.ndarray]) -> None:
     """Each found step's before/after: its curves' mean over the hold, uncalibrated and calibrated."""
     names = list(track.blendshape_names)
     after = explained_away(tracker_adjusted(calibrated_curves(track, calibration, before, weights=weights),
-                                            calibration, names), calibration, names, weights)
+                                            calibration, names, scores), calibration, names, weights)
     col = {n: i for i, n in enumerate(calibration.score_names)}
     by_name = {s.name: s for s in PROTOCOL}
     for fit in calibration.steps:
@@ -436,15 +451,30 @@ def explained_away(curves: np.ndarray, calibration: ActorCalibration, names: lis
     return curves
 
 
-def tracker_adjusted(curves: np.ndarray, calibration: ActorCalibration, names: list[str]) -> np.ndarray:
+def tracker_adjusted(curves: np.ndarray, calibration: ActorCalibration, names: list[str],
+                     scores: dict[str, np.ndarray] | None = None) -> np.ndarray:
     """(F, S) ``curves`` with each curve the calibration keeps from the tracker scaled by its
-    gain and offset, clipped to [0, 1] (in place)."""
+    gain and offset, clipped to [0, 1] (in place); one with a ``score`` (:data:`SCORE_SHARE`)
+    averaged at its share with ``scores[name]`` (F,) on the score's line (the tracker's score
+    calibrated to rest, :func:`score_readings`), where given."""
     col = {n: i for i, n in enumerate(names)}
     for name, c in calibration.curves.items():
         if c.get("source") == "tracker" and name in col:
-            curves[:, col[name]] = np.clip(c["gain"] * curves[:, col[name]] + c["offset"], 0.0, 1.0)
+            curve = np.clip(c["gain"] * curves[:, col[name]] + c["offset"], 0.0, 1.0)
+            mix = c.get("score")
+            if mix and scores is not None and name in scores:
+                read = mix["gain"] * np.asarray(scores[name], np.float64) + mix["offset"]
+                curve = np.clip((1.0 - mix["share"]) * curve + mix["share"] * read, 0.0, 1.0)
+            curves[:, col[name]] = curve
     return curves
 
 
+def score_readings(calibration: ActorCalibration, names: list[str], scores: np.ndarray) -> dict[str, np.ndarray]:
+    """name -> (F,) column of ``scores`` (F, S), columns ``names``, for each curve the
+    calibration averages with the tracker's score (its ``score`` entry)."""
+    col = {n: i for i, n in enumerate(names)}
+    return {n: scores[:, col[n]] for n, c in calibration.curves.items() if c.get("score") and n in col}
+
+
 __all__ = ["STEP_NAMES", "calibrate", "calibrated_curves", "calibration_rest", "clip_weights", "explained_away",
-           "tracker_adjusted"]
+           "score_readings", "tracker_adjusted"]

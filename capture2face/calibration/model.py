@@ -64,7 +64,10 @@ class ActorCalibration:
             calibrated curve is ``clip(gain * x + offset, 0, 1)``, ``x`` the tracker's own
             curve (source "tracker") or the mix ``sum_k w_k target_k`` of the actor's
             expressions that show it ("expressions"), less ``sum_j b_j w_j`` over
-            ``explained_by`` (step -> b: what other regions' steps raise of it).
+            ``explained_by`` (step -> b: what other regions' steps raise of it). A tracker's
+            curve with a ``score`` ({"share", "gain", "offset"}, jawOpen) is first averaged
+            at that share with ``clip(gain * s + offset, 0, 1)``, ``s`` the tracker's own
+            score calibrated to rest (the curve itself is the face's geometry).
         warnings: what the take lacked or showed badly.
     """
 
@@ -124,7 +127,9 @@ class ActorCalibration:
             curves = {str(k): {"source": str(v.get("source", "expressions")), "gain": float(v["gain"]),
                                "offset": float(v["offset"]), "steps": list(v["steps"]),
                                **({"explained_by": {str(s): float(b) for s, b in v["explained_by"].items()}}
-                                  if "explained_by" in v else {})}
+                                  if "explained_by" in v else {}),
+                               **({"score": {f: float(v["score"][f]) for f in ("share", "gain", "offset")}}
+                                  if "score" in v else {})}
                       for k, v in data["curves"].items()}
             out = cls(source=str(data.get("source", "")), fps=float(data.get("fps", 30.0)), steps=steps,
                       rest_face=np.asarray(data["rest"]["face"], np.float32),

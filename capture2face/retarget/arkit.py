@@ -23,8 +23,10 @@ gives each of the 52 curves ARKit's meaning (0 at rest, 1 at the full pose):
   :data:`BLINK_GATE` of its rest, the closure fades out with it.
 * **a calibrated actor** (a track carrying a calibration from a range-of-motion take,
   :mod:`capture2face.calibration`): each curve the take showed is the calibration's: the
-  curve above with the take's gain and offset where the tracker read it well on the take,
-  else this actor's own expressions mixed to fit the frame; the others as above.
+  curve above with the take's gain and offset where the tracker read it well on the take
+  (jawOpen's lip gap averaged with its score, each on the take's line: they err on
+  different expressions), else this actor's own expressions mixed to fit the frame; the
+  others as above.
 * then all curves pass a zero-phase One Euro filter tuned for [0, 1] scores
   (:data:`SCORE_FILTER`) and are clipped to [0, 1].
 """
@@ -34,7 +36,14 @@ from __future__ import annotations
 import numpy as np
 
 from capture2face.calibration.attach import track_calibration
-from capture2face.calibration.learn import calibrate, calibrated_curves, clip_weights, explained_away, tracker_adjusted
+from capture2face.calibration.learn import (
+    calibrate,
+    calibrated_curves,
+    clip_weights,
+    explained_away,
+    score_readings,
+    tracker_adjusted,
+)
 from capture2face.maths.stats import pearson
 from capture2face.tracking.filtering import OneEuro, one_euro
 from capture2face.tracking.rest import GEOMETRY_PAIRS, ActorRest, actor_rest, pair_distances
@@ -167,8 +176,22 @@ def arkit_curves(track, rest: ActorRest | None = None) -> np.ndarray:
         out[:, c0:cols.stop] = np.clip(one_euro(curves, times, SCORE_FILTER), 0.0, 1.0)
     if calibration is None:
         return out
-    out = tracker_adjusted(out, calibration, names)
+    out = tracker_adjusted(out, calibration, names, _calibration_scores(track, calibration, rest, times))
     return out if not calibration.curves else explained_away(out, calibration, names, weights)
+
+
+def _calibration_scores(track, calibration, rest: ActorRest, times: np.ndarray) -> dict[str, np.ndarray]:
+    """name -> (F,) the tracker's score calibrated to the clip's rest and filtered as the
+    curves are, for each curve the calibration averages with its score (jawOpen: the lip
+    gap's geometry and the score err on different expressions)."""
+    names = list(track.blendshape_names)
+    wanted = list(score_readings(calibration, names, np.zeros((0, len(names)))))
+    if not wanted:
+        return {}
+    cols = [names.index(n) for n in wanted]
+    scores = np.nan_to_num(np.asarray(track.blendshapes)[:, cols].astype(np.float64))
+    filtered = one_euro(calibrate_scores(scores, rest.scores[cols]), times, SCORE_FILTER)
+    return score_readings(calibration, wanted, np.clip(filtered, 0.0, 1.0))
 
 
 def calibrate_take(track):
