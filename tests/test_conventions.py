@@ -670,3 +670,23 @@ def test_vrm_animation_plays_in_threejs(tmp_path):
     assert found["clip"] == "performance"
     ah = found["weights"][next(iter(found["weights"]))][5]  # FaceMesh's "ah" target, bound by preset A
     assert ah > 0.3
+
+
+def test_a_viseme_set_s_lips_shapes_are_its_mix_and_a_cap_holds_them():
+    """Oculus visemes are authored as a mix; the solve stacks the lips' shapes to widen the
+    goatee head's mouth (E + I + PP, 1.77 on d12's smile, 2.8 on d0's), which rolls its cheeks.
+    ``convention_mix_cap`` holds their sum (off by default: the mouth's width follows the
+    actor's only stacked, docs/characters.md); the open shapes (aa, O) stay outside it."""
+    from capture2face.character.load import load_character
+    from capture2face.pipeline import RunOptions, retarget_stage, track_stage
+    from capture2face.retarget import RetargetOptions
+    from capture2face.rig.morph_conventions import mix_morphs
+
+    assert [VISEMES[m] for m in mix_morphs(VISEMES)] == [v for v in VISEMES if v not in ("viseme_aa", "viseme_O")]
+    assert not len(mix_morphs(VRM0)) and not len(mix_morphs(["mouthOpen", "mouthSmile"]))
+    rig = load_character(shared_character("rpm_male_goatee_glasses_visemes_only.glb"))
+    track = track_stage(shared_clip("d12.mp4"), RunOptions(), progress=False)
+    lips = mix_morphs(rig.morph_names)
+    free = retarget_stage(track, rig).blend_weights[:, lips].sum(1)
+    held = retarget_stage(track, rig, RetargetOptions(convention_mix_cap=1.0)).blend_weights[:, lips].sum(1)
+    assert free.max() > 1.5 and held.max() <= 1.0 + 1e-3

@@ -147,6 +147,63 @@ def test_linear_solver_prior_and_rigid_unknowns_match_bounded_least_squares():
     assert np.abs(x[:, nr + 2] - prior[:, nr + 2]).mean() < 0.3 * np.abs(free[:, nr + 2] - prior[:, nr + 2]).mean()
 
 
+def test_capped_box_is_the_projection_onto_the_box_with_a_capped_sum():
+    """Scaled unknowns y, weights y / scale in [0, 1] summing to at most the frame's cap: the
+    nearest such point (a viseme set's lips' shapes, docs/characters.md)."""
+    from scipy.optimize import LinearConstraint
+
+    from capture2face.retarget.solve import capped_box
+
+    rng = np.random.default_rng(3)
+    scale = rng.uniform(0.5, 3.0, 4)
+    y = rng.uniform(-0.5, 1.5, (4, 6)) * scale[:, None]
+    cap = np.array([1.0, 0.5, 2.0, 1.0, 4.0, 0.0])
+    v = capped_box(y, scale, cap)
+    for f in range(y.shape[1]):
+        ref = minimize(lambda x, f=f: 0.5 * ((x - y[:, f]) ** 2).sum(), np.zeros(4), method="SLSQP",
+                       bounds=[(0, s) for s in scale], constraints=[LinearConstraint(1 / scale, -np.inf, cap[f])],
+                       options={"ftol": 1e-15, "maxiter": 1000})
+        np.testing.assert_allclose(v[:, f], ref.x, atol=1e-6)
+    assert ((v / scale[:, None]).sum(0) <= cap + 1e-9).all()
+    np.testing.assert_array_equal(v[:, 4], np.clip(y[:, 4], 0, scale))  # under its cap: the box alone
+
+
+def test_linear_solver_caps_the_mix_sum_and_matches_constrained_least_squares():
+    """A cap on the sum of some morphs' weights per frame (``mix``, ``cap``): the bounded
+    solve then equals a generic constrained minimiser; without a cap it is the solve of before."""
+    from scipy.optimize import LinearConstraint
+
+    rng = np.random.default_rng(4)
+    n_pts, nr, nm, frames = 8, 1, 4, 5
+    a = rng.normal(size=(3 * n_pts, nr + nm))
+    model = LinearRigModel(rest=np.zeros((n_pts, 3)), matrix=a, free_bones=np.zeros(0, np.int64),
+                           morphs=np.arange(nm), n_rigid=nr)
+    x_true = np.c_[rng.normal(size=(frames, nr)), rng.uniform(0.4, 1.0, (frames, nm))]
+    pts = (x_true @ a.T).reshape(frames, n_pts, 3)
+    ridge, temporal, mix = 1e-3, 0.2, np.array([nr + 0, nr + 1, nr + 3])
+    cap = np.array([1.0, 0.8, 1.2, 1.0, 3.0])
+    solver = LinearSolver(model, ridge=ridge, temporal=temporal, tolerance=1e-10, iterations=20000, mix=mix)
+    x = solver.solve(pts, cap=cap)
+    scale = np.linalg.norm(a, axis=0)
+
+    def objective(flat):
+        z = flat.reshape(frames, -1)
+        r = (z / scale) @ a.T - pts.reshape(frames, -1)
+        return 0.5 * ((r**2).sum() + ridge * (z**2).sum() + temporal * ((z[1:] - z[:-1]) ** 2).sum())
+
+    rows = np.zeros((frames, frames * (nr + nm)))
+    for f in range(frames):
+        rows[f, f * (nr + nm) + mix] = 1 / scale[mix]
+    bounds = [(0, scale[j]) if j >= nr else (None, None) for f in range(frames) for j in range(nr + nm)]
+    ref = minimize(objective, np.zeros(frames * (nr + nm)), bounds=bounds, method="trust-constr",
+                   constraints=[LinearConstraint(rows, -np.inf, cap)],
+                   options={"gtol": 1e-12, "xtol": 1e-12, "maxiter": 20000})
+    np.testing.assert_allclose(x, ref.x.reshape(frames, -1) / scale, atol=2e-4)
+    assert (x[:, mix].sum(1) <= cap + 1e-6).all() and (x_true[:, mix].sum(1) > cap).sum() >= 3  # cap active
+    free = LinearSolver(model, ridge=ridge, temporal=temporal, tolerance=1e-10, iterations=20000)
+    np.testing.assert_array_equal(solver.solve(pts), free.solve(pts))  # no cap: as before
+
+
 def test_steadied_map_keeps_the_neutral_and_blends_the_motion():
     """SteadiedMap: the neutral lands on the target's exactly; share 1 is the network,
     share 0 the similarity of the two neutrals (a scaled, turned copy of the motion)."""

@@ -147,3 +147,28 @@ def test_morph_ranges_gives_p99_or_the_mean_over_frames():
     assert rows["jawOpen"] == pytest.approx((0.99, 0.495)) and rows["mouthShrugUpper"] == (0.0, 1.0)
     rows = {n: (c, w) for n, c, w in tool.morph_ranges(None, animation, ["jawOpen"], slice(10, 21))}
     assert rows == {"jawOpen": pytest.approx((0.15, 0.075))}
+
+
+def test_disc_light_reads_the_render_s_normals_against_the_shape_s(avatar):
+    """Each shading disc's n·l by the renderer's normals, the shape's smooth normals and its
+    facets: unchanged at rest, and on a smile the built-in avatar's exact morph normals lose
+    the light its facets lose (the check that put the RPM female's dark cheek on her shape)."""
+    import numpy as np
+
+    sys.path.insert(0, os.fspath(REPO / "tools"))
+    try:
+        import disc_light as tool
+    finally:
+        sys.path.remove(os.fspath(REPO / "tools"))
+    rest = tool.disc_light(avatar, avatar.bone_rest, np.zeros(avatar.n_morphs, np.float32))
+    assert set(rest) == {"cheek_right", "cheek_left", "chin"}
+    for row in rest.values():
+        assert row["vertices"][0] > 0
+        for how in ("renderer", "smooth", "facets"):
+            assert row[how][0] == pytest.approx(row[how][1], abs=1e-6)
+    weights = np.zeros(avatar.n_morphs, np.float32)
+    weights[[m for m, n in enumerate(avatar.morph_names) if n.startswith("mouthSmile")]] = 1.0
+    smile = tool.disc_light(avatar, avatar.bone_rest, weights)
+    for row in smile.values():
+        change = {how: row[how][1] - row[how][0] for how in ("renderer", "facets")}
+        assert change["renderer"] == pytest.approx(change["facets"], abs=0.03)

@@ -36,7 +36,7 @@ from capture2face.maths.rotations import similarity
 from capture2face.retarget.solve import LinearRigModel
 from capture2face.rig.arkit_names import arkit_morphs
 from capture2face.rig.feature_points import landmark_basis
-from capture2face.rig.morph_conventions import convention_channels, convention_recipes, recipe_poses
+from capture2face.rig.morph_conventions import convention_channels, convention_recipes, mix_morphs, recipe_poses
 from capture2face.topology import (
     BROW_HEIGHT_PAIRS,
     BROWS,
@@ -134,6 +134,9 @@ class MorphSolve:
         full_poses: (52, Ms) on a head of another convention, the solved morphs' weights at
             each ARKit curve's recipe at 1 (a viseme set's widest mouth is its open visemes
             together: its range, :mod:`capture2face.retarget.ranges`); None on an ARKit head.
+        mix: (G,) the lips' shapes of a convention authored as a mix (a viseme set's,
+            :func:`~capture2face.rig.morph_conventions.mix_morphs`), solved or fixed, whose
+            sum a solve may cap (:func:`mix_cap`); None without.
     """
 
     model: LinearRigModel
@@ -144,6 +147,13 @@ class MorphSolve:
     antagonists: np.ndarray | None = None
     full_poses: np.ndarray | None = None
     twins: np.ndarray | None = None
+    mix: np.ndarray | None = None
+
+    def mix_unknowns(self) -> np.ndarray | None:
+        """(G',) unknowns (columns of ``model.matrix``) of the ``mix``'s solved morphs."""
+        if self.mix is None:
+            return None
+        return self.model.n_free_vars + np.flatnonzero(np.isin(self.model.morphs, self.mix))
 
     def points(self, landmark_points: np.ndarray) -> np.ndarray:
         """(..., N + K, 3) the model's points of (..., N, 3) landmark points."""
@@ -224,7 +234,18 @@ def morph_solve(rig, landmarks: np.ndarray, min_motion: float, across: float = 1
     if not arkit_morphs(rig.morph_names):
         out.full_poses = recipe_poses(rig.morph_names)[:, solved]
         out.twins = recipe_twins(rig.morph_names, out.fixed, solved)
+        mix = mix_morphs(rig.morph_names)
+        out.mix = mix if len(mix) else None
     return out
+
+
+def mix_cap(solve: MorphSolve, prior: np.ndarray, cap: float | None) -> np.ndarray | None:
+    """(F,) the most the solved morphs of ``solve.mix`` may sum to per frame: ``cap`` less
+    the mix's fixed morphs' weights in ``prior`` (F, M); None without a mix or a cap."""
+    if solve.mix is None or cap is None:
+        return None
+    fixed = solve.mix[np.isin(solve.mix, solve.fixed)]
+    return np.maximum(cap - prior[:, fixed].sum(1, dtype=np.float64), 0.0)
 
 
 def opposed_lid_pairs(named: dict[int, str], eye_deltas: np.ndarray) -> tuple[tuple[str, str], ...]:

@@ -16,7 +16,14 @@ from capture2face.errors import CaptureError
 from capture2face.retarget import gaze
 from capture2face.retarget.animation import Animation
 from capture2face.retarget.arkit import arkit_curves
-from capture2face.retarget.arkit_solve import EYE_CONTOURS, CurveShifted, SteadiedMap, arkit_point_weights, morph_solve
+from capture2face.retarget.arkit_solve import (
+    EYE_CONTOURS,
+    CurveShifted,
+    SteadiedMap,
+    arkit_point_weights,
+    mix_cap,
+    morph_solve,
+)
 from capture2face.retarget.ranges import range_targets
 from capture2face.retarget.rbf import FeatureMap, fit_feature_map
 from capture2face.retarget.solve import LinearSolver, linear_rig_model
@@ -80,6 +87,11 @@ class RetargetOptions:
             Rocketbox), its recipes the prior: its many look-alike shapes (a spread viseme
             against a round one, the jaw sideways) traded against each other at 0.1 and
             bared the teeth for an "O" (docs/characters.md).
+        convention_mix_cap: the most a viseme set's lips' shapes may sum to in a frame
+            (:func:`~capture2face.rig.morph_conventions.mix_morphs`); None: no cap. Off: at 1 the
+            visemes-only head's cheeks darken less (d12 2.9 -> 2.3 %, d18 4.2 -> 2.5 %), but its
+            mouth no longer widens as far as the actor's (d0 width gain 0.88 -> 0.38;
+            docs/characters.md).
         arkit_morph_ridge, arkit_sparsity: ``morph_ridge`` and ``sparsity`` of its solve.
         arkit_min_motion: a morph moving no landmark by more than this (inter-ocular
             distances) takes its curve.
@@ -119,6 +131,7 @@ class RetargetOptions:
     eye_radius_iod: float = gaze.HUMAN_RADIUS_IOD
     arkit_prior: float = 0.1
     convention_prior: float = 10.0
+    convention_mix_cap: float | None = None
     arkit_morph_ridge: float = 0.001
     arkit_sparsity: float = 0.0
     arkit_min_motion: float = 0.02
@@ -197,17 +210,19 @@ def _fit_network(rest: ActorRest, rig, landmarks, target, options: RetargetOptio
 
 
 def _joint_solver(model, options: RetargetOptions, landmark_weights, morph_ridge: float, sparsity: float,
-                  prior_strength: np.ndarray | None = None, antagonists: np.ndarray | None = None) -> LinearSolver:
+                  prior_strength: np.ndarray | None = None, antagonists: np.ndarray | None = None,
+                  mix: np.ndarray | None = None) -> LinearSolver:
     return LinearSolver(model, ridge=options.ridge, temporal=options.temporal_smoothness,
                         morph_ridge=morph_ridge, sparsity=sparsity,
                         axis_weights=(1.0, 1.0, options.depth_weight), landmark_weights=landmark_weights,
                         prior_strength=prior_strength, antagonists=antagonists,
-                        antagonist_strength=options.arkit_antagonist if antagonists is not None else 0.0)
+                        antagonist_strength=options.arkit_antagonist if antagonists is not None else 0.0, mix=mix)
 
 
 def solve_windows(mapped, model, point_weights: np.ndarray, options: RetargetOptions, neutral: int | None,
                   prior: np.ndarray | None = None, prior_strength: np.ndarray | None = None,
-                  antagonists: np.ndarray | None = None, steady: np.ndarray | None = None):
+                  antagonists: np.ndarray | None = None, steady: np.ndarray | None = None,
+                  mix: np.ndarray | None = None, cap: np.ndarray | None = None):
     """Yield (window, x (k, n)) for every window of ``mapped``: the joint solve of the
     :class:`~capture2face.retarget.solve.LinearRigModel`'s unknowns, after the reliability
     passes (which fit without the prior).
@@ -221,6 +236,8 @@ def solve_windows(mapped, model, point_weights: np.ndarray, options: RetargetOpt
             (``options.arkit_antagonist``).
         steady: feature points whose reliability is at least the mean's (1): targets
             whose residual is the character's shortfall, not the tracker's noise.
+        mix, cap: (G,) unknowns whose weights the final solve caps to sum at most ``cap``
+            (F,) per frame (:func:`~capture2face.retarget.arkit_solve.mix_cap`); None: no cap.
     """
     prior_w = np.asarray(point_weights, np.float64)
     lw = prior_w
@@ -239,10 +256,12 @@ def solve_windows(mapped, model, point_weights: np.ndarray, options: RetargetOpt
             if steady is not None:
                 reliability[steady] = np.maximum(reliability[steady], 1.0)
             lw = prior_w * reliability
-    solver = _joint_solver(model, options, lw, options.morph_ridge, options.sparsity, prior_strength, antagonists)
+    solver = _joint_solver(model, options, lw, options.morph_ridge, options.sparsity, prior_strength, antagonists,
+                           mix)
     for w in mapped.windows:
         yield w, solver.solve(mapped.read(w), pin=w.pin(neutral),
-                              prior=None if prior is None else prior[w.start:w.stop])
+                              prior=None if prior is None else prior[w.start:w.stop],
+                              cap=None if cap is None else cap[w.start:w.stop])
 
 
 class _Blend:
@@ -441,7 +460,8 @@ def _solve_arkit_weights(track, rest: ActorRest, rig, landmarks: np.ndarray, pri
     with MappedPoints(track.landmarks_head, network, landmarks, windows, 1 + options.reweight_iterations) as mapped:
         for w, x in solve_windows(CurveShifted(mapped, solve, prior, ranged), solve.model, point_weights, options,
                                   rest.single_frame, prior=prior_x, prior_strength=strength,
-                                  antagonists=solve.antagonists, steady=_steady_pairs(rig, ranged)):
+                                  antagonists=solve.antagonists, steady=_steady_pairs(rig, ranged),
+                                  mix=solve.mix_unknowns(), cap=mix_cap(solve, prior, options.convention_mix_cap)):
             weights[w.start:w.stop, solved] += (w.fade[:, None] * x[:, nf:]).astype(np.float32)
     if solve.twins is not None and len(solve.twins):
         weights[:, solve.twins[:, 0]] = weights[:, solve.twins[:, 1]]

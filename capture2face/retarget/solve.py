@@ -14,6 +14,8 @@ values p: an ARKit character's morphs pulled towards the clip's ARKit curves), a
 co-activation penalty ``c sum_(i,j) |a_i| |a_j| x_i x_j`` on pairs of antagonist morphs
 (|a_i|: the weighted motion of unknown i's column; a raise and a lowering of the same brow
 cancel each other's motion, so the fit alone cannot tell a still brow from both at once),
+and a cap on the sum of one group of morph weights per frame, ``sum_(i in mix) w_i <= cap_f``
+(a viseme set is authored as a mix, one viseme at a time: :mod:`capture2face.retarget.arkit_solve`),
 
 over all frames of a window at once (W: per-feature-point reliability weights; windows:
 :mod:`capture2face.retarget.windows`). Why jointly rather than "bone = its mapped landmark": a bone's
@@ -115,9 +117,11 @@ class LinearSolver:
     antagonists: np.ndarray | None = None
     antagonist_strength: float = 0.0
     antagonist_iterations: int = 3
+    mix: np.ndarray | None = None  # (G,) bounded unknowns whose weights ``solve``'s cap bounds
 
     def __post_init__(self) -> None:
         self._cache: dict = {}
+        self._cap: np.ndarray | None = None  # the mix's cap of the frames being solved
         # Per-axis weights of the feature-point residual (a tracker's depth is its
         # weakest coordinate) times per-landmark reliability (weights of the squared
         # residual, so the rows take their square roots).
@@ -182,7 +186,8 @@ class LinearSolver:
             y[:, pin] = 0.0
         return u @ y
 
-    def solve(self, points: np.ndarray, pin: int | None = None, prior: np.ndarray | None = None) -> np.ndarray:
+    def solve(self, points: np.ndarray, pin: int | None = None, prior: np.ndarray | None = None,
+              cap: np.ndarray | None = None) -> np.ndarray:
         """Unknowns for every frame.
 
         Args:
@@ -191,6 +196,8 @@ class LinearSolver:
                 bones, no morphs), whatever the smoothness term says.
             prior: (F, n) values the unknowns are pulled towards with ``prior_strength``
                 (None: towards 0, i.e. no prior).
+            cap: (F,) the most the weights of the ``mix`` unknowns may sum to, per frame
+                (None: no cap).
         Returns:
             (F, n) x = bone translations (cm) then morph weights in [0, 1].
         """
@@ -201,6 +208,7 @@ class LinearSolver:
         rhs[self.bounded] -= self.sparsity
         if prior is not None and self.prior_strength is not None:
             rhs += (np.asarray(self.prior_strength, np.float64) / self.scale)[:, None] * np.asarray(prior, np.float64).T
+        self._cap = None if cap is None or self.mix is None or not len(self.mix) else np.asarray(cap, np.float64)
         z = self._bounded_solve(rhs, pin)
         if self.antagonist_strength > 0 and self.antagonists is not None and len(self.antagonists):
             # Convex-concave steps: the co-activation penalty's concave part, linearised at
@@ -223,12 +231,28 @@ class LinearSolver:
 
     def _violates(self, z: np.ndarray) -> bool:
         zb = z[self.bounded]
-        return bool((zb < -1e-9).any() or (zb > self.upper[self.bounded, None] + 1e-9).any())
+        if (zb < -1e-9).any() or (zb > self.upper[self.bounded, None] + 1e-9).any():
+            return True
+        return self._cap is not None and bool((self._mix_sum(z) > self._cap + 1e-9).any())
+
+    def _mix_sum(self, z: np.ndarray) -> np.ndarray:
+        """(F,) the ``mix`` unknowns' weights (unscaled) summed, of scaled unknowns z (n, F)."""
+        return (z[self.mix] / self.scale[self.mix, None]).sum(0)
+
+    def _project(self, y: np.ndarray) -> np.ndarray:
+        """(nb, F) the bounded unknowns ``y`` (scaled) projected onto their box and, with a
+        cap, onto the ``mix``'s capped sum."""
+        lo, hi = self.lower[self.bounded, None], self.upper[self.bounded, None]
+        v = np.clip(y, lo, hi)
+        if self._cap is None:
+            return v
+        rows = np.searchsorted(np.flatnonzero(self.bounded), self.mix)
+        v[rows] = capped_box(y[rows], self.scale[self.mix], self._cap)
+        return v
 
     def _admm(self, rhs: np.ndarray, z0: np.ndarray, pin: int | None) -> np.ndarray:
         """Box-constrained solve: split the bounded unknowns into z (smooth) = v (boxed)."""
-        lo, hi = self.lower[self.bounded, None], self.upper[self.bounded, None]
-        v = np.clip(z0[self.bounded], lo, hi)
+        v = self._project(z0[self.bounded])
         dual = np.zeros_like(v)
         z = z0
         for _ in range(self.iterations):
@@ -236,7 +260,7 @@ class LinearSolver:
             r[self.bounded] += self.rho * (v - dual)
             z = self._solve(self.eig_admm, r, pin)
             v_old = v
-            v = np.clip(z[self.bounded] + dual, lo, hi)
+            v = self._project(z[self.bounded] + dual)
             dual += z[self.bounded] - v
             primal = np.abs(z[self.bounded] - v).max()
             change = np.abs(v - v_old).max()
@@ -245,3 +269,23 @@ class LinearSolver:
         z = z.copy()
         z[self.bounded] = v
         return z
+
+
+def capped_box(y: np.ndarray, scale: np.ndarray, cap: np.ndarray, steps: int = 40) -> np.ndarray:
+    """(k, F) the Euclidean projection of scaled unknowns ``y`` (k, F) onto ``0 <= y_i <=
+    scale_i`` with ``sum_i y_i / scale_i <= cap_f``: weights ``y / scale`` in [0, 1] summing to
+    at most ``cap`` (F,). It is ``clip(y_i - lam_f / scale_i, 0, scale_i)``, ``lam_f >= 0``
+    found by bisection where the box alone sums past the cap."""
+    s = scale[:, None]
+    v = np.clip(y, 0.0, s)
+    over = (v / s).sum(0) > cap
+    if not over.any():
+        return v
+    yo, co = y[:, over], np.maximum(cap[over], 0.0)
+    lo, hi = np.zeros(over.sum()), np.maximum((yo * s).max(0), 0.0)  # at hi every weight is 0
+    for _ in range(steps):
+        lam = 0.5 * (lo + hi)
+        above = (np.clip(yo - lam / s, 0.0, s) / s).sum(0) > co
+        lo, hi = np.where(above, lam, lo), np.where(above, hi, lam)
+    v[:, over] = np.clip(yo - hi / s, 0.0, s)
+    return v

@@ -255,6 +255,20 @@ def convention_recipes(morph_names: list[str]) -> dict[int, str]:
     ``t_AE_AA_h`` share the head's ``AE_AA_h``: the solve moves them together)."""
     return {m: RECIPES[conv][name] for m, (conv, name) in convention_morphs(morph_names).items()}
 
+#: Conventions authored as a mix, one shape at a time blended across transitions (Oculus
+#: visemes sum to 1): several lips' shapes at once overdrive the mesh (docs/characters.md).
+MIXES = ("Oculus / Ready Player Me visemes",)
+
+
+def mix_morphs(morph_names: list[str]) -> np.ndarray:
+    """(G,) indices of the lips' shapes of a :data:`MIXES` convention: its morphs but those
+    the jaw's opening alone turns on (``aa``, joined by ``O`` past half open: a viseme
+    set's widest mouth is its open shapes together)."""
+    known = convention_morphs(morph_names)
+    jaw = recipe_poses(morph_names)[ARKIT_NAMES.index("jawOpen")]
+    return np.array(sorted(m for m, (conv, _) in known.items() if conv in MIXES and jaw[m] <= 0), np.int64)
+
+
 # FaceRig.morph_rules columns and codes (VRM expression rules).
 RULE_BINARY, RULE_BLINK, RULE_LOOK_AT, RULE_MOUTH, RULE_GROUP = range(5)
 OVERRIDE_CODES = {"none": 0, "block": 1, "blend": 2}
