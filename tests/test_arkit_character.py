@@ -736,3 +736,76 @@ def test_a_scanned_head_folds_only_where_its_pose_moves_it(name):
     glabella = regions[:, rig.region_names.index("glabella"), compress]
     assert chin.max() < 0.05  # with the chin in the pose: 0.6 and more
     assert glabella[frown > 0.9].min() > 0.3 and glabella[press > 0.9].max() < 0.05
+
+
+
+def _lid_model(shut: list[float]):
+    """A :class:`MorphSolve` of the twelve lid landmarks alone: its six pairs 1 cm apart at
+    rest, two blinks closing them by ``shut`` (right eye's three columns, then the left's)."""
+    from capture2face.retarget.arkit_solve import EXPRESSION_PAIRS, MorphSolve
+    from capture2face.retarget.solve import LinearRigModel
+
+    landmarks = np.asarray(EXPRESSION_PAIRS[:6]).ravel()
+    n = len(landmarks)
+    rest = np.zeros((n + 6, 3))
+    rest[n:, 0] = 1.0
+    matrix = np.zeros((3 * (n + 6), 2))
+    matrix[3 * (n + np.arange(6)), np.repeat([0, 1], 3)] = -np.asarray(shut)
+    model = LinearRigModel(rest=rest, matrix=matrix, free_bones=np.zeros(0, np.int64), morphs=np.array([0, 1]))
+    solve = MorphSolve(model=model, fixed=np.zeros(0, np.int64), fixed_deltas=np.zeros((0, n, 3)),
+                       pairs=np.arange(n).reshape(6, 2))
+    return solve, landmarks, {0: "eyeBlinkRight", 1: "eyeBlinkLeft"}
+
+
+def test_side_lid_columns_close_on_the_head_s_own_lid_shape():
+    """Issue 31: where a head's blink closes its lids' side columns by another share of their
+    opening than the middle one (the XR head's 0.99 and 0.88 against 0.80), each side
+    column's closing target is the actor's times that ratio, up to shut; its opening is
+    left as mapped. A human's even blink (the ICT heads': sides within 0.04 of the middle)
+    and a blink that leaves a column open (under 0.75 shut) keep the mapped targets."""
+    from capture2face.retarget.arkit_solve import lid_ratios
+
+    solve, landmarks, named = _lid_model([0.80, 0.99, 0.88, 0.86, 0.84, 0.86])
+    ratios = lid_ratios(solve, named, landmarks)
+    np.testing.assert_allclose(ratios, [1.0, 0.99 / 0.80, 0.88 / 0.80, 1.0, 1.0, 1.0])
+    solve.lid_ratios = ratios
+    n = len(landmarks)
+    pts = np.repeat(solve.model.rest[None], 3, 0)
+    pts[:, n:, 0] = np.array([0.5, 1.2, 0.1])[:, None]  # half closed, opened, nearly shut
+    out = solve.lid_targets(pts)
+    np.testing.assert_allclose(out[0, n:, 0], 1.0 - 0.5 * ratios)
+    np.testing.assert_array_equal(out[1], pts[1])
+    np.testing.assert_allclose(out[2, n:, 0], np.maximum(1.0 - 0.9 * ratios, 0.0))
+    for even in ([0.87, 0.84, 0.87, 0.86, 0.84, 0.86], [0.65, 0.91, 0.59, 0.65, 0.91, 0.61]):
+        solve, landmarks, named = _lid_model(even)
+        assert lid_ratios(solve, named, landmarks) is None
+        assert solve.lid_targets(pts) is pts
+
+
+@pytest.mark.slow
+def test_the_xr_head_closes_its_middle_lid_with_the_actor():
+    """Issue 31: an ICT head's half blink (its columns close together) performed onto Ready
+    Player Me's XR head, whose blink closes the lid's inner column 0.99 of the way and its
+    middle 0.80: its middle lid (the eye's measured opening) closes with the actor's, by
+    its blink, not its squint. Before, the solve held the blink back to fit the side
+    columns (0.50 where the actor's is 0.6, its squint at 0.15) and the middle closed 0.85 of
+    the actor's way."""
+    from capture2face.character.load import load_character
+    from capture2face.retarget import retarget
+    from capture2face.rig.face_rig import landmark_points
+
+    actor = load_character(shared_character("ict-a.glb"))
+    head = load_character(shared_character("rpm_male_xr_template_arkit52.glb"))
+    blink = 0.6 * np.clip(1 - np.abs(np.arange(90) - 45) / 15, 0, 1)
+    curves = {"eyeBlinkLeft": blink, "eyeBlinkRight": blink}
+    track = _performed_track(actor, _by_arkit(actor), curves, curves)
+    w = retarget(track, head).blend_weights
+    by = _by_arkit(head)
+    for side, pair in (("Right", [159, 145]), ("Left", [386, 374])):
+        rest, shut = (landmark_points(head, head.vertices + np.einsum("m,mvc->vc", w[f].astype(np.float64),
+                                                                       head.morph_positions), pair) for f in (0, 45))
+        actor = np.linalg.norm(track.landmarks_head[[0, 45], pair[0]] - track.landmarks_head[[0, 45], pair[1]], axis=-1)
+        closing = 1 - np.linalg.norm(shut[0] - shut[1]) / np.linalg.norm(rest[0] - rest[1])
+        actor_closing = 1 - actor[1] / actor[0]
+        assert closing > 0.9 * actor_closing, (side, closing, actor_closing)  # 0.855 before
+        assert w[45, by[f"eyeSquint{side}"]] < 0.1, side  # 0.15 before

@@ -107,6 +107,18 @@ EXPRESSION_PAIRS = np.array([
 ])
 
 
+#: Each eye's lid columns (rows of :data:`EXPRESSION_PAIRS`: the middle, the measured one,
+#: then its two sides) and the morph that closes them.
+LID_COLUMNS = (((0, 1, 2), "eyeBlinkRight"), ((3, 4, 5), "eyeBlinkLeft"))
+#: A human's blink closes the three columns by the same share of their opening (ICT heads:
+#: 0.82-0.87, each side within 0.04 of the middle). A head whose blink closes a side column
+#: more than this much further or less far than its middle (Ready Player Me's XR head: the
+#: inner column 0.99, the middle 0.80, the outer 0.88) has lids of another shape; where its
+#: blink also shuts each column at least :data:`LID_SHUT` of its opening, the side columns'
+#: closing is mapped onto that shape (:meth:`MorphSolve.lid_targets`).
+LID_SHAPE_TOLERANCE, LID_SHUT = 0.1, 0.75
+
+
 #: Inter-ocular distances: a pair closer at rest is fitted in full (:func:`pair_frames`):
 #: the inner lips, 0.03-0.063 apart on the shared heads. Open lids are 0.085 (Rocketbox) to
 #: 0.147 apart: at 0.1 Rocketbox's lids were fitted in full, their sideways and depth slide
@@ -137,6 +149,9 @@ class MorphSolve:
         mix: (G,) the lips' shapes of a convention authored as a mix (a viseme set's,
             :func:`~capture2face.rig.morph_conventions.mix_morphs`), solved or fixed, whose
             sum a solve may cap (:func:`mix_cap`); None without.
+        lid_ratios: (K,) each pair's closing at its eye's blink over the eye's middle column's
+            (1 off the side lid columns), where the head's lids are of another shape
+            (:func:`lid_ratios`); None where they close as a human's.
     """
 
     model: LinearRigModel
@@ -148,6 +163,7 @@ class MorphSolve:
     full_poses: np.ndarray | None = None
     twins: np.ndarray | None = None
     mix: np.ndarray | None = None
+    lid_ratios: np.ndarray | None = None
 
     def mix_unknowns(self) -> np.ndarray | None:
         """(G',) unknowns (columns of ``model.matrix``) of the ``mix``'s solved morphs."""
@@ -162,6 +178,27 @@ class MorphSolve:
         if self.pair_frames is not None:
             diff = np.einsum("kij,...kj->...ki", self.pair_frames, diff)
         return np.concatenate([landmark_points, diff], -2)
+
+    def lid_targets(self, model_points: np.ndarray) -> np.ndarray:
+        """(..., N + K, 3) ``model_points`` with each side lid column's closing (its
+        component along its rest direction, below rest) times its :attr:`lid_ratios`, up to
+        shut: the actor's closing on the head's own lid shape. Unchanged without ratios.
+
+        Why: the network maps the actor's lids, whose columns close together, onto the
+        head's; where the head's blink closes its inner column 0.99 of the way and its middle
+        0.80, no blink weight fits both, and the solve held the blink at 0.56-0.61 (curves
+        0.91-0.92, d12) with ``eyeSquint`` standing in: the middle, the eye's measured
+        opening, closed 0.8 of the actor's way (docs/characters.md)."""
+        if self.lid_ratios is None:
+            return model_points
+        rows = len(model_points[0]) - len(self.pairs) + np.flatnonzero(self.lid_ratios != 1.0)
+        ratio = self.lid_ratios[self.lid_ratios != 1.0]
+        rest = self.model.rest[rows, 0]
+        closing = 1.0 - model_points[..., rows, 0] / rest
+        out = model_points.copy()
+        out[..., rows, 0] = np.where(closing > 0, rest * (1.0 - np.minimum(closing * ratio, 1.0)),
+                                     model_points[..., rows, 0])
+        return out
 
 
 def pair_frames(rest_diff: np.ndarray, across: float, min_separation: float) -> np.ndarray:
@@ -236,6 +273,7 @@ def morph_solve(rig, landmarks: np.ndarray, min_motion: float, across: float = 1
         out.twins = recipe_twins(rig.morph_names, out.fixed, solved)
         mix = mix_morphs(rig.morph_names)
         out.mix = mix if len(mix) else None
+    out.lid_ratios = lid_ratios(out, named, landmarks)
     return out
 
 
@@ -246,6 +284,31 @@ def mix_cap(solve: MorphSolve, prior: np.ndarray, cap: float | None) -> np.ndarr
         return None
     fixed = solve.mix[np.isin(solve.mix, solve.fixed)]
     return np.maximum(cap - prior[:, fixed].sum(1, dtype=np.float64), 0.0)
+
+
+def lid_ratios(solve: MorphSolve, named: dict[int, str], landmarks: np.ndarray) -> np.ndarray | None:
+    """(K,) :attr:`MorphSolve.lid_ratios` of ``solve`` at ``landmarks`` (N,), ``named``:
+    {morph: ARKit name}: each side lid column's closing at its eye's blink (each column's
+    along its rest direction, as a share of its rest) over the middle column's, for each eye
+    whose blink closes them unevenly (:data:`LID_SHAPE_TOLERANCE`) and shuts each at least
+    :data:`LID_SHUT`; 1 for the other pairs. None where no eye is such."""
+    slot = {int(lm): i for i, lm in enumerate(landmarks)}
+    row_of = {int(r): k for k, r in enumerate(r for r, (a, b) in enumerate(EXPRESSION_PAIRS)
+                                               if int(a) in slot and int(b) in slot)}
+    column = {named.get(int(m)): j for j, m in enumerate(solve.model.morphs)}
+    n, nf = len(landmarks), solve.model.n_free_vars
+    out = np.ones(len(solve.pairs))
+    for rows, blink in LID_COLUMNS:
+        if blink not in column or not all(r in row_of for r in rows):
+            continue
+        k = np.array([row_of[r] for r in rows])
+        along = solve.model.rest[n + k, 0]
+        if solve.pair_frames is not None and any(np.allclose(solve.pair_frames[j], np.eye(3)) for j in k):
+            continue  # a pair fitted in full: its first component is not its opening
+        shut = -solve.model.matrix[3 * (n + k), nf + column[blink]] / np.maximum(along, 1e-9)
+        if shut.min() >= LID_SHUT and np.abs(shut[1:] / shut[0] - 1.0).max() > LID_SHAPE_TOLERANCE:
+            out[k[1:]] = shut[1:] / shut[0]
+    return out if np.any(out != 1.0) else None
 
 
 def opposed_lid_pairs(named: dict[int, str], eye_deltas: np.ndarray) -> tuple[tuple[str, str], ...]:
@@ -366,7 +429,7 @@ class CurveShifted:
         if len(d):
             shift = (self.prior[w.start:w.stop, self.solve.fixed].astype(np.float64) @ d.reshape(len(d), -1))
             shifted = pts - shift.reshape(pts.shape)
-        out = self.solve.points(shifted)
+        out = self.solve.lid_targets(self.solve.points(shifted))
         if self.ranged is None:
             return out
         # The ranged pairs' targets come from the actor's motion (retarget.ranges); the
