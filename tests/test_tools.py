@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from tests.helpers import REPO
@@ -123,6 +124,28 @@ def test_calibration_across_takes_counts_goals_over_every_take():
     line = tool.table(rows).splitlines()[2]
     assert line.startswith("| perf (t1, t2) |") and line.endswith("| 9 of 16 |")
     assert "0.65 [0.35, 0.95] / 0.030" in line  # browDownLeft over the two takes
+
+
+def test_calibration_diagnose_finds_the_lag_and_what_the_error_follows():
+    """A curve two frames late, raised by another truth curve: the tool's figures say so."""
+    sys.path.insert(0, os.fspath(REPO / "tools"))
+    try:
+        import calibration_diagnose as tool
+    finally:
+        sys.path.remove(os.fspath(REPO / "tools"))
+    rng = np.random.default_rng(0)
+    truth = np.clip(np.convolve(rng.normal(size=400), np.ones(15) / 15, "same") + 0.3, 0, 1)
+    funnel, noise = rng.uniform(0, 1, 400), rng.uniform(0, 1, 400)
+    curve = np.r_[truth[:2], truth[:-2]] + 0.3 * funnel
+    fig = tool.curve_figures(curve, truth, {"mouthFunnel": funnel, "noise": noise, "still": np.zeros(400)}, top=2)
+    assert fig["lag"] == 2 and fig["lag_r"] > fig["r"]
+    assert list(fig["error_r"]) == ["mouthFunnel", "noise"] and fig["error_r"]["mouthFunnel"] > 0.5
+    worst = tool.worst_frames(curve, truth, curve, {"mouthFunnel": funnel}, fps=30, count=3)
+    frames = [w["frame"] for w in worst]
+    assert len(frames) == 3 and min(np.diff(frames)) >= 30
+    pose = np.c_[rng.normal(size=(400, 2)), np.ones(400)]
+    fits = tool.pose_fits({"p": (truth + pose[:, 0], truth, pose)})
+    assert fits["p"]["p"] > 0.99  # the pose's part taken off in-sample
 
 
 def test_morph_ranges_gives_p99_or_the_mean_over_frames():
