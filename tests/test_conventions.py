@@ -623,6 +623,33 @@ def test_godette_s_vowels_follow_the_actor_s_opening_and_width():
     frames[1, MOUTH_CORNERS[1], 0] = 0.5  # 0.1 wider: 0.05 IOD
     np.testing.assert_allclose(actor_mouth(frames, rest), [[0.01, 0.0], [0.01, 0.05]])
 
+
+def test_godette_s_vowel_mix_counts_each_figure_in_its_own_spread():
+    """Round seven: the width's miss is counted against the width's own motion over the clip
+    and the narrowing at the head's range (its vowels narrow 0.03 of a human's), so a
+    yell that opens past a human's full opening while narrowing no longer stacks widening
+    vowels (round six: +0.067 IOD, wider than its closed smile's +0.044), and a closed smile
+    spreads as far as the actor's (0.08 IOD), where the lips part a little (``I``: the head
+    widens past ``E`` only so)."""
+    from capture2face.character.load import load_character
+    from capture2face.rig.mouth_fill import HUMAN_NARROW_IOD, fill_mouth, head_mouth, morph_mouth
+
+    rig = load_character(shared_character("godette_vrm0_presets.vrm"))
+    n = list(rig.morph_names)
+    moves = morph_mouth(rig)
+    # rest, a closed smile, the yell (d18), speech, an open smile, a small smile
+    actor = np.array([[0.0, 0.0], [0.0, 0.08], [0.43, -0.12], [0.2, 0.0], [0.3, 0.05], [0.0, 0.04]])
+    got = fill_mouth(np.zeros((len(actor), len(n)), np.float32), rig, actor).astype(np.float64) @ moves
+    assert got[2, 1] < 0.6 * got[1, 1]  # the yell widens less than the closed smile
+    assert got[1, 1] > 0.8 * 0.08 and got[1, 0] < 0.04  # the closed smile spreads as the actor's
+    assert abs(got[3, 1]) < 0.01 and got[3, 0] > 0.1  # speech opens with O, not wider
+    assert np.abs(got[0]).max() < 1e-6
+    mapped = head_mouth(actor, moves[[n.index(v) for v in "aiueo"]], 0.2)
+    narrow = -moves[[n.index(v) for v in "aiueo"], 1].min() / HUMAN_NARROW_IOD
+    assert 0.0 < narrow < 0.1  # its vowels hardly narrow
+    np.testing.assert_allclose(mapped[2], [0.43 * 0.2 / 0.36, -0.12 * narrow])
+    np.testing.assert_allclose(mapped[1], [0.0, 0.08])
+
 @pytest.mark.slow
 def test_a_viseme_head_opens_its_mouth_as_far_as_the_actor(tmp_path):
     """Landmark fidelity on a real clip: the visemes-only head's mouth follows the actor's
