@@ -89,6 +89,19 @@ LID_ANTAGONISTS = (
 )
 LID_OPPOSITION = -0.3
 
+#: Mouth morphs that are antagonists on some heads only, penalised as :data:`ANTAGONISTS`
+#: where they move the lips' contours against each other (the cosine of their motions below
+#: :data:`MOUTH_OPPOSITION`). ``mouthFunnel`` draws the corners in and forward and lifts the
+#: upper lip, ``mouthStretch`` pulls the corners out and back: on a Ready Player Me head
+#: (cosines -0.60 to -0.62) the solve made d18's grimace of both (funnel 0.52, stretch
+#: 0.95 / 0.94 where the curves show 0.01 and 0.02-0.05), the stretch undoing the funnel's
+#: narrowing. An ICT head's pair is less opposed (-0.49 / -0.50); penalised there too, its
+#: mouth gains fell 0.01 (docs/characters.md), so its solve keeps no pair.
+MOUTH_ANTAGONISTS = (
+    ("mouthFunnel", "mouthStretchLeft"), ("mouthFunnel", "mouthStretchRight"),
+)
+MOUTH_OPPOSITION = -0.55
+
 
 #: MediaPipe's contours of the features (lips, eyes, brows, the nose's wings): the points an
 #: expression moves (the rest, the cheeks, forehead and silhouette, carry the tracker's
@@ -96,6 +109,8 @@ LID_OPPOSITION = -0.3
 FEATURE_CONTOURS = np.array([*LIPS_OUTER, *LIPS_INNER, *EYE_LEFT, *EYE_RIGHT, *BROWS, *NOSE_WINGS])
 #: The eyes' contours (both lids): their motion is the network's (:class:`SteadiedMap`).
 EYE_CONTOURS = FEATURE_CONTOURS[40:72]
+#: The lips' contours (outer and inner).
+LIP_CONTOURS = FEATURE_CONTOURS[:40]
 #: Landmark pairs whose relative motion is an expression: the lids apart (three columns per
 #: eye), the inner lips apart (three columns), the mouth's corners, each brow (inner, middle,
 #: outer) against its eye's corners. Fitted as extra points (the pair's difference), so a
@@ -266,7 +281,8 @@ def morph_solve(rig, landmarks: np.ndarray, min_motion: float, across: float = 1
     matrix = np.moveaxis(out.points(np.moveaxis(columns.reshape(n, 3, -1), -1, 0)), 0, -1).reshape(-1, columns.shape[1])
     out.model = LinearRigModel(rest=out.points(rest), matrix=matrix, free_bones=np.zeros(0, np.int64),
                                morphs=solved, n_rigid=6)
-    pairs = ANTAGONISTS + opposed_lid_pairs(named, deltas[:, np.isin(landmarks, EYE_CONTOURS)])
+    pairs = (ANTAGONISTS + opposed_lid_pairs(named, deltas[:, np.isin(landmarks, EYE_CONTOURS)])
+             + opposed_pairs(named, deltas[:, np.isin(landmarks, LIP_CONTOURS)], MOUTH_ANTAGONISTS, MOUTH_OPPOSITION))
     out.antagonists = antagonist_unknowns(named, solved, out.model.n_free_vars, pairs)
     if not arkit_morphs(rig.morph_names):
         out.full_poses = recipe_poses(rig.morph_names)[:, solved]
@@ -323,6 +339,26 @@ def opposed_lid_pairs(named: dict[int, str], eye_deltas: np.ndarray) -> tuple[tu
         da, db = eye_deltas[morph[a]].ravel(), eye_deltas[morph[b]].ravel()
         norm = float(np.linalg.norm(da) * np.linalg.norm(db))
         if norm > 0 and float(da @ db) / norm < LID_OPPOSITION:
+            out.append((a, b))
+    return tuple(out)
+
+
+def opposed_pairs(named: dict[int, str], deltas: np.ndarray, pairs: tuple[tuple[str, str], ...],
+                  threshold: float) -> tuple[tuple[str, str], ...]:
+    """The ``pairs`` (ARKit names) whose morphs move the points of ``deltas`` (M, P, 3), each
+    morph's motion of P contour points, against each other (cosine below ``threshold``);
+    ``named``: {morph: ARKit name}. A pair whose name stands for several morphs is judged on
+    the first."""
+    morph: dict[str, int] = {}
+    for m, name in named.items():
+        morph.setdefault(name, m)
+    out = []
+    for a, b in pairs:
+        if a not in morph or b not in morph:
+            continue
+        da, db = deltas[morph[a]].ravel(), deltas[morph[b]].ravel()
+        norm = float(np.linalg.norm(da) * np.linalg.norm(db))
+        if norm > 0 and float(da @ db) / norm < threshold:
             out.append((a, b))
     return tuple(out)
 
