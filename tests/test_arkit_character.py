@@ -301,6 +301,40 @@ def test_lid_pairs_are_antagonists_only_where_they_move_against_each_other():
     assert opposed_lid_pairs(named, both) == (("eyeWideLeft", "eyeSquintLeft"),)
 
 
+@pytest.mark.parametrize(("name", "opposed"), [
+    ("rpm_female_arkit_visemes.glb", True), ("rpm_male_xr_template_arkit52.glb", True),
+    ("ict-a.glb", False), ("ict-b.glb", False),
+])
+def test_funnel_and_stretch_are_antagonists_where_they_move_the_lips_apart(name, opposed):
+    """Issue 31: a Ready Player Me head's mouthFunnel draws its corners in as far as its
+    mouthStretch pulls them out (cosine over the lips -0.60 to -0.62): the solve made d18's
+    grimace of both (0.52 and 0.95 where the curves show 0.01 and 0.02-0.05). There the two
+    are an antagonist pair; an ICT head's (-0.49 / -0.50) keep its solve."""
+    from capture2face.character.load import load_character
+    from capture2face.retarget.arkit_solve import morph_solve
+    from capture2face.retarget.driver import _skin_landmarks
+
+    rig = load_character(shared_character(name))
+    solve = morph_solve(rig, _skin_landmarks(rig), 0.02, 0.1)
+    names = {k + solve.model.n_free_vars: canonical_arkit(rig.morph_names[m]) for k, m in enumerate(solve.model.morphs)}
+    pairs = {(names[a], names[b]) for a, b in solve.antagonists if names[a] == "mouthFunnel"}
+    assert pairs == ({("mouthFunnel", "mouthStretchLeft"), ("mouthFunnel", "mouthStretchRight")} if opposed else set())
+
+
+def test_opposed_pairs_judge_each_pair_by_its_cosine():
+    from capture2face.retarget.arkit_solve import opposed_pairs
+
+    corner = np.zeros((2, 3))
+    corner[0, 0] = 1.0
+    named = {0: "mouthFunnel", 1: "mouthStretchLeft", 2: "mouthStretchRight"}
+    deltas = np.stack([-corner + 0.5 * np.roll(corner, 1, 0), corner, corner + np.roll(corner, 1, 0)])
+    pairs = (("mouthFunnel", "mouthStretchLeft"), ("mouthFunnel", "mouthStretchRight"),
+             ("mouthFunnel", "mouthSmileLeft"))
+    # cosines -0.89 and -0.32; mouthSmileLeft is not on the head
+    assert opposed_pairs(named, deltas, pairs, -0.55) == (("mouthFunnel", "mouthStretchLeft"),)
+    assert opposed_pairs(named, deltas, pairs, -0.3) == pairs[:2]
+
+
 def test_head_joint_turns_the_head_and_not_the_body(tmp_path, avatar):
     from capture2face.camera import face_centre_and_height, rotation_matrix
     from capture2face.render.skinning import Deformer
