@@ -290,7 +290,10 @@ def test_lids_do_not_cancel_where_eye_wide_opens_both(tmp_path, avatar):
 
 def test_lid_pairs_are_antagonists_only_where_they_move_against_each_other():
     """An ICT head's eyeWide moves the upper lid only: no pair there (its solve unchanged)."""
-    from capture2face.retarget.arkit_solve import opposed_lid_pairs
+    from capture2face.retarget.arkit_solve import LID_ANTAGONISTS, LID_OPPOSITION, opposed_pairs
+
+    def opposed_lid_pairs(named, deltas):
+        return opposed_pairs(named, deltas, LID_ANTAGONISTS, LID_OPPOSITION)
 
     upper, lower = np.zeros((2, 3)), np.zeros((2, 3))
     upper[0, 1], lower[1, 1] = 1.0, 1.0  # (points, xyz): the upper lid's point, the lower's

@@ -281,8 +281,9 @@ def morph_solve(rig, landmarks: np.ndarray, min_motion: float, across: float = 1
     matrix = np.moveaxis(out.points(np.moveaxis(columns.reshape(n, 3, -1), -1, 0)), 0, -1).reshape(-1, columns.shape[1])
     out.model = LinearRigModel(rest=out.points(rest), matrix=matrix, free_bones=np.zeros(0, np.int64),
                                morphs=solved, n_rigid=6)
-    pairs = (ANTAGONISTS + opposed_lid_pairs(named, deltas[:, np.isin(landmarks, EYE_CONTOURS)])
-             + opposed_pairs(named, deltas[:, np.isin(landmarks, LIP_CONTOURS)], MOUTH_ANTAGONISTS, MOUTH_OPPOSITION))
+    eyes, lips = deltas[:, np.isin(landmarks, EYE_CONTOURS)], deltas[:, np.isin(landmarks, LIP_CONTOURS)]
+    pairs = (ANTAGONISTS + opposed_pairs(named, eyes, LID_ANTAGONISTS, LID_OPPOSITION)
+             + opposed_pairs(named, lips, MOUTH_ANTAGONISTS, MOUTH_OPPOSITION))
     out.antagonists = antagonist_unknowns(named, solved, out.model.n_free_vars, pairs)
     if not arkit_morphs(rig.morph_names):
         out.full_poses = recipe_poses(rig.morph_names)[:, solved]
@@ -325,22 +326,6 @@ def lid_ratios(solve: MorphSolve, named: dict[int, str], landmarks: np.ndarray) 
         if shut.min() >= LID_SHUT and np.abs(shut[1:] / shut[0] - 1.0).max() > LID_SHAPE_TOLERANCE:
             out[k[1:]] = shut[1:] / shut[0]
     return out if np.any(out != 1.0) else None
-
-
-def opposed_lid_pairs(named: dict[int, str], eye_deltas: np.ndarray) -> tuple[tuple[str, str], ...]:
-    """The :data:`LID_ANTAGONISTS` whose morphs move the eyes' contours against each other
-    (cosine below :data:`LID_OPPOSITION`); ``eye_deltas`` (M, E, 3): each morph's motion of
-    the E contour points, ``named``: {morph: ARKit name}."""
-    morph = {name: m for m, name in named.items()}
-    out = []
-    for a, b in LID_ANTAGONISTS:
-        if a not in morph or b not in morph:
-            continue
-        da, db = eye_deltas[morph[a]].ravel(), eye_deltas[morph[b]].ravel()
-        norm = float(np.linalg.norm(da) * np.linalg.norm(db))
-        if norm > 0 and float(da @ db) / norm < LID_OPPOSITION:
-            out.append((a, b))
-    return tuple(out)
 
 
 def opposed_pairs(named: dict[int, str], deltas: np.ndarray, pairs: tuple[tuple[str, str], ...],

@@ -255,6 +255,7 @@ def convention_recipes(morph_names: list[str]) -> dict[int, str]:
     ``t_AE_AA_h`` share the head's ``AE_AA_h``: the solve moves them together)."""
     return {m: RECIPES[conv][name] for m, (conv, name) in convention_morphs(morph_names).items()}
 
+
 #: Conventions authored as a mix, one shape at a time blended across transitions (Oculus
 #: visemes sum to 1): several lips' shapes at once overdrive the mesh (docs/characters.md).
 MIXES = ("Oculus / Ready Player Me visemes",)
