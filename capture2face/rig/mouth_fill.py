@@ -38,8 +38,7 @@ from capture2face.topology import ARKIT_NAMES, IOD_PAIR, LIP_GAP, MOUTH_CORNERS
 VOWELS = ("a", "i", "u", "e", "o", "aa", "ih", "ou", "ee", "oh")
 #: Weight of the recipes' mix against the two figures' miss (each in its own spread over the
 #: clip, :func:`miss_scale`): small against the misses (a weight 0.3 off the recipe's costs
-#: as much as a miss of 0.007 of a spread); the mix is the same from 1.5e-4 to 5e-2 (measured
-#: offline on the six clips' Godette mixes). The opening's miss counts twice the width's (the
+#: as much as a miss of 0.007 of a spread). The opening's miss counts twice the width's (the
 #: mouth's opening is what a viewer follows first; as round six). Measured on the six clips
 #: (Godette, judged measures faithful): in IOD, round six, 19/24; each figure in its spread
 #: 20/24; and the narrowing at the head's range 22/24. The figures are the same at 5000
