@@ -99,10 +99,14 @@ def test_godettes_mouth_landmarks_and_opening():
 
 def test_godette_performs_with_its_gaze_tables_and_filled_mouth():
     """Retargeted, its look presets are its tables of the gaze (still eyes: 0) and its mouth
-    opens as the actor's (the synthetic jaw parts the lips 0.4 eye distances: past a human's
-    full opening, so its open vowel reaches 1)."""
+    opens as the actor's: its lips part with the synthetic jaw (r 0.96), at the jaw's peak
+    past half its full range (0.59: the actor's mouth narrows as it opens, and past ``O`` every
+    vowel that opens this mouth also widens it, rig/mouth_fill.py)."""
     from capture2face.character.load import load_character
     from capture2face.retarget import retarget
+    from capture2face.rig.morph_conventions import recipe_poses
+    from capture2face.rig.mouth_fill import morph_mouth
+    from capture2face.topology import ARKIT_NAMES
     from tests.helpers import shared_character, synthetic_track
 
     rig = load_character(shared_character("godette_vrm0_presets.vrm"))
@@ -110,5 +114,8 @@ def test_godette_performs_with_its_gaze_tables_and_filled_mouth():
     w = retarget(track, rig).blend_weights
     looks = [rig.morph_names.index(n) for n in ("lookup", "lookdown", "lookleft", "lookright")]
     assert np.abs(w[:, looks]).max() < 0.05
-    assert w[int(np.argmax(truth["jawOpen"])), rig.morph_names.index("a")] == pytest.approx(1.0)
+    parts = morph_mouth(rig)[:, 0]  # (M,) how far each morph at 1 parts its lips
+    opening, full = w @ parts, recipe_poses(rig.morph_names)[ARKIT_NAMES.index("jawOpen")] @ parts
+    assert np.corrcoef(opening, truth["jawOpen"])[0, 1] > 0.9
+    assert opening[int(np.argmax(truth["jawOpen"]))] > 0.5 * full
     assert w[track.neutral_frame, rig.morph_names.index("a")] < 0.05
