@@ -26,6 +26,26 @@ GOALS = ("jawOpen", "eyeBlinkLeft", "eyeBlinkRight", "browInnerUp", "browDownLef
 R_GOAL = 0.9
 
 
+def take_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--takes`` and ``--performances``, as every calibration tool takes them."""
+    parser.add_argument("--takes", nargs="+", type=Path, required=True, help="tracked ROM takes of one actor")
+    parser.add_argument("--performances", nargs="+", type=Path, required=True,
+                        help="tracked synthetic performances of that actor (PERF.truth.npz beside each)")
+
+
+def stem(path: Path) -> str:
+    """A tracked take's or performance's name: its file name less ``.track.npz``."""
+    return path.name.replace(".track.npz", "")
+
+
+def load_performance(path: Path):
+    """(Track, SyntheticTruth) of a tracked performance, its truth beside it."""
+    from capture2face.synth.truth import SyntheticTruth
+    from capture2face.tracking.track import Track
+
+    return Track.load(path), SyntheticTruth.load(str(path).replace(".track.npz", ".truth.npz"))
+
+
 def pair_figures(takes: list[Path], performances: list[Path]) -> dict:
     """{"PERF|TAKE": {curve: [r, MAE, MediaPipe's MAE]}} for every take and performance."""
     from capture2face.calibration import calibrate
@@ -33,13 +53,9 @@ def pair_figures(takes: list[Path], performances: list[Path]) -> dict:
     from capture2face.eval.synthetic import arkit_columns
     from capture2face.maths.stats import pearson
     from capture2face.retarget.arkit import arkit_curves
-    from capture2face.synth.truth import SyntheticTruth
     from capture2face.tracking.track import Track
 
-    perfs = {}
-    for p in performances:
-        truth = SyntheticTruth.load(str(p).replace(".track.npz", ".truth.npz"))
-        perfs[p.name.replace(".track.npz", "")] = (Track.load(p), truth)
+    perfs = {stem(p): load_performance(p) for p in performances}
     out = {}
     for take in takes:
         rom = Track.load(take)
@@ -54,7 +70,7 @@ def pair_figures(takes: list[Path], performances: list[Path]) -> dict:
                 row[curve] = [round(float(pearson(curves[:, c], true)), 3),
                               round(float(np.abs(curves[:, c] - true).mean()), 4),
                               round(float(np.abs(raw - true).mean()), 4)]
-            out[f"{name}|{take.name.replace('.track.npz', '')}"] = row
+            out[f"{name}|{stem(take)}"] = row
     return out
 
 
@@ -83,9 +99,7 @@ def table(after: dict, before: dict | None = None) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--takes", nargs="+", type=Path, required=True, help="tracked ROM takes of one actor")
-    parser.add_argument("--performances", nargs="+", type=Path, required=True,
-                        help="tracked synthetic performances of that actor (PERF.truth.npz beside each)")
+    take_arguments(parser)
     parser.add_argument("--json", type=Path, default=None, help="write every (performance, take) pair's figures")
     parser.add_argument("--before", type=Path, default=None, help="an earlier --json of the same takes, shown beside")
     args = parser.parse_args(argv)

@@ -20,6 +20,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+from calibration_across_takes import load_performance, stem, take_arguments
 
 LAGS = range(-4, 5)
 ACTIVE = 0.05  # truth curves that never reach this are left out of the error's correlations
@@ -104,7 +105,6 @@ def pair_figures(take: Path, performances: list[Path], curve: str, calibrated: b
     from capture2face.calibration.features import pose_terms
     from capture2face.eval.synthetic import arkit_columns
     from capture2face.retarget.arkit import arkit_curves
-    from capture2face.synth.truth import SyntheticTruth
     from capture2face.tracking.track import Track
 
     rom = Track.load(take)
@@ -113,7 +113,7 @@ def pair_figures(take: Path, performances: list[Path], curve: str, calibrated: b
     holds, step = take_figures(rom, cal, base, curve)
     out, series = {}, {}
     for p in performances:
-        track, truth = Track.load(p), SyntheticTruth.load(str(p).replace(".track.npz", ".truth.npz"))
+        track, truth = load_performance(p)
         tr = {n: truth.blend_weights[:, k].astype(np.float64) for n, k in arkit_columns(truth.blend_names).items()}
         c = list(track.blendshape_names).index(curve)
         read = arkit_curves(attach(track, cal) if calibrated else track)[:, c].astype(np.float64)
@@ -125,11 +125,10 @@ def pair_figures(take: Path, performances: list[Path], curve: str, calibrated: b
         pose = pose_terms(np.asarray(track.head_pose))
         if curve == "jawOpen" and step:
             fig["chin"] = _chin(track, rom, cal, step, tr, pose, top)
-        name = p.name.replace(".track.npz", "")
-        series[name] = (read, tr[curve], pose)
-        out[f"{name}|{take.name.replace('.track.npz', '')}"] = fig
+        series[stem(p)] = (read, tr[curve], pose)
+        out[f"{stem(p)}|{stem(take)}"] = fig
     for name, fits in pose_fits(series).items():
-        out[f"{name}|{take.name.replace('.track.npz', '')}"]["pose_fit_r"] = fits
+        out[f"{name}|{stem(take)}"]["pose_fit_r"] = fits
     return out
 
 
@@ -176,9 +175,7 @@ def report(key: str, f: dict) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--takes", nargs="+", type=Path, required=True, help="tracked ROM takes of one actor")
-    parser.add_argument("--performances", nargs="+", type=Path, required=True,
-                        help="tracked synthetic performances of that actor (PERF.truth.npz beside each)")
+    take_arguments(parser)
     parser.add_argument("--curve", default="jawOpen", help="the ARKit curve to diagnose (jawOpen, eyeBlinkLeft, ...)")
     parser.add_argument("--uncalibrated", action="store_true", help="the tracker's curve as read, not the calibrated")
     parser.add_argument("--top", type=int, default=4, help="how many correlations and rows to list")
