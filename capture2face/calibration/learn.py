@@ -469,12 +469,17 @@ def tracker_adjusted(curves: np.ndarray, calibration: ActorCalibration, names: l
     return curves
 
 
+def scored_curves(calibration: ActorCalibration, names: list[str]) -> list[str]:
+    """The curves of ``names`` the calibration averages with the tracker's score (its
+    ``score`` entry), in the calibration's order."""
+    return [n for n, c in calibration.curves.items() if c.get("score") and n in names]
+
+
 def score_readings(calibration: ActorCalibration, names: list[str], scores: np.ndarray) -> dict[str, np.ndarray]:
-    """name -> (F,) column of ``scores`` (F, S), columns ``names``, for each curve the
-    calibration averages with the tracker's score (its ``score`` entry)."""
-    col = {n: i for i, n in enumerate(names)}
-    return {n: scores[:, col[n]] for n, c in calibration.curves.items() if c.get("score") and n in col}
+    """name -> (F,) column of ``scores`` (F, S), columns ``names``, for each of
+    :func:`scored_curves`."""
+    return {n: scores[:, names.index(n)] for n in scored_curves(calibration, names)}
 
 
 __all__ = ["STEP_NAMES", "calibrate", "calibrated_curves", "calibration_rest", "clip_weights", "explained_away",
-           "score_readings", "tracker_adjusted"]
+           "score_readings", "scored_curves", "tracker_adjusted"]

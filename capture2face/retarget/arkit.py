@@ -41,7 +41,7 @@ from capture2face.calibration.learn import (
     calibrated_curves,
     clip_weights,
     explained_away,
-    score_readings,
+    scored_curves,
     tracker_adjusted,
 )
 from capture2face.maths.stats import pearson
@@ -185,13 +185,13 @@ def _calibration_scores(track, calibration, rest: ActorRest, times: np.ndarray) 
     curves are, for each curve the calibration averages with its score (jawOpen: the lip
     gap's geometry and the score err on different expressions)."""
     names = list(track.blendshape_names)
-    wanted = list(score_readings(calibration, names, np.zeros((0, len(names)))))
+    wanted = scored_curves(calibration, names)
     if not wanted:
         return {}
     cols = [names.index(n) for n in wanted]
     scores = np.nan_to_num(np.asarray(track.blendshapes)[:, cols].astype(np.float64))
     filtered = one_euro(calibrate_scores(scores, rest.scores[cols]), times, SCORE_FILTER)
-    return score_readings(calibration, wanted, np.clip(filtered, 0.0, 1.0))
+    return dict(zip(wanted, np.clip(filtered, 0.0, 1.0).T))
 
 
 def calibrate_take(track):
