@@ -33,6 +33,11 @@ Figures (all frames per second of wall time unless named otherwise):
   the decode, track, render (``auto`` driver), encode and end-to-end measurements. With
   ``cpu_cores`` cores, no scheduling can run the pipeline faster than ``end_to_end_fps_cpu_bound`` = cores x 1000 /
   ``cpu_ms_per_frame["end_to_end"]``: the work itself caps the speed, whatever overlaps.
+
+``bench --calibration`` instead times ``capture2face calibrate`` (:func:`calibration_bench`):
+the range-of-motion protocol performed by the built-in avatar as an ARKit character
+(``synth --rom``), tracked and learned as ``calibrate`` does; ``calibrate_seconds_per_30s``
+is its wall time per 30 s of take (the issue's goal: under 10 s on 2 cores).
 """
 
 from __future__ import annotations
@@ -50,7 +55,9 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from capture2face.character.load import load_character
 from capture2face.errors import CaptureError
+from capture2face.gltf.arkit_export import export_arkit_character
 from capture2face.io.atomic import atomic_path
 from capture2face.io.video_input import iter_frames
 from capture2face.io.video_output import VideoWriter
@@ -62,6 +69,7 @@ from capture2face.pipeline import (
     run_render_options,
     track_stage,
 )
+from capture2face.pipeline.calibration import learn_calibration
 from capture2face.render import FrameState, Renderer, RenderOptions
 from capture2face.retarget import RetargetOptions, retarget
 from capture2face.rig import influences as inf
@@ -270,6 +278,48 @@ def machine_description() -> str:
     return f"{cpu}, {os.cpu_count()} logical CPUs, {platform.system()} {platform.release()}"
 
 
+# ---- calibration: a range-of-motion take, tracked and learned ------------------------------
+CALIBRATE_GOAL_SECONDS = 10.0  # per 30 s of take, on 2 cores (issue 32)
+
+
+def rom_actor(folder: str | os.PathLike):
+    """The built-in avatar as a third-party ARKit character (written to ``folder`` and
+    loaded back as any user's .glb is): an actor ``synth --rom`` can perform with."""
+    path = Path(folder) / "avatar_arkit.glb"
+    export_arkit_character(default_avatar(), path)
+    return load_character(path)
+
+
+def calibration_bench(size: int = 512, progress: bool = True, seed: int = 0) -> dict:
+    """Time ``capture2face calibrate`` (:func:`~capture2face.pipeline.calibration.learn_calibration`:
+    track the take, then learn) on the protocol's take at ``size`` x ``size``.
+
+    Returns:
+        ``take_frames``, ``take_seconds``, ``synth_seconds``, ``calibrate_seconds`` (wall),
+        ``calibrate_seconds_per_30s``, ``cpu_seconds`` (all threads and workers),
+        ``steps_found``, ``cpu_cores``, ``goals`` and ``machine``.
+    """
+    with tempfile.TemporaryDirectory(prefix="capture2face-bench-") as tmp:
+        take = Path(tmp) / "rom.mp4"
+        t = time.perf_counter()
+        synthesize(take, SynthOptions(size=size, rom=True, seed=seed), progress=progress, actor=rom_actor(tmp))
+        synth_s = time.perf_counter() - t
+        frames = sum(1 for _ in iter_frames(take))
+        fps = SynthOptions().fps
+        with _Clock() as clock:
+            calibration = learn_calibration(take, RunOptions().track, progress=progress)
+    per_30 = clock.wall * 30.0 / (frames / fps)
+    result = {
+        "size": int(size), "take_frames": int(frames), "take_seconds": frames / fps, "synth_seconds": synth_s,
+        "calibrate_seconds": clock.wall, "calibrate_seconds_per_30s": per_30, "cpu_seconds": clock.cpu,
+        "steps_found": sum(s.found for s in calibration.steps), "steps": len(calibration.steps),
+        "cpu_cores": cpu_cores(),
+        "goals": {f"calibrate a 30 s take <= {CALIBRATE_GOAL_SECONDS:g} s": per_30 <= CALIBRATE_GOAL_SECONDS},
+        "machine": machine_description(),
+    }
+    return {k: (round(v, 3) if isinstance(v, float) else v) for k, v in result.items()}
+
+
 # ---- memory: peak RSS against clip length ------------------------------------------------
 def loop_clip(source: str | os.PathLike, dest: str | os.PathLike, seconds: float) -> int:
     """Write ``dest`` by repeating ``source``'s compressed packets until it lasts at least
@@ -359,6 +409,10 @@ def summary_line(result: dict) -> str:
                 f"{result['long_peak_rss_mb']:.0f} MB for {result['long_frames']} ({result['ratio']:.2f}x)")
     goals = result["goals"]
     missed = [name for name, met in goals.items() if not met]
+    if "calibrate_seconds" in result:  # --calibration
+        return (f"calibrate {result['calibrate_seconds']:.1f} s for a {result['take_seconds']:.0f} s take "
+                f"({result['calibrate_seconds_per_30s']:.1f} s per 30 s on {result['cpu_cores']} cores), steps found "
+                f"{result['steps_found']}/{result['steps']}; goals met {len(goals) - len(missed)}/{len(goals)}")
     return (f"end to end {result['end_to_end_fps']:.1f} fps ({result['end_to_end_over_cpu_bound']:.2f}x the "
             f"{result['cpu_cores']}-core CPU bound), track {result['track_fps']:.1f} fps, render auto "
             f"{result['render_fps_wrinkles_auto']:.1f} fps ({result['render_auto_over_off']:.2f}x off), retarget + "

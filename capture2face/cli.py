@@ -257,7 +257,9 @@ def _cmd_batch(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
-    if args.memory_seconds:
+    if args.calibration:
+        result = bench.calibration_bench(size=args.size, progress=not args.quiet)
+    elif args.memory_seconds:
         result = bench.memory_check(long_seconds=args.memory_seconds, size=args.size, progress=not args.quiet)
     else:
         result = bench.run_bench(size=args.size, frames=args.frames, progress=not args.quiet)
@@ -514,6 +516,8 @@ def _add_bench_parser(sub, common: argparse.ArgumentParser) -> None:
     p.add_argument("--json", metavar="PATH", help="also write the figures as JSON")
     p.add_argument("--memory-seconds", type=float, default=0, metavar="S",
                    help="instead: peak memory of a run on an S-second clip vs a 10-second one")
+    p.add_argument("--calibration", action="store_true",
+                   help="instead: how long `calibrate` takes on a synthetic range-of-motion take")
     p.set_defaults(func=_cmd_bench)
 
 

@@ -113,3 +113,29 @@ def test_looped_clip_repeats_the_source_exactly(tmp_path):
     np.testing.assert_allclose(np.diff(times), 1 / 25, atol=1e-6)  # no timestamp jump at the seams
     for k in (0, 24, 25, 26, 99):
         np.testing.assert_array_equal(looped[k][1], source[k % 25])  # decoded identically
+
+
+@pytest.mark.slow
+def test_bench_calibration_times_calibrate_on_the_protocols_take(tmp_path):
+    """``bench --calibration``: the take is the whole protocol, performed (the avatar's
+    steps are found), and the time per 30 s is the measured wall time scaled by the take's
+    length, inside the process's own wall time."""
+    from capture2face.calibration.protocol import PROTOCOL
+
+    out = tmp_path / "bench.json"
+    env = dict(os.environ, GLOG_minloglevel="2", TF_CPP_MIN_LOG_LEVEL="2")
+    start = time.perf_counter()
+    done = subprocess.run([sys.executable, "-m", "capture2face", "bench", "--calibration", "--size", "160",
+                           "--json", str(out)], capture_output=True, text=True, env=env, check=False)
+    wall = time.perf_counter() - start
+    assert done.returncode == 0, done.stderr[-3000:]
+    figures = json.loads(out.read_text())
+    assert figures["steps"] == len(PROTOCOL) and figures["steps_found"] >= 0.5 * len(PROTOCOL)
+    assert figures["take_seconds"] == pytest.approx(figures["take_frames"] / 30.0, abs=1e-3)
+    assert figures["take_seconds"] > 20
+    assert figures["calibrate_seconds_per_30s"] == pytest.approx(
+        figures["calibrate_seconds"] * 30 / figures["take_seconds"], rel=1e-3)
+    assert figures["synth_seconds"] + figures["calibrate_seconds"] < wall
+    (goal, met), = figures["goals"].items()
+    assert met == (figures["calibrate_seconds_per_30s"] <= 10.0)
+    assert "calibrate " in done.stderr and "per 30 s" in done.stderr  # the summary line

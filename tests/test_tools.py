@@ -148,6 +148,29 @@ def test_calibration_diagnose_finds_the_lag_and_what_the_error_follows():
     assert fits["p"]["p"] > 0.99  # the pose's part taken off in-sample
 
 
+def test_calibration_bound_fits_what_the_reading_holds_and_nothing_else():
+    """The ceiling's fits: a curve that is a line of the reading is recovered on new frames
+    by the ridge, a curve that is a bump of it by the radial basis better than by the ridge,
+    and a curve the reading does not hold by neither."""
+    sys.path.insert(0, os.fspath(REPO / "tools"))
+    try:
+        import calibration_bound as tool
+    finally:
+        sys.path.remove(os.fspath(REPO / "tools"))
+    rng = np.random.default_rng(1)
+    x_fit, x_new = rng.normal(size=(600, 6)), rng.normal(size=(300, 6))
+    line = lambda x: x @ np.array([0.08, -0.05, 0.03, 0, 0, 0]) + 0.5  # noqa: E731
+    bump = lambda x: np.exp(-(x[:, 0] ** 2 + x[:, 1] ** 2))  # noqa: E731
+    r, mae, ridge = tool.best_fit(x_fit, line(x_fit) + 0.01 * rng.normal(size=600), x_new, line(x_new))
+    assert r > 0.99 and mae < 0.02 and ridge in tool.RIDGES
+    r_line = tool.best_fit(x_fit, bump(x_fit), x_new, bump(x_new))[0]
+    r_rbf, _, setting = tool.best_fit(x_fit, bump(x_fit), x_new, bump(x_new), "rbf")
+    assert r_line < 0.3 and r_rbf > 0.9 and setting[0] in tool.RBF_WIDTHS
+    unrelated = rng.uniform(0, 1, 300)
+    assert max(tool.best_fit(x_fit, rng.uniform(0, 1, 600), x_new, unrelated, kind)[0]
+               for kind in ("ridge", "rbf")) < 0.3
+
+
 def test_morph_ranges_gives_p99_or_the_mean_over_frames():
     """Each ARKit-named morph's solved weight beside its curve: p99 over the clip, or the
     mean over ``--frames`` (one expression, as d18's grimace in docs/characters.md)."""
