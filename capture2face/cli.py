@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 from capture2face import batch, bench, pipeline
+from capture2face.calibration import ActorCalibration
 from capture2face.calibration.attach import attach
 from capture2face.character.load import load_character
 from capture2face.errors import CaptureError, exit_interrupted, install_process_defaults
@@ -153,15 +154,18 @@ def _cmd_track(args: argparse.Namespace) -> int:
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
-    # Before tracking: the options, the take decodes, the output can be written, the model exists.
+    # Before tracking: the options, the takes decode, the output can be written, the model exists.
     options = _track_options(args)
-    open_video(args.take)
-    check_output_file(args.output, "-o", (".json",), protect=[args.take])
+    for take in args.takes:
+        open_video(take)
+    check_output_file(args.output, "-o", (".json",), protect=args.takes)
     find_face_model(args.face_model)
-    calibration = learn_calibration(args.take, options, progress=not args.quiet)
+    learned = [learn_calibration(take, options, progress=not args.quiet) for take in args.takes]
+    calibration = ActorCalibration.together(learned)
     calibration.save(args.output)
-    for warning in calibration.warnings:
-        print(f"capture2face: warning: {warning}", file=sys.stderr)
+    for take, one in zip(args.takes, learned, strict=True):
+        for warning in one.warnings:
+            print(f"capture2face: warning: {take + ': ' if len(learned) > 1 else ''}{warning}", file=sys.stderr)
     print(f"wrote {args.output}: {calibration_summary(calibration)}")
     return 0
 
@@ -402,7 +406,9 @@ def _add_track_parser(sub, common: argparse.ArgumentParser) -> None:
 def _add_calibrate_parser(sub, common: argparse.ArgumentParser) -> None:
     p = sub.add_parser("calibrate", parents=[common],
                        help="learn an actor's calibration from a range-of-motion take into actor.json")
-    p.add_argument("take", help="the range-of-motion take (docs/calibration.md)")
+    p.add_argument("takes", nargs="+", metavar="TAKE",
+                   help="the range-of-motion take (docs/calibration.md); several takes of the actor calibrate "
+                        "together (the curves are the mean of each take's)")
     p.add_argument("-o", "--output", required=True, metavar="JSON",
                    help="the calibration to write (readable and editable; give it to --calibration)")
     _add_face_model_option(p)

@@ -172,6 +172,31 @@ def test_actor_json_round_trips_and_reads_edits(tmp_path):
     assert ActorCalibration.load(path).curves["browInnerUp"]["gain"] == 0.7
 
 
+def test_several_takes_calibrate_together_and_round_trip(tmp_path):
+    """Each take's calibration is kept whole (its own gains, steps and warnings) and reads
+    back from actor.json; a calibration of several takes joined again keeps them all."""
+    first, second = _calibration(), _calibration()
+    second.source, second.curves["browInnerUp"]["gain"] = "rom2.mp4", 0.5
+    both = ActorCalibration.together([first, second])
+    assert [t.source for t in both.takes] == ["rom.mp4", "rom2.mp4"] and not first.more_takes
+    path = tmp_path / "actor.json"
+    both.save(path)
+    back = ActorCalibration.load(path)
+    assert back.to_json() == both.to_json()
+    assert back.more_takes[0].curves["browInnerUp"]["gain"] == 0.5 and back.curves["browInnerUp"]["gain"] == 1.1
+    assert json.loads(path.read_text())["more_takes"][0]["source"] == "rom2.mp4"  # plain JSON
+    assert len(ActorCalibration.together([both, _calibration()]).takes) == 3
+    other = _calibration()
+    other.score_names = other.score_names[:-1] + ["tongueOut"]
+    with pytest.raises(CaptureError, match="same tracker"):
+        ActorCalibration.together([first, other])
+    data = both.to_json()
+    data["more_takes"][0]["curves"]["browInnerUp"]["source"] = "guess"
+    path.write_text(json.dumps(data))
+    with pytest.raises(CaptureError, match=r"take 2\): curve browInnerUp's source"):
+        ActorCalibration.load(path)
+
+
 def test_explained_away_takes_off_what_other_steps_raise():
     cal = _calibration()  # browDownLeft: 0.2 of brows_up's weight is not a frown
     names = cal.score_names
@@ -253,3 +278,14 @@ def test_a_calibration_reads_the_brows_mediapipe_misses(actor_json, tmp_path):
     assert figures["browInnerUp"]["mae"] < 0.5 * figures["browInnerUp"]["mediapipe_mae"], figures
     for name in ("eyeBlinkLeft", "mouthSmileLeft"):  # what the tracker reads well stays read well
         assert figures[name]["r"] > 0.85, figures
+    # Two takes calibrating together: the curves are the mean of each take's reading (the
+    # second take here is the first with two curves edited).
+    first = ActorCalibration.load(actor_json)
+    second = ActorCalibration.load(actor_json)
+    second.curves["browInnerUp"]["gain"] *= 0.5
+    second.curves["browDownLeft"]["offset"] += 0.1
+    alone = arkit_curves(attach(track, second))
+    both = arkit_curves(attach(track, ActorCalibration.together([first, second])))
+    np.testing.assert_allclose(both, (after + alone) / 2, atol=1e-6)
+    inner = names.index("browInnerUp")
+    assert np.abs(both[:, inner] - after[:, inner]).max() > 0.05  # the edit shows, halved

@@ -53,6 +53,9 @@ def test_a_missing_or_bad_calibration_file_is_one_line_error(tmp_path, capsys, n
 def test_calibrate_refuses_what_is_not_a_take(tmp_path, capsys):
     _one_line_error(capsys, 2, ["calibrate", str(tmp_path / "none.mp4"), "-o", str(tmp_path / "a.json")],
                     "no such file")
+    # one bad take among several: refused before any take is tracked
+    _one_line_error(capsys, 2, ["calibrate", str(SAMPLE), str(tmp_path / "none.mp4"), "-o", str(tmp_path / "a.json")],
+                    "none.mp4")
     (tmp_path / "notes.mp4").write_text("not a video")
     _one_line_error(capsys, 2, ["calibrate", str(tmp_path / "notes.mp4"), "-o", str(tmp_path / "a.json")])
     assert not (tmp_path / "a.json").exists()
@@ -139,6 +142,27 @@ def test_calibrate_writes_an_actor_json_that_round_trips(actor_json, tmp_path):
     calibration.save(tmp_path / "again.json")
     assert ActorCalibration.load(tmp_path / "again.json").to_json() == calibration.to_json()
     assert json.loads((tmp_path / "again.json").read_text()) == json.loads(actor_json.read_text())
+
+
+@pytest.mark.slow
+def test_calibrate_takes_several_takes_into_one_actor_json(rom_take, tmp_path, capsys):
+    """Two takes: one actor.json holding both, the summary naming them, each take's warnings
+    named after it; report.html shows a table a take."""
+    second = tmp_path / "second.mp4"
+    shutil.copy(rom_take, second)
+    out = tmp_path / "actor.json"
+    assert main(["calibrate", str(rom_take), str(second), "-o", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert "2 takes, steps found " in captured.out
+    calibration = ActorCalibration.load(out)
+    assert [Path(t.source).name for t in calibration.takes] == [rom_take.name, "second.mp4"]
+    assert calibration.more_takes[0].curves == calibration.curves  # the same take, learned alike
+    warned = [line for line in captured.err.splitlines() if line.startswith("capture2face: warning: ")]
+    assert all(str(rom_take) in line or str(second) in line for line in warned)
+    from capture2face.pipeline.calibration import calibration_report
+
+    html = calibration_table(calibration_report(calibration))
+    assert html.count('<table class="calibration">') == 2 and "mean of 2 takes" in html
 
 
 def _livelink(folder: Path) -> dict[str, np.ndarray]:

@@ -124,6 +124,10 @@ def test_calibration_across_takes_counts_goals_over_every_take():
     line = tool.table(rows).splitlines()[2]
     assert line.startswith("| perf (t1, t2) |") and line.endswith("| 9 of 16 |")
     assert "0.65 [0.35, 0.95] / 0.030" in line  # browDownLeft over the two takes
+    rows["perf|together"] = dict(rows["perf|t2"])  # the takes together: a row of its own
+    lines = tool.table(rows).splitlines()
+    assert lines[2] == line and lines[3].startswith("| perf (all 2 together) |")
+    assert "| 0.35 / 0.040 |" in lines[3] and lines[3].endswith("| 1 of 8 |")
 
 
 def test_calibration_diagnose_finds_the_lag_and_what_the_error_follows():

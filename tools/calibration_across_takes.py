@@ -11,6 +11,8 @@ and each of the issue's goal curves: ``mean r [lowest, highest] / mean MAE`` ove
 takes, and how many (take, curve) pairs meet the goal (r >= 0.9, MAE below MediaPipe's raw
 score). ``--json`` keeps every pair's figures; ``--before`` prints an earlier run's JSON
 (of the same takes and performances) beside this one's as ``before -> after``.
+``--together``: also every performance read with all the takes calibrating together
+(``capture2face calibrate TAKE TAKE ...``: the mean of each take's curves), a row of its own.
 """
 
 from __future__ import annotations
@@ -46,9 +48,13 @@ def load_performance(path: Path):
     return Track.load(path), SyntheticTruth.load(str(path).replace(".track.npz", ".truth.npz"))
 
 
-def pair_figures(takes: list[Path], performances: list[Path]) -> dict:
-    """{"PERF|TAKE": {curve: [r, MAE, MediaPipe's MAE]}} for every take and performance."""
-    from capture2face.calibration import calibrate
+TOGETHER = "together"  # the key (PERF|together) of the takes calibrating together
+
+
+def pair_figures(takes: list[Path], performances: list[Path], together: bool = False) -> dict:
+    """{"PERF|TAKE": {curve: [r, MAE, MediaPipe's MAE]}} for every take and performance (and
+    with ``together``, "PERF|together" for all the takes calibrating together)."""
+    from capture2face.calibration import ActorCalibration, calibrate
     from capture2face.calibration.attach import attach
     from capture2face.eval.synthetic import arkit_columns
     from capture2face.maths.stats import pearson
@@ -56,10 +62,14 @@ def pair_figures(takes: list[Path], performances: list[Path]) -> dict:
     from capture2face.tracking.track import Track
 
     perfs = {stem(p): load_performance(p) for p in performances}
-    out = {}
+    calibrations = {}
     for take in takes:
         rom = Track.load(take)
-        calibration = calibrate(rom, base_curves=arkit_curves(rom))
+        calibrations[stem(take)] = calibrate(rom, base_curves=arkit_curves(rom))
+    if together:
+        calibrations[TOGETHER] = ActorCalibration.together(list(calibrations.values()))
+    out = {}
+    for take, calibration in calibrations.items():
         for name, (track, truth) in perfs.items():
             curves = arkit_curves(attach(track, calibration))
             cols, truth_cols = list(track.blendshape_names), arkit_columns(truth.blend_names)
@@ -70,7 +80,7 @@ def pair_figures(takes: list[Path], performances: list[Path]) -> dict:
                 row[curve] = [round(float(pearson(curves[:, c], true)), 3),
                               round(float(np.abs(curves[:, c] - true).mean()), 4),
                               round(float(np.abs(raw - true).mean()), 4)]
-            out[f"{name}|{stem(take)}"] = row
+            out[f"{name}|{take}"] = row
     return out
 
 
@@ -84,15 +94,23 @@ def _cell(d: dict, keys: list[str], curve: str) -> str:
 
 
 def table(after: dict, before: dict | None = None) -> str:
-    """Markdown: per performance, each goal curve over its takes, and the goals met."""
+    """Markdown: per performance, each goal curve over its takes, and the goals met; below
+    it, the takes calibrating together where measured."""
     lines = ["| performance (takes) | " + " | ".join(GOALS) + " | goals met |", "|---|" + "---|" * (len(GOALS) + 1)]
     for perf in sorted({k.split("|")[0] for k in after}):
-        keys = sorted(k for k in after if k.startswith(perf + "|"))
+        keys = sorted(k for k in after if k.startswith(perf + "|") and k != f"{perf}|{TOGETHER}")
         cells = [(f"{_cell(before, keys, c)} -> " if before else "") + _cell(after, keys, c) for c in GOALS]
         count = sum(met(after[k]) for k in keys)
         goals = (f"{sum(met(before[k]) for k in keys)} -> " if before else "") + f"{count} of {len(GOALS) * len(keys)}"
         takes = ", ".join(k.split("|")[1] for k in keys)
         lines.append(f"| {perf} ({takes}) | " + " | ".join(cells) + f" | {goals} |")
+        row = after.get(f"{perf}|{TOGETHER}")
+        if row:
+            was = (before or {}).get(f"{perf}|{TOGETHER}")
+            cells = [(f"{was[c][0]:.2f} / {was[c][1]:.3f} -> " if was else "") + f"{row[c][0]:.2f} / {row[c][1]:.3f}"
+                     for c in GOALS]
+            goals = (f"{met(was)} -> " if was else "") + f"{met(row)} of {len(GOALS)}"
+            lines.append(f"| {perf} (all {len(keys)} together) | " + " | ".join(cells) + f" | {goals} |")
     return "\n".join(lines)
 
 
@@ -102,13 +120,18 @@ def main(argv: list[str] | None = None) -> int:
     take_arguments(parser)
     parser.add_argument("--json", type=Path, default=None, help="write every (performance, take) pair's figures")
     parser.add_argument("--before", type=Path, default=None, help="an earlier --json of the same takes, shown beside")
+    parser.add_argument("--together", action="store_true", help="also all the takes calibrating together")
     args = parser.parse_args(argv)
-    after = pair_figures(args.takes, args.performances)
+    after = pair_figures(args.takes, args.performances, args.together)
     if args.json:
         args.json.write_text(json.dumps(after, indent=1))
     before = json.loads(args.before.read_text()) if args.before else None
     print(table(after, before))
-    print(f"goals met: {sum(met(row) for row in after.values())} of {len(GOALS) * len(after)}")
+    single = [row for key, row in after.items() if not key.endswith(f"|{TOGETHER}")]
+    print(f"goals met: {sum(met(row) for row in single)} of {len(GOALS) * len(single)}")
+    joint = [row for key, row in after.items() if key.endswith(f"|{TOGETHER}")]
+    if joint:
+        print(f"goals met with the takes together: {sum(met(row) for row in joint)} of {len(GOALS) * len(joint)}")
     return 0
 
 

@@ -1,9 +1,11 @@
 """``ActorCalibration``: what a range-of-motion take taught about one actor, and its JSON
 (``actor.json``: readable and editable; the per-curve ``gain`` and ``offset`` are what a
-user tunes)."""
+user tunes). Several takes of the actor calibrate together: each is learned on its own and
+the clip's curves are the mean of each take's (:attr:`ActorCalibration.more_takes`)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 from dataclasses import dataclass, field
@@ -69,6 +71,10 @@ class ActorCalibration:
             at that share with ``clip(gain * s + offset, 0, 1)``, ``s`` the tracker's own
             score calibrated to rest (the curve itself is the face's geometry).
         warnings: what the take lacked or showed badly.
+        more_takes: the calibrations of the actor's other takes, each learned on its own
+            (``calibrate`` given several takes); the clip's curves are the mean of each
+            take's (:attr:`takes`), which a take the light or the timing spoiled pulls
+            less far than it pulls a calibration of its own.
     """
 
     source: str
@@ -84,6 +90,21 @@ class ActorCalibration:
     noise: np.ndarray
     curves: dict[str, dict]
     warnings: list[str] = field(default_factory=list)
+    more_takes: list[ActorCalibration] = field(default_factory=list)
+
+    @property
+    def takes(self) -> list[ActorCalibration]:
+        """This take's calibration and each of :attr:`more_takes`."""
+        return [self, *self.more_takes]
+
+    @classmethod
+    def together(cls, calibrations: list[ActorCalibration]) -> ActorCalibration:
+        """One calibration of several takes of one actor: the first, the others as its
+        :attr:`more_takes`."""
+        first, *more = calibrations
+        if any(c.score_names != first.score_names for c in more):
+            raise CaptureError("calibrations of several takes must come from the same tracker's scores")
+        return dataclasses.replace(first, more_takes=[*first.more_takes, *(t for c in more for t in c.takes)])
 
     def to_json(self) -> dict:
         r = lambda a, d=4: np.round(np.asarray(a, np.float64), d).tolist()  # noqa: E731
@@ -100,16 +121,13 @@ class ActorCalibration:
             "pose_model": r(self.pose_model, 5),
             "basis": {name: r(row, 5) for name, row in zip(self.basis_steps, self.basis, strict=True)},
             "noise": dict(zip(self.basis_steps, r(self.noise), strict=True)),
+            **({"more_takes": [t.to_json() for t in self.more_takes]} if self.more_takes else {}),
         }
 
     def save(self, path: str | os.PathLike) -> None:
         """actor.json: what a user reads and edits first, one item a line; then the learned
-        arrays, one line each."""
-        data = self.to_json()
-        learned = {k: data.pop(k) for k in LEARNED}
-        head = json.dumps(data, indent=1)
-        tail = ",\n".join(f" {json.dumps(k)}: {json.dumps(v, separators=(',', ':'))}" for k, v in learned.items())
-        write_text_atomic(path, f"{head[:-2]},\n{tail}\n}}\n")
+        arrays, one line each; then each of :attr:`more_takes` laid out the same way."""
+        write_text_atomic(path, _layout(self.to_json()) + "\n")
 
     @classmethod
     def from_json(cls, data: dict, where: str = "calibration") -> ActorCalibration:
@@ -131,6 +149,7 @@ class ActorCalibration:
                                **({"score": {f: float(v["score"][f]) for f in ("share", "gain", "offset")}}
                                   if "score" in v else {})}
                       for k, v in data["curves"].items()}
+            more = [cls.from_json(t, f"{where} (take {k + 2})") for k, t in enumerate(data.get("more_takes", []))]
             out = cls(source=str(data.get("source", "")), fps=float(data.get("fps", 30.0)), steps=steps,
                       rest_face=np.asarray(data["rest"]["face"], np.float32),
                       rest_landmarks=np.asarray(data["rest"]["landmarks"], np.float32),
@@ -138,12 +157,14 @@ class ActorCalibration:
                       score_names=names, pose_model=pose_model,
                       basis=basis, basis_steps=basis_steps,
                       noise=np.asarray([data["noise"][n] for n in basis_steps], np.float32),
-                      curves=curves, warnings=list(data.get("warnings", [])))
+                      curves=curves, warnings=list(data.get("warnings", [])), more_takes=more)
         except (KeyError, TypeError, ValueError) as exc:
             raise CaptureError(f"{where}: a damaged actor calibration ({type(exc).__name__}: {exc})") from None
         bad = [k for k, v in out.curves.items() if v["source"] not in ("tracker", "expressions")]
         if bad:
             raise CaptureError(f"{where}: curve {bad[0]}'s source must be \"tracker\" or \"expressions\"")
+        if any(t.score_names != out.score_names for t in more):
+            raise CaptureError(f"{where}: its takes were read by different trackers (their scores differ)")
         if out.rest_landmarks.shape != (478, 3) or out.rest_face.shape != (478, 3):
             raise CaptureError(f"{where}: a damaged actor calibration (its rest is not 478 landmarks)")
         for name, c in out.curves.items():
@@ -162,6 +183,18 @@ class ActorCalibration:
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise CaptureError(f"--calibration {path}: not JSON ({exc})") from None
         return cls.from_json(data, f"--calibration {path}")
+
+
+def _layout(data: dict) -> str:
+    """One take's JSON as actor.json lays it out (:meth:`ActorCalibration.save`), with its
+    ``more_takes`` nested, each laid out the same way."""
+    more = [_layout(t) for t in data.pop("more_takes", [])]
+    learned = {k: data.pop(k) for k in LEARNED}
+    head = json.dumps(data, indent=1)
+    tail = [f" {json.dumps(k)}: {json.dumps(v, separators=(',', ':'))}" for k, v in learned.items()]
+    if more:
+        tail.append(' "more_takes": [\n' + ",\n".join(more) + "\n ]")
+    return f"{head[:-2]},\n" + ",\n".join(tail) + "\n}"
 
 
 def _pair(value) -> tuple[int, int] | None:

@@ -73,13 +73,20 @@ def resolve_calibration(options: TrackOptions, progress: bool = True) -> ActorCa
 
 
 def calibration_summary(calibration: ActorCalibration) -> str:
-    """``steps found 18/20, 12 curves calibrated``: a calibration at a glance."""
-    found = sum(1 for s in calibration.steps if s.found)
-    return f"steps found {found}/{len(calibration.steps)}, {len(calibration.curves)} curves calibrated"
+    """``steps found 18/20, 12 curves calibrated`` (several takes: ``3 takes, steps found
+    18/20, 20/20, 17/20, ...``): a calibration at a glance."""
+    takes = calibration.takes
+    found = ", ".join(f"{sum(1 for s in t.steps if s.found)}/{len(t.steps)}" for t in takes)
+    return (f"{len(takes)} takes, " if len(takes) > 1 else "") + \
+        f"steps found {found}, {len(calibration.curves)} curves calibrated"
 
 
 def calibration_report(calibration: ActorCalibration) -> dict:
     """report.json's ``calibration`` section: the take, each step as found (frames, the hold,
     how it matched, the tracker's reading before and after), the curves and the warnings."""
     data = calibration.to_json()
-    return {key: data[key] for key in ("source", "steps", "curves", "warnings")}
+    keys = ("source", "steps", "curves", "warnings")
+    out = {key: data[key] for key in keys}
+    if calibration.more_takes:  # each further take as the first
+        out["more_takes"] = [{key: t[key] for key in keys} for t in data["more_takes"]]
+    return out

@@ -152,13 +152,6 @@ def arkit_curves(track, rest: ActorRest | None = None) -> np.ndarray:
             if blink and BLINK_GATE > 0:
                 geometric[c] *= np.clip(target / BLINK_GATE, 0.0, 1.0)
 
-    calibration = track_calibration(track)
-    from_calibration = {}  # column -> its calibrated curve (F,)
-    if calibration is not None and calibration.curves:
-        weights = clip_weights(track, calibration)
-        mixed = calibrated_curves(track, calibration, np.zeros(raw.shape, np.float32), weights=weights)
-        from_calibration = {names.index(n): mixed[:, names.index(n)] for n, c in calibration.curves.items()
-                            if n in names and c["source"] == "expressions"}
     # A few columns at a time: each curve is calibrated and filtered on its own, so this is
     # the same as the whole (F, S) at once with a fraction of the float64 temporaries.
     out = np.empty(raw.shape, np.float32)
@@ -169,13 +162,31 @@ def arkit_curves(track, rest: ActorRest | None = None) -> np.ndarray:
         for j, c in enumerate(cols):
             if names[c] == "_neutral":  # not an ARKit curve: MediaPipe's own "no expression" score, kept
                 curves[:, j] = scores[:, j]
-            elif c in from_calibration:
-                curves[:, j] = from_calibration[c]
             elif c in geometric:
                 curves[:, j] = geometric[c]
         out[:, c0:cols.stop] = np.clip(one_euro(curves, times, SCORE_FILTER), 0.0, 1.0)
+    calibration = track_calibration(track)
     if calibration is None:
         return out
+    # Several takes: each take's calibration reads the clip on its own; the curves are their mean.
+    takes = [_take_curves(track, take, out, rest, times) for take in calibration.takes]
+    return takes[0] if len(takes) == 1 else np.mean(takes, 0).astype(np.float32)
+
+
+def _take_curves(track, calibration, curves: np.ndarray, rest: ActorRest, times: np.ndarray) -> np.ndarray:
+    """(F, S) float32 ``curves`` (the uncalibrated, filtered ones) as one take's
+    ``calibration`` reads the clip: the curves from the actor's expressions mixed and
+    filtered in their place, then the tracker's kept ones adjusted and what other steps
+    raise taken off."""
+    names = list(track.blendshape_names)
+    out = np.array(curves, np.float32, copy=True)
+    weights = np.zeros((track.n_frames, 0))
+    if calibration.curves:
+        weights = clip_weights(track, calibration)
+        mixed = calibrated_curves(track, calibration, np.zeros(out.shape, np.float32), weights=weights)
+        cols = [names.index(n) for n, c in calibration.curves.items() if n in names and c["source"] == "expressions"]
+        if cols:
+            out[:, cols] = np.clip(one_euro(mixed[:, cols].astype(np.float64), times, SCORE_FILTER), 0.0, 1.0)
     out = tracker_adjusted(out, calibration, names, _calibration_scores(track, calibration, rest, times))
     return out if not calibration.curves else explained_away(out, calibration, names, weights)
 

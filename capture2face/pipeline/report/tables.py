@@ -177,4 +177,13 @@ def calibration_table(section: dict | None) -> str:
             f'{len(section.get("curves", {}))} curves calibrated. Match: how like the step the tracker read the '
             "hold (1 = alike). Reading: the step's strongest curves at its hold, before and after.</p>"
             '<table class="calibration"><tr><th class="l">step</th><th>frames</th><th>match</th>'
-            '<th class="l">tracker before</th><th class="l">after</th></tr>' + "".join(rows) + "</table>")
+            '<th class="l">tracker before</th><th class="l">after</th></tr>' + "".join(rows) + "</table>"
+            + _more_takes(section.get("more_takes") or []))
+
+
+def _more_takes(takes: list[dict]) -> str:
+    """The further takes of a calibration of several, a table each."""
+    if not takes:
+        return ""
+    return (f'<p class="note">The curves are the mean of {len(takes) + 1} takes\' readings; the other '
+            f'take{"s" if len(takes) > 1 else ""}:</p>' + "".join(calibration_table(t) for t in takes))
