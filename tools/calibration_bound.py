@@ -27,7 +27,7 @@ from calibration_across_takes import GOALS, R_GOAL, load_performance, stem, take
 RIDGES = (1e-4, 1e-3, 1e-2, 1e-1)
 # The radial-basis fit (Dutreve's retargeting is an RBF network): kernel widths as shares of
 # the fitted frames' median squared distance, and the ridge on the kernel's diagonal.
-RBF_WIDTHS, RBF_RIDGES = (1.0, 4.0, 16.0), (0.01, 1.0, 10.0)
+RBF_WIDTHS, RBF_RIDGES = (1.0, 4.0, 16.0, 64.0), (0.01, 0.1, 1.0, 10.0, 100.0)
 
 
 def reading(track) -> tuple[np.ndarray, np.ndarray]:

@@ -73,8 +73,8 @@ class ActorCalibration:
         warnings: what the take lacked or showed badly.
         more_takes: the calibrations of the actor's other takes, each learned on its own
             (``calibrate`` given several takes); the clip's curves are the mean of each
-            take's (:attr:`takes`), which a take the light or the timing spoiled pulls
-            less far than it pulls a calibration of its own.
+            take's reading (:attr:`takes`), so a take the light or its timing spoiled
+            counts for its share only.
     """
 
     source: str

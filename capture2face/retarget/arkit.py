@@ -26,7 +26,8 @@ gives each of the 52 curves ARKit's meaning (0 at rest, 1 at the full pose):
   curve above with the take's gain and offset where the tracker read it well on the take
   (jawOpen's lip gap averaged with its score, each on the take's line: they err on
   different expressions), else this actor's own expressions mixed to fit the frame; the
-  others as above.
+  others as above. A calibration of several takes reads the clip once per take and the
+  curves are the mean.
 * then all curves pass a zero-phase One Euro filter tuned for [0, 1] scores
   (:data:`SCORE_FILTER`) and are clipped to [0, 1].
 """
