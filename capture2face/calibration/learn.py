@@ -59,6 +59,13 @@ TRACKER_KEEP = (0.8, 1.25)
 # as far as its jaw hold), while MediaPipe's jawOpen score misses less of those (0.01-0.03
 # at the upper lip's hold) and errs elsewhere. jawOpen r 0.81-0.87 -> 0.84-0.90 across takes.
 SCORE_SHARE = {"jawOpen": 0.5}
+# Curves read from the face's geometry (``retarget.arkit.GEOMETRIC``) against the take's rest
+# laid onto the clip (source "geometry"): the brows' height. A clip's own rest is where
+# MediaPipe reads the brows calmest, which on ICT performances was a frown (browDown
+# 0.58-0.99 at the picked frame); the take's opening neutral is a neutral. Against it the
+# brows' height follows browInnerUp better than the expressions' mix on every performance
+# and take measured ("Across takes", round seven).
+TAKE_REST_GEOMETRY = ("browInnerUp",)
 # The regions whose curves learn what other regions' steps raise (_fit_explained), and the
 # least share kept.
 EXPLAIN_REGIONS, EXPLAIN_MIN = ("brow", "eye"), 0.01
@@ -313,6 +320,9 @@ def _fit_gains(calibration: ActorCalibration, weights: np.ndarray, base: np.ndar
         # frown, but is the tracker's noise times 30) or moved (a curve that reads well
         # above 0 at the take's rest reads the clip's rest wrong, as browInnerUp on a take
         # whose calmest brows are its frown's).
+        if name in TAKE_REST_GEOMETRY:  # read as the uncalibrated curve is, from the take's rest
+            c["source"], c["gain"], c["offset"] = "geometry", 1.0, 0.0
+            continue
         if pearson(tracker, y) >= TRACKER_R and gain <= TRACKER_GAIN_MAX and abs(offset) <= TRACKER_OFFSET_MAX:
             c["source"] = "tracker"
             if TRACKER_KEEP[0] <= gain <= TRACKER_KEEP[1]:  # within the take's noise: left as read
@@ -354,7 +364,7 @@ def _fit_explained(calibration: ActorCalibration, track, weights: np.ndarray, ba
     col = {n: i for i, n in enumerate(names)}
     for name, c in calibration.curves.items():
         region = curve_region(name)
-        if region not in EXPLAIN_REGIONS:
+        if region not in EXPLAIN_REGIONS or c["source"] == "geometry":
             continue
         others = [k for k, st in enumerate(calibration.basis_steps)
                   if all(curve_region(t) != region for t in by_name[st].targets)]

@@ -17,6 +17,7 @@ from capture2face.io.atomic import write_text_atomic
 
 FORMAT = "capture2face.ActorCalibration/1"
 LEARNED = ("rest", "pose_model", "basis", "noise")  # actor.json's arrays, after what a user edits
+SOURCES = ("tracker", "expressions", "geometry")  # where a calibrated curve comes from
 
 
 @dataclass
@@ -64,8 +65,9 @@ class ActorCalibration:
             percentile there): weights below it are the tracker's noise.
         curves: ARKit name -> {"source", "gain", "offset", "steps", "explained_by"}: the
             calibrated curve is ``clip(gain * x + offset, 0, 1)``, ``x`` the tracker's own
-            curve (source "tracker") or the mix ``sum_k w_k target_k`` of the actor's
-            expressions that show it ("expressions"), less ``sum_j b_j w_j`` over
+            curve (source "tracker"), the face's geometry read against this take's rest laid
+            onto the clip ("geometry", ``retarget.arkit.GEOMETRIC``), or the mix ``sum_k w_k
+            target_k`` of the actor's expressions that show it ("expressions"), less ``sum_j b_j w_j`` over
             ``explained_by`` (step -> b: what other regions' steps raise of it). A tracker's
             curve with a ``score`` ({"share", "gain", "offset"}, jawOpen) is first averaged
             at that share with ``clip(gain * s + offset, 0, 1)``, ``s`` the tracker's own
@@ -160,9 +162,9 @@ class ActorCalibration:
                       curves=curves, warnings=list(data.get("warnings", [])), more_takes=more)
         except (KeyError, TypeError, ValueError) as exc:
             raise CaptureError(f"{where}: a damaged actor calibration ({type(exc).__name__}: {exc})") from None
-        bad = [k for k, v in out.curves.items() if v["source"] not in ("tracker", "expressions")]
+        bad = [k for k, v in out.curves.items() if v["source"] not in SOURCES]
         if bad:
-            raise CaptureError(f"{where}: curve {bad[0]}'s source must be \"tracker\" or \"expressions\"")
+            raise CaptureError(f"{where}: curve {bad[0]}'s source must be one of {', '.join(SOURCES)}")
         if any(t.score_names != out.score_names for t in more):
             raise CaptureError(f"{where}: its takes were read by different trackers (their scores differ)")
         if out.rest_landmarks.shape != (478, 3) or out.rest_face.shape != (478, 3):

@@ -40,6 +40,7 @@ from capture2face.calibration.attach import track_calibration
 from capture2face.calibration.learn import (
     calibrate,
     calibrated_curves,
+    calibration_rest,
     clip_weights,
     explained_away,
     scored_curves,
@@ -107,6 +108,47 @@ def restore_detail(distance: np.ndarray, score: np.ndarray, times: np.ndarray, s
     return distance + (cm - one_euro(cm, times, LANDMARK_FILTER))
 
 
+def geometric_curves(track, rest: ActorRest, wanted: list[str]) -> dict[int, np.ndarray]:
+    """Column -> (F,) the curve of each of ``wanted`` (:data:`GEOMETRIC` names) from the
+    face's geometry read against ``rest``, unfiltered ({} for a track under 3 frames)."""
+    names = list(track.blendshape_names)
+    raw = np.asarray(track.blendshapes)
+    times = np.asarray(track.times, np.float64)
+    geometric = {}  # column -> its curve from the geometry (F,)
+    if not wanted or len(raw) < 3:
+        return geometric
+    dist, _ = pair_distances(track.landmarks_head, GEOMETRIC)
+    rest_dist, rest_iod = pair_distances(rest.landmarks[None], GEOMETRIC)
+    iod = max(float(rest_iod[0]), 1e-6)
+    for k in [k for k, name in enumerate(GEOMETRIC) if name in wanted]:
+        name = list(GEOMETRIC)[k]
+        c = names.index(name)
+        score = np.nan_to_num(raw[:, c].astype(np.float64))
+        blink = name.startswith("eyeBlink")
+        d = restore_detail(dist[:, k], score, times, -1.0 if blink else 1.0)
+        # Rest: the actor's (its region's). Eyes wider than at rest are eyeWide and brows
+        # below it browDown, not less than 0; only lips pressed tighter than at rest
+        # (the clip's most closed frames, from the filtered geometry: the restored
+        # detail can overshoot a step) still read 0.
+        g = dist[:, k]
+        if blink:
+            m = 1.0 - d / max(rest_dist[0, k], 1e-6)  # fraction of the rest opening closed
+        elif name == "jawOpen":
+            m = (d - min(rest_dist[0, k], np.percentile(g, REST_PERCENTILE))) / iod
+        else:
+            m = (d - rest_dist[0, k]) / iod
+        target = calibrate_scores(score, rest.scores[c])
+        up = np.clip(m, 0.0, None)
+        # Per-clip gain: the calibrated score's scale, floored by the anatomical full
+        # range (the scores are compressed) and capped against early saturation.
+        fit = float((target * up).sum() / max((up * up).sum(), 1e-12))
+        floor = 1.0 / FULL_RANGE[name]
+        geometric[c] = np.clip(m * np.clip(fit, floor, MAX_GAIN_FACTOR * floor), 0.0, 1.0)
+        if blink and BLINK_GATE > 0:
+            geometric[c] *= np.clip(target / BLINK_GATE, 0.0, 1.0)
+    return geometric
+
+
 def arkit_curves(track, rest: ActorRest | None = None) -> np.ndarray:
     """(F, S) float32 ARKit curves in [0, 1], columns named and ordered as
     ``track.blendshape_names`` (MediaPipe's 52: ``_neutral`` then the ARKit names).
@@ -120,38 +162,7 @@ def arkit_curves(track, rest: ActorRest | None = None) -> np.ndarray:
     names = list(track.blendshape_names)
     raw = np.asarray(track.blendshapes)  # (F, S) float32: read a few columns at a time
     times = np.asarray(track.times, np.float64)
-    geometric = {}  # column -> its curve from the geometry (F,)
-    wanted = [k for k, name in enumerate(GEOMETRIC) if name in names]
-    if wanted and len(raw) >= 3:
-        dist, _ = pair_distances(track.landmarks_head, GEOMETRIC)
-        rest_dist, rest_iod = pair_distances(rest.landmarks[None], GEOMETRIC)
-        iod = max(float(rest_iod[0]), 1e-6)
-        for k in wanted:
-            name = list(GEOMETRIC)[k]
-            c = names.index(name)
-            score = np.nan_to_num(raw[:, c].astype(np.float64))
-            blink = name.startswith("eyeBlink")
-            d = restore_detail(dist[:, k], score, times, -1.0 if blink else 1.0)
-            # Rest: the actor's (its region's). Eyes wider than at rest are eyeWide and brows
-            # below it browDown, not less than 0; only lips pressed tighter than at rest
-            # (the clip's most closed frames, from the filtered geometry: the restored
-            # detail can overshoot a step) still read 0.
-            g = dist[:, k]
-            if blink:
-                m = 1.0 - d / max(rest_dist[0, k], 1e-6)  # fraction of the rest opening closed
-            elif name == "jawOpen":
-                m = (d - min(rest_dist[0, k], np.percentile(g, REST_PERCENTILE))) / iod
-            else:
-                m = (d - rest_dist[0, k]) / iod
-            target = calibrate_scores(score, rest.scores[c])
-            up = np.clip(m, 0.0, None)
-            # Per-clip gain: the calibrated score's scale, floored by the anatomical full
-            # range (the scores are compressed) and capped against early saturation.
-            fit = float((target * up).sum() / max((up * up).sum(), 1e-12))
-            floor = 1.0 / FULL_RANGE[name]
-            geometric[c] = np.clip(m * np.clip(fit, floor, MAX_GAIN_FACTOR * floor), 0.0, 1.0)
-            if blink and BLINK_GATE > 0:
-                geometric[c] *= np.clip(target / BLINK_GATE, 0.0, 1.0)
+    geometric = geometric_curves(track, rest, [n for n in GEOMETRIC if n in names])
 
     # A few columns at a time: each curve is calibrated and filtered on its own, so this is
     # the same as the whole (F, S) at once with a fraction of the float64 temporaries.
@@ -188,8 +199,23 @@ def _take_curves(track, calibration, curves: np.ndarray, rest: ActorRest, times:
         cols = [names.index(n) for n, c in calibration.curves.items() if n in names and c["source"] == "expressions"]
         if cols:
             out[:, cols] = np.clip(one_euro(mixed[:, cols].astype(np.float64), times, SCORE_FILTER), 0.0, 1.0)
+        _take_rest_geometry(out, track, calibration, times)
     out = tracker_adjusted(out, calibration, names, _calibration_scores(track, calibration, rest, times))
     return out if not calibration.curves else explained_away(out, calibration, names, weights)
+
+
+def _take_rest_geometry(out: np.ndarray, track, calibration, times: np.ndarray) -> None:
+    """``out`` (F, S) with each curve of source "geometry" the face's geometry read against
+    the calibration's rest laid onto the clip, filtered as the others, on its gain and offset
+    (in place)."""
+    names = list(track.blendshape_names)
+    wanted = [n for n, c in calibration.curves.items() if c["source"] == "geometry" and n in GEOMETRIC and n in names]
+    if not wanted:
+        return
+    for c, curve in geometric_curves(track, calibration_rest(calibration, track), wanted).items():
+        spec = calibration.curves[names[c]]
+        filtered = np.clip(one_euro(curve, times, SCORE_FILTER), 0.0, 1.0)
+        out[:, c] = np.clip(spec["gain"] * filtered + spec["offset"], 0.0, 1.0)
 
 
 def _calibration_scores(track, calibration, rest: ActorRest, times: np.ndarray) -> dict[str, np.ndarray]:
