@@ -294,9 +294,9 @@ def _mix(calibration: ActorCalibration, weights: np.ndarray) -> np.ndarray:
 
 def _fit_gains(calibration: ActorCalibration, weights: np.ndarray, base: np.ndarray, fits: list[StepFit],
                rest_frames: np.ndarray, steps: tuple[Step, ...], reading: np.ndarray) -> None:
-    """Each curve's source (:data:`TRACKER_R`), gain and offset: its reading (the tracker's
-    ``base`` (F, S) curves, or the expressions' mix) over the take's holds (each step's
-    target) and idle frames (0) fitted by least squares, within :data:`GAIN_BOUNDS` and
+    """Each curve's source (:data:`TAKE_REST_GEOMETRY`, :data:`TRACKER_R`), gain and offset:
+    its reading (the tracker's ``base`` (F, S) curves, or the expressions' mix) over the
+    take's holds (each step's target) and idle frames (0) fitted by least squares, within :data:`GAIN_BOUNDS` and
     :data:`OFFSET_BOUNDS`; for a tracker's curve in :data:`SCORE_SHARE`, its ``score``: the
     same line from the take's scores calibrated to rest (``reading`` (F, S))."""
     if not len(calibration.basis):
@@ -311,6 +311,9 @@ def _fit_gains(calibration: ActorCalibration, weights: np.ndarray, base: np.ndar
     col = {n: i for i, n in enumerate(calibration.score_names)}
     mix = _mix(calibration, weights[frames])
     for name, c in calibration.curves.items():
+        if name in TAKE_REST_GEOMETRY:  # the uncalibrated curve's geometry from the take's rest
+            c["source"], c["gain"], c["offset"] = "geometry", 1.0, 0.0
+            continue
         use = shows[:, col[name]]
         y = goal[use, col[name]]
         tracker = base[frames[use], col[name]].astype(np.float64)
@@ -320,9 +323,6 @@ def _fit_gains(calibration: ActorCalibration, weights: np.ndarray, base: np.ndar
         # frown, but is the tracker's noise times 30) or moved (a curve that reads well
         # above 0 at the take's rest reads the clip's rest wrong, as browInnerUp on a take
         # whose calmest brows are its frown's).
-        if name in TAKE_REST_GEOMETRY:  # read as the uncalibrated curve is, from the take's rest
-            c["source"], c["gain"], c["offset"] = "geometry", 1.0, 0.0
-            continue
         if pearson(tracker, y) >= TRACKER_R and gain <= TRACKER_GAIN_MAX and abs(offset) <= TRACKER_OFFSET_MAX:
             c["source"] = "tracker"
             if TRACKER_KEEP[0] <= gain <= TRACKER_KEEP[1]:  # within the take's noise: left as read
