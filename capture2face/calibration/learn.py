@@ -296,8 +296,8 @@ def _fit_gains(calibration: ActorCalibration, weights: np.ndarray, base: np.ndar
                rest_frames: np.ndarray, steps: tuple[Step, ...], reading: np.ndarray) -> None:
     """Each curve's source (:data:`TAKE_REST_GEOMETRY`, :data:`TRACKER_R`), gain and offset:
     its reading (the tracker's ``base`` (F, S) curves, or the expressions' mix) over the
-    take's holds (each step's target) and idle frames (0) fitted by least squares, within :data:`GAIN_BOUNDS` and
-    :data:`OFFSET_BOUNDS`; for a tracker's curve in :data:`SCORE_SHARE`, its ``score``: the
+    take's holds (each step's target) and idle frames (0) fitted by least squares, within
+    :data:`GAIN_BOUNDS` and :data:`OFFSET_BOUNDS`; for a tracker's curve in :data:`SCORE_SHARE`, its ``score``: the
     same line from the take's scores calibrated to rest (``reading`` (F, S))."""
     if not len(calibration.basis):
         return

@@ -65,10 +65,11 @@ class ActorCalibration:
             percentile there): weights below it are the tracker's noise.
         curves: ARKit name -> {"source", "gain", "offset", "steps", "explained_by"}: the
             calibrated curve is ``clip(gain * x + offset, 0, 1)``, ``x`` the tracker's own
-            curve (source "tracker"), the face's geometry read against this take's rest laid
-            onto the clip ("geometry", ``retarget.arkit.GEOMETRIC``), or the mix ``sum_k w_k
-            target_k`` of the actor's expressions that show it ("expressions"), less ``sum_j b_j w_j`` over
-            ``explained_by`` (step -> b: what other regions' steps raise of it). A tracker's
+            curve (source "tracker"), the face's geometry read against this take's rest
+            laid onto the clip ("geometry", ``retarget.arkit.GEOMETRIC``), or the mix
+            ``sum_k w_k target_k`` of the actor's expressions that show it ("expressions"),
+            less ``sum_j b_j w_j`` over ``explained_by`` (step -> b: what other regions'
+            steps raise of it). A tracker's
             curve with a ``score`` ({"share", "gain", "offset"}, jawOpen) is first averaged
             at that share with ``clip(gain * s + offset, 0, 1)``, ``s`` the tracker's own
             score calibrated to rest (the curve itself is the face's geometry).
