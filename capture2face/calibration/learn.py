@@ -297,8 +297,9 @@ def _fit_gains(calibration: ActorCalibration, weights: np.ndarray, base: np.ndar
     """Each curve's source (:data:`TAKE_REST_GEOMETRY`, :data:`TRACKER_R`), gain and offset:
     its reading (the tracker's ``base`` (F, S) curves, or the expressions' mix) over the
     take's holds (each step's target) and idle frames (0) fitted by least squares, within
-    :data:`GAIN_BOUNDS` and :data:`OFFSET_BOUNDS`; for a tracker's curve in :data:`SCORE_SHARE`, its ``score``: the
-    same line from the take's scores calibrated to rest (``reading`` (F, S))."""
+    :data:`GAIN_BOUNDS` and :data:`OFFSET_BOUNDS`; for a tracker's curve in
+    :data:`SCORE_SHARE`, its ``score``: the same line from the take's scores calibrated to
+    rest (``reading`` (F, S))."""
     if not len(calibration.basis):
         return
     found = [(f, s) for f, s in zip(fits, steps) if f.found]
