@@ -302,10 +302,10 @@ def calibration_bench(size: int = 512, progress: bool = True, seed: int = 0) -> 
     with tempfile.TemporaryDirectory(prefix="capture2face-bench-") as tmp:
         take = Path(tmp) / "rom.mp4"
         t = time.perf_counter()
-        synthesize(take, SynthOptions(size=size, rom=True, seed=seed), progress=progress, actor=rom_actor(tmp))
+        truth = synthesize(take, SynthOptions(size=size, rom=True, seed=seed), progress=progress,
+                           actor=rom_actor(tmp)).truth
         synth_s = time.perf_counter() - t
-        frames = sum(1 for _ in iter_frames(take))
-        fps = SynthOptions().fps
+        frames, fps = truth.n_frames, float(truth.fps)
         with _Clock() as clock:
             calibration = learn_calibration(take, RunOptions().track, progress=progress)
     per_30 = clock.wall * 30.0 / (frames / fps)
